@@ -3,7 +3,10 @@
 # Rules live in workflow/rules/*.smk; all logic lives in the `hybridfmu` package (src/).
 from pathlib import Path
 
-configfile: "config/config.yaml"
+# The demo case unless --configfile names another case (whose file then stands alone,
+# instead of being merged over the demo's).
+if not workflow.config_settings.configfiles:
+    configfile: "config/config.yaml"
 
 include: "workflow/rules/common.smk"
 
