@@ -1,0 +1,214 @@
+"""The paper's figures (Figs. 6, 9-16), training curves and the Hyperband overview.
+
+Every function draws from arrays already computed (nothing is simulated here), writes one PNG
+with the Agg backend and returns its path. Legends carry the loss values in square brackets,
+as in the paper, e.g. ``FMU [MAE 1.23 rad, MSE 2.5 rad²]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from hybridfmu.evaluation.metrics import format_error  # noqa: E402
+from hybridfmu.io import atomic_path  # noqa: E402
+
+DATA_STYLE = {"color": "black", "label": "data"}
+FMU_STYLE = {"color": "tab:red"}
+NEURAL_STYLE = {"color": "tab:blue"}
+
+#: Unit of each quantity on the axes, in the legends and of its squared error.
+QUANTITY_UNITS = {"angle": ("rad", "rad²"), "speed": ("rad/s", "(rad/s)²")}
+QUANTITY_LABELS = {"angle": "rotor angle θ", "speed": "rotor speed ω"}
+
+
+@dataclass(frozen=True)
+class PlotOptions:
+    """Drawing options (config section ``evaluation.plot``); changing them redraws only.
+
+    Attributes:
+        dpi: resolution of the PNGs.
+        width_in, height_in: size of a single-panel figure, inches (multi-panel figures grow).
+        font_size: base font size, pt.
+        line_width: width of the trajectory lines, pt.
+        max_points: at most this many points per drawn line (min/max decimation keeps spikes).
+    """
+
+    dpi: int = 150
+    width_in: float = 10.0
+    height_in: float = 4.5
+    font_size: float = 10.0
+    line_width: float = 1.0
+    max_points: int = 20000
+
+    @classmethod
+    def from_config(cls, options: dict | None) -> "PlotOptions":
+        return cls(**(options or {}))
+
+
+@dataclass
+class Trajectories:
+    """Data, FMU and neural FMU of one quantity on one maneuver, all on the grid ``time_s`` (T,).
+
+    Attributes:
+        maneuver: name of the maneuver (in titles).
+        quantity: ``"angle"`` (rad) or ``"speed"`` (rad/s).
+        time_s, data, fmu, neural_fmu: arrays of shape (T,).
+    """
+
+    maneuver: str
+    quantity: str
+    time_s: np.ndarray
+    data: np.ndarray
+    fmu: np.ndarray
+    neural_fmu: np.ndarray
+    zooms: list[tuple[float, float]] = field(default_factory=list)
+
+
+def decimate_minmax(time_s: np.ndarray, values: np.ndarray, max_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """Reduce a line to at most ``max_points`` points keeping each bucket's min and max (spikes stay).
+
+    Args:
+        time_s, values: arrays of shape (T,).
+        max_points: upper bound on the number of points returned (>= 4).
+    """
+    time_s = np.asarray(time_s, dtype=float)
+    values = np.asarray(values, dtype=float)
+    if time_s.size <= max_points or max_points < 4:
+        return time_s, values
+    buckets = max_points // 2
+    edges = np.linspace(0, time_s.size, buckets + 1).astype(int)
+    keep = []
+    for start, end in zip(edges[:-1], edges[1:]):
+        if end <= start:
+            continue
+        chunk = values[start:end]
+        lo, hi = start + int(np.argmin(chunk)), start + int(np.argmax(chunk))
+        keep.extend(sorted({lo, hi}))
+    index = np.asarray(keep, dtype=int)
+    return time_s[index], values[index]
+
+
+def _loss_label(name: str, errors: dict[str, float], quantity: str) -> str:
+    unit, unit_sq = QUANTITY_UNITS[quantity]
+    return (f"{name} [MAE {format_error(errors[f'{quantity}_mae'], unit)}, "
+            f"MSE {format_error(errors[f'{quantity}_mse'], unit_sq)}]")
+
+
+def _errors(simulated: np.ndarray, data: np.ndarray, quantity: str) -> dict[str, float]:
+    diff = np.asarray(simulated, float) - np.asarray(data, float)
+    return {f"{quantity}_mae": float(np.mean(np.abs(diff))), f"{quantity}_mse": float(np.mean(diff ** 2))}
+
+
+def _style(options: PlotOptions) -> dict:
+    return {"font.size": options.font_size, "axes.titlesize": options.font_size + 1,
+            "legend.fontsize": options.font_size - 1, "axes.grid": True, "grid.alpha": 0.3}
+
+
+def _save(fig: plt.Figure, path: str | Path, options: PlotOptions) -> Path:
+    path = Path(path)
+    fig.tight_layout()
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=options.dpi, format="png")
+    plt.close(fig)
+    return path
+
+
+def _draw_lines(ax: plt.Axes, traj: Trajectories, mask: np.ndarray, options: PlotOptions) -> None:
+    t = traj.time_s[mask]
+    for values, style, name in ((traj.data, DATA_STYLE, None), (traj.fmu, FMU_STYLE, "FMU"),
+                                (traj.neural_fmu, NEURAL_STYLE, "neural FMU")):
+        x, y = decimate_minmax(t, values[mask], options.max_points)
+        label = style.get("label") if name is None else _loss_label(
+            name, _errors(values[mask], traj.data[mask], traj.quantity), traj.quantity)
+        ax.plot(x, y, color=style["color"], lw=options.line_width if name else options.line_width * 1.6,
+                alpha=0.85 if name else 0.6, label=label)
+    unit = QUANTITY_UNITS[traj.quantity][0]
+    ax.set_xlabel("time t [s]")
+    ax.set_ylabel(f"{QUANTITY_LABELS[traj.quantity]} [{unit}]")
+    ax.legend(loc="best")
+
+
+def plot_trajectory(traj: Trajectories, path: str | Path, options: PlotOptions = PlotOptions(),
+                    title: str | None = None) -> Path:
+    """Whole trajectory of one quantity: data, FMU and neural FMU (paper Figs. 9, 11, 13, 15).
+
+    The zoomed intervals of ``traj.zooms`` are shaded. Legends give MAE and MSE over the whole
+    trajectory in square brackets.
+    """
+    _check(traj)
+    with plt.rc_context(_style(options)):
+        fig, ax = plt.subplots(figsize=(options.width_in, options.height_in))
+        _draw_lines(ax, traj, np.ones(traj.time_s.size, bool), options)
+        for index, (start, end) in enumerate(traj.zooms):
+            ax.axvspan(start, end, color="gold", alpha=0.25, lw=0, label="zoomed interval" if index == 0 else None)
+        if traj.zooms:
+            ax.legend(loc="best")
+        ax.set_title(title or f"{traj.maneuver}: {QUANTITY_LABELS[traj.quantity]}, whole trajectory (open loop)")
+        return _save(fig, path, options)
+
+
+def plot_zooms(traj: Trajectories, path: str | Path, options: PlotOptions = PlotOptions(),
+               title: str | None = None) -> Path:
+    """Zoomed intervals ``traj.zooms`` of one quantity, one panel each (paper Figs. 10, 12, 14, 16).
+
+    Legends give MAE and MSE over each interval in square brackets.
+    """
+    _check(traj)
+    if not traj.zooms:
+        raise ValueError(f"{traj.maneuver} {traj.quantity}: no zoom interval to draw")
+    with plt.rc_context(_style(options)):
+        rows = len(traj.zooms)
+        fig, axes = plt.subplots(rows, 1, figsize=(options.width_in, options.height_in * rows), squeeze=False)
+        for ax, (start, end) in zip(axes[:, 0], traj.zooms):
+            mask = (traj.time_s >= start) & (traj.time_s <= end)
+            if not mask.any():
+                raise ValueError(f"{traj.maneuver}: zoom interval [{start}, {end}] s holds no sample")
+            _draw_lines(ax, traj, mask, options)
+            ax.set_title(title or f"{traj.maneuver}: {QUANTITY_LABELS[traj.quantity]}, "
+                                  f"{start:.3f} s to {end:.3f} s (open loop)")
+        return _save(fig, path, options)
+
+
+def plot_time_offset(time_s: np.ndarray, speed_data_rad_s: np.ndarray, speed_fmu_rad_s: np.ndarray,
+                     path: str | Path, lag_s: float | None = None, maneuver: str = "",
+                     options: PlotOptions = PlotOptions()) -> Path:
+    """Speed data against the FMU on a short interval, showing the time shift (paper Fig. 6).
+
+    Args:
+        time_s: time grid of the interval (T,), s.
+        speed_data_rad_s, speed_fmu_rad_s: measured and simulated speed (T,), rad/s.
+        lag_s: estimated shift of the data against the FMU (s; positive: the data lags), shown
+            in the legend and drawn as the FMU curve shifted by it, when given.
+    """
+    time_s = np.asarray(time_s, float)
+    with plt.rc_context(_style(options)):
+        fig, ax = plt.subplots(figsize=(options.width_in, options.height_in))
+        t_ms = (time_s - time_s[0]) * 1e3
+        ax.plot(t_ms, speed_data_rad_s, color="black", lw=options.line_width * 1.6, alpha=0.7,
+                marker=".", ms=3, label="data")
+        ax.plot(t_ms, speed_fmu_rad_s, color=FMU_STYLE["color"], lw=options.line_width, marker=".", ms=3,
+                label="FMU")
+        if lag_s is not None:
+            ax.plot(t_ms + lag_s * 1e3, speed_fmu_rad_s, color="tab:orange", lw=options.line_width,
+                    ls="--", alpha=0.7, label=f"FMU shifted by the estimated offset [{lag_s * 1e6:.1f} µs]")
+        ax.set_xlabel(f"time t - {time_s[0]:.4f} s [ms]")
+        ax.set_ylabel(f"{QUANTITY_LABELS['speed']} [rad/s]")
+        ax.set_title(f"{maneuver + ': ' if maneuver else ''}time offset between data and model (speed)")
+        ax.legend(loc="best")
+        return _save(fig, path, options)
+
+
+def _check(traj: Trajectories) -> None:
+    if traj.quantity not in QUANTITY_UNITS:
+        raise ValueError(f"quantity must be one of {sorted(QUANTITY_UNITS)}, got {traj.quantity!r}")
+    shapes = {np.shape(a) for a in (traj.time_s, traj.data, traj.fmu, traj.neural_fmu)}
+    if len(shapes) != 1:
+        raise ValueError(f"{traj.maneuver} {traj.quantity}: time, data, FMU and neural FMU differ in shape {shapes}")

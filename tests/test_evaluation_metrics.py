@@ -1,0 +1,88 @@
+"""Error measures, improvement factors and zoom choice, against values computed by hand."""
+
+import math
+
+import numpy as np
+import pytest
+
+from hybridfmu.evaluation.metrics import (METRIC_KEYS, improvement_factors, interval_mask, mae, mse,
+                                          trajectory_errors)
+from hybridfmu.evaluation.zoom import (choose_zoom_intervals, largest_error_growth, largest_mean_square,
+                                       window_samples)
+
+
+def test_mae_mse_by_hand():
+    sim = np.array([1.0, 2.0, 4.0, -1.0])
+    data = np.array([0.0, 2.0, 1.0, 1.0])
+    # differences 1, 0, 3, -2 -> |.| sum 6, squares 1+0+9+4 = 14
+    assert mae(sim, data) == pytest.approx(6 / 4)
+    assert mse(sim, data) == pytest.approx(14 / 4)
+
+
+def test_trajectory_errors_keys_and_values():
+    angle_data = np.array([0.0, 0.5, 1.0])
+    angle_sim = np.array([0.1, 0.3, 1.0])       # diffs 0.1, -0.2, 0
+    speed_data = np.array([10.0, 20.0, 30.0])
+    speed_sim = np.array([13.0, 16.0, 30.0])    # diffs 3, -4, 0
+    errors = trajectory_errors(angle_sim, speed_sim, angle_data, speed_data)
+    assert tuple(errors) == METRIC_KEYS
+    assert errors["angle_mae"] == pytest.approx(0.3 / 3)
+    assert errors["angle_mse"] == pytest.approx(0.05 / 3)
+    assert errors["speed_mae"] == pytest.approx(7 / 3)
+    assert errors["speed_mse"] == pytest.approx(25 / 3)
+
+
+def test_improvement_is_reference_over_candidate():
+    fmu = {"angle_mae": 4.6, "angle_mse": 61.0, "speed_mae": 2.0, "speed_mse": 0.0}
+    neural = {"angle_mae": 1.0, "angle_mse": 1.0, "speed_mae": 0.0, "speed_mse": 0.0}
+    factors = improvement_factors(fmu, neural)
+    assert factors["angle_mae"] == pytest.approx(4.6)
+    assert factors["angle_mse"] == pytest.approx(61.0)
+    assert factors["speed_mae"] is None          # unbounded: candidate error zero
+    assert factors["speed_mse"] == 1.0           # both zero: no improvement
+
+
+def test_bad_inputs_are_named():
+    with pytest.raises(ValueError, match="shape"):
+        mae(np.zeros(3), np.zeros(4))
+    with pytest.raises(ValueError, match="NaN"):
+        mse(np.array([math.nan]), np.array([0.0]))
+    with pytest.raises(ValueError, match="holds no sample"):
+        interval_mask(np.linspace(0, 1, 11), 2.0, 3.0)
+
+
+def test_interval_mask_inclusive():
+    t = np.linspace(0.0, 1.0, 11)
+    assert interval_mask(t, 0.2, 0.4).sum() == 3
+
+
+def test_zoom_on_largest_angle_error_growth():
+    t = np.arange(0, 10.0001, 0.01)
+    error = np.zeros_like(t)
+    # error ramps from 0 to 5 between 6 s and 7 s, then stays: the 1 s window starting at 6 s grows most
+    error[(t >= 6) & (t <= 7)] = np.linspace(0, 5, int(((t >= 6) & (t <= 7)).sum()))
+    error[t > 7] = 5
+    start, end = largest_error_growth(t, -error, 1.0)   # sign must not matter
+    assert start == pytest.approx(6.0) and end == pytest.approx(7.0)
+
+
+def test_zoom_on_largest_speed_mse():
+    t = np.arange(0, 5.0001, 0.001)
+    error = np.zeros_like(t)
+    error[(t > 3.2) & (t < 3.3)] = 50.0            # oscillation burst
+    start, end = largest_mean_square(t, error, 0.1)
+    assert start <= 3.2 + 1e-9 and end >= 3.3 - 1e-3
+    assert window_samples(t, 100.0) == t.size - 1   # longer than the maneuver: whole maneuver
+
+
+def test_configured_intervals_replace_auto_and_are_checked():
+    t = np.linspace(0, 2, 201)
+    zero = np.zeros_like(t)
+    auto = choose_zoom_intervals(t, zero, zero, 0.5, 0.2)
+    assert [z.quantity for z in auto] == ["angle", "speed"]
+    assert auto[0].t_end_s - auto[0].t_start_s == pytest.approx(0.5)
+    chosen = choose_zoom_intervals(t, zero, zero, 0.5, 0.2,
+                                   configured=[{"t_start_s": 0.1, "t_end_s": 0.3, "quantity": "speed"}])
+    assert [(z.t_start_s, z.t_end_s, z.quantity, z.source) for z in chosen] == [(0.1, 0.3, "speed", "config")]
+    with pytest.raises(ValueError, match="does not overlap"):
+        choose_zoom_intervals(t, zero, zero, 0.5, 0.2, configured=[{"t_start_s": 5, "t_end_s": 6}])
