@@ -83,6 +83,7 @@ def test_configured_intervals_replace_auto_and_are_checked():
     assert auto[0].t_end_s - auto[0].t_start_s == pytest.approx(0.5)
     chosen = choose_zoom_intervals(t, zero, zero, 0.5, 0.2,
                                    configured=[{"t_start_s": 0.1, "t_end_s": 0.3, "quantity": "speed"}])
-    assert [(z.t_start_s, z.t_end_s, z.quantity, z.source) for z in chosen] == [(0.1, 0.3, "speed", "config")]
+    assert [(z.t_start_s, z.t_end_s, z.quantity, z.source) for z in chosen] == [
+        (auto[0].t_start_s, auto[0].t_end_s, "angle", "auto"), (0.1, 0.3, "speed", "config")]
     with pytest.raises(ValueError, match="does not overlap"):
         choose_zoom_intervals(t, zero, zero, 0.5, 0.2, configured=[{"t_start_s": 5, "t_end_s": 6}])

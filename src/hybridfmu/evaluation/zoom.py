@@ -8,7 +8,7 @@ from the neural FMU, so the choice does not favour the model being evaluated):
 - ``speed``: the window of the configured length with the largest FMU speed MSE (the spikes
   and oscillations of the open-loop FMU).
 
-Intervals set in the config replace the automatic choice.
+Intervals set in the config replace the automatic choice for their quantity.
 """
 
 from __future__ import annotations
@@ -96,24 +96,26 @@ def choose_zoom_intervals(time_s: np.ndarray, angle_error_rad: np.ndarray, speed
         speed_error_rad_s: FMU speed minus measured speed (T,), rad/s.
         angle_length_s, speed_length_s: lengths of the automatically chosen windows, s.
         configured: intervals from the config, each ``{"t_start_s", "t_end_s", "quantity"}``;
-            when given (even empty: no zoom at all) they replace the automatic choice.
+            the intervals of a quantity named here replace the automatic choice for that quantity.
 
     Returns:
-        The intervals, angle first then speed for the automatic choice.
+        The intervals, angle ones first, then speed ones.
     """
     time_s = np.asarray(time_s, dtype=float)
-    if configured is not None:
-        intervals = []
-        for index, item in enumerate(configured):
-            start, end = float(item["t_start_s"]), float(item["t_end_s"])
-            quantity = item.get("quantity", "angle")
-            if quantity not in QUANTITIES:
-                raise ValueError(f"zoom interval {index}: quantity must be one of {QUANTITIES}, got {quantity!r}")
-            if not (end > start and start < time_s[-1] and end > time_s[0]):
-                raise ValueError(f"zoom interval {index} [{start}, {end}] s does not overlap the maneuver "
-                                 f"[{time_s[0]:.6g}, {time_s[-1]:.6g}] s")
-            intervals.append(ZoomInterval(start, end, quantity, "config"))
-        return intervals
-    angle = largest_error_growth(time_s, angle_error_rad, angle_length_s)
-    speed = largest_mean_square(time_s, speed_error_rad_s, speed_length_s)
-    return [ZoomInterval(*angle, "angle", "auto"), ZoomInterval(*speed, "speed", "auto")]
+    chosen: dict[str, list[ZoomInterval]] = {quantity: [] for quantity in QUANTITIES}
+    for index, item in enumerate(configured or []):
+        start, end = float(item["t_start_s"]), float(item["t_end_s"])
+        quantity = item.get("quantity", "angle")
+        if quantity not in QUANTITIES:
+            raise ValueError(f"zoom interval {index}: quantity must be one of {QUANTITIES}, got {quantity!r}")
+        if not (end > start and start < time_s[-1] and end > time_s[0]):
+            raise ValueError(f"zoom interval {index} [{start}, {end}] s does not overlap the maneuver "
+                             f"[{time_s[0]:.6g}, {time_s[-1]:.6g}] s")
+        chosen[quantity].append(ZoomInterval(start, end, quantity, "config"))
+    if not chosen["angle"]:
+        chosen["angle"].append(ZoomInterval(*largest_error_growth(time_s, angle_error_rad, angle_length_s),
+                                            "angle", "auto"))
+    if not chosen["speed"]:
+        chosen["speed"].append(ZoomInterval(*largest_mean_square(time_s, speed_error_rad_s, speed_length_s),
+                                            "speed", "auto"))
+    return chosen["angle"] + chosen["speed"]
