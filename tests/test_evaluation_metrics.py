@@ -87,3 +87,17 @@ def test_configured_intervals_replace_auto_and_are_checked():
         (auto[0].t_start_s, auto[0].t_end_s, "angle", "auto"), (0.1, 0.3, "speed", "config")]
     with pytest.raises(ValueError, match="does not overlap"):
         choose_zoom_intervals(t, zero, zero, 0.5, 0.2, configured=[{"t_start_s": 5, "t_end_s": 6}])
+
+
+def test_time_offset_window_and_lag():
+    from hybridfmu.evaluation.offset import estimate_lag_s, steepest_window
+
+    t = np.arange(0, 1.0, 1e-4)
+    speed = 100 * np.tanh((t - 0.6) * 200)
+    start, end = steepest_window(t, speed, 0.01)
+    assert start < 0.6 < end
+    window = (t >= start) & (t <= end)
+    model = 100 * np.tanh((t - 0.6 + 2.5e-4) * 200)     # the model leads the data by 250 µs
+    lag = estimate_lag_s(t[window], speed[window], model[window], max_lag_s=1e-3)
+    assert lag == pytest.approx(2.5e-4, abs=1e-5)
+    assert estimate_lag_s(t[window], speed[window], speed[window], 1e-3) == 0.0
