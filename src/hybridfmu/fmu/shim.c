@@ -1,0 +1,473 @@
+/*
+ * Batched evaluation of an FMI 2.0 Model-Exchange FMU.
+ *
+ * The Python bridge loads the FMU's shared library, instantiates it and hands this shim
+ * the addresses of the FMI functions and the component in one hf_model record. Each
+ * exported function below is entered once per batch (or once per stretch of integration
+ * steps) and loops over the rows in C, so the per-row cost is that of the FMU itself.
+ *
+ * Every function returns 0 on success. On failure it returns the FMI status (>= 2) or a
+ * negative HF_* code and records in the hf_model which FMI function failed and for which
+ * row, so that Python can raise an exception naming both. All arguments are validated in
+ * Python before any function here is called.
+ *
+ * The FMI types are restated here with their FMI 2.0 platform definitions
+ * (fmi2Component = void*, fmi2ValueReference = unsigned int, fmi2Real = double,
+ * fmi2Boolean = int, fmi2Status = int enum).
+ */
+#include <math.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef void *hf_component;
+typedef unsigned int hf_vr;
+typedef int hf_status;
+
+typedef hf_status (*hf_set_time_fn)(hf_component, double);
+typedef hf_status (*hf_set_states_fn)(hf_component, const double *, size_t);
+typedef hf_status (*hf_set_real_fn)(hf_component, const hf_vr *, size_t, const double *);
+typedef hf_status (*hf_get_real_fn)(hf_component, const hf_vr *, size_t, double *);
+typedef hf_status (*hf_get_vector_fn)(hf_component, double *, size_t);
+typedef hf_status (*hf_dir_der_fn)(hf_component, const hf_vr *, size_t, const hf_vr *, size_t,
+                                   const double *, double *);
+typedef hf_status (*hf_completed_fn)(hf_component, int, int *, int *);
+typedef int (*hf_correction_fn)(void);
+
+/* Codes of the FMI function that failed (mirrored in shim.py). */
+enum {
+    HF_FN_NONE = 0,
+    HF_FN_SET_TIME = 1,
+    HF_FN_SET_STATES = 2,
+    HF_FN_SET_REAL = 3,
+    HF_FN_GET_REAL = 4,
+    HF_FN_GET_DERIVATIVES = 5,
+    HF_FN_GET_EVENT_INDICATORS = 6,
+    HF_FN_GET_DIR_DER = 7,
+    HF_FN_COMPLETED_STEP = 8,
+    HF_FN_CORRECTION = 9,
+    HF_FN_MALLOC = 10
+};
+
+/* Negative return codes that are not FMI statuses. */
+#define HF_ERR_CALLBACK (-1)
+#define HF_ERR_NO_MEMORY (-2)
+#define HF_ERR_NOT_FINITE (-3)
+
+/* Why hf_simulate returned (mirrored in shim.py). */
+enum {
+    HF_SIM_DONE = 0,
+    HF_SIM_STATE_EVENT = 1,  /* an event indicator changed sign within step k */
+    HF_SIM_INPUT_EVENT = 2,  /* an event indicator changed sign when the inputs of step k were set */
+    HF_SIM_TIME_EVENT = 3,   /* step k would pass the FMU's next time event */
+    HF_SIM_STEP_EVENT = 4,   /* fmi2CompletedIntegratorStep asked for event mode after step k */
+    HF_SIM_TERMINATE = 5     /* fmi2CompletedIntegratorStep asked to terminate after step k */
+};
+
+typedef struct {
+    hf_component component;
+    hf_set_time_fn set_time;
+    hf_set_states_fn set_states;
+    hf_set_real_fn set_real;
+    hf_get_real_fn get_real;
+    hf_get_vector_fn get_derivatives;
+    hf_get_vector_fn get_event_indicators;
+    hf_dir_der_fn get_directional_derivative; /* NULL when the FMU does not provide it */
+    hf_completed_fn completed_integrator_step;
+    size_t nx, nu, nz;
+    const hf_vr *vr_u;  /* (nu,) value references of the inputs */
+    const hf_vr *vr_x;  /* (nx,) value references of the continuous states */
+    const hf_vr *vr_dx; /* (nx,) value references of the state derivatives */
+    /* optional correction added to the derivatives during integration: the shim copies the
+       point into cb_x (nx), cb_u (nu), calls correction() and adds cb_dx (nx) */
+    hf_correction_fn correction;
+    double *cb_x;
+    double *cb_u;
+    double *cb_dx;
+    /* error report */
+    int failed_function;
+    long long failed_row;
+    int failed_status;
+} hf_model;
+
+#define HF_FAIL(m, fn, row, st)         \
+    do {                                \
+        (m)->failed_function = (fn);    \
+        (m)->failed_row = (long long)(row); \
+        (m)->failed_status = (st);      \
+        return (st);                    \
+    } while (0)
+
+#define HF_CHECK(m, call, fn, row)              \
+    do {                                        \
+        hf_status st_ = (call);                 \
+        if (st_ > 1) HF_FAIL(m, fn, row, st_);  \
+    } while (0)
+
+/* ---------------------------------------------------------------- log collection */
+
+/* Messages of the FMU's logger callback, appended to one bounded buffer per model. */
+typedef struct {
+    char *text;
+    size_t capacity;
+    size_t length;
+    int worst_status;
+    size_t dropped;
+} hf_log;
+
+hf_log *hf_log_new(size_t capacity) {
+    hf_log *log = (hf_log *)calloc(1, sizeof(hf_log));
+    if (!log) return NULL;
+    log->text = (char *)calloc(capacity + 1, 1);
+    if (!log->text) {
+        free(log);
+        return NULL;
+    }
+    log->capacity = capacity;
+    return log;
+}
+
+void hf_log_free(hf_log *log) {
+    if (!log) return;
+    free(log->text);
+    free(log);
+}
+
+/* Copy the collected text into out (NUL-terminated, at most size-1 chars) and clear it. */
+size_t hf_log_take(hf_log *log, char *out, size_t size) {
+    size_t n = log->length < size - 1 ? log->length : size - 1;
+    memcpy(out, log->text, n);
+    out[n] = '\0';
+    log->length = 0;
+    log->text[0] = '\0';
+    log->worst_status = 0;
+    log->dropped = 0;
+    return n;
+}
+
+static const char *hf_status_label(int status) {
+    switch (status) {
+    case 0: return "ok";
+    case 1: return "warning";
+    case 2: return "discard";
+    case 3: return "error";
+    case 4: return "fatal";
+    case 5: return "pending";
+    default: return "unknown";
+    }
+}
+
+/* The fmi2CallbackLogger: formats the message and appends one line to the log buffer. */
+void hf_logger(void *environment, const char *instance_name, int status, const char *category,
+               const char *message, ...) {
+    hf_log *log = (hf_log *)environment;
+    char line[2048];
+    int head;
+    va_list args;
+    if (!log) return;
+    head = snprintf(line, sizeof line, "[%s] %s (%s): ", hf_status_label(status),
+                    instance_name ? instance_name : "?", category ? category : "");
+    if (head < 0) head = 0;
+    if ((size_t)head >= sizeof line) head = (int)sizeof line - 1;
+    va_start(args, message);
+    if (message) vsnprintf(line + head, sizeof line - (size_t)head, message, args);
+    va_end(args);
+    {
+        size_t n = strlen(line);
+        if (log->length + n + 1 > log->capacity) {
+            log->dropped++;
+            return;
+        }
+        memcpy(log->text + log->length, line, n);
+        log->length += n;
+        log->text[log->length++] = '\n';
+        log->text[log->length] = '\0';
+    }
+    if (status > log->worst_status) log->worst_status = status;
+}
+
+void *hf_allocate(size_t count, size_t size) { return calloc(count, size); }
+
+void hf_free(void *pointer) { free(pointer); }
+
+/* ---------------------------------------------------------------- point evaluation */
+
+/* Set time, states and (if any) inputs of one row. */
+static int hf_set_point(hf_model *m, double t, const double *x, const double *u, long long row) {
+    HF_CHECK(m, m->set_time(m->component, t), HF_FN_SET_TIME, row);
+    if (m->nx) HF_CHECK(m, m->set_states(m->component, x, m->nx), HF_FN_SET_STATES, row);
+    if (m->nu) HF_CHECK(m, m->set_real(m->component, m->vr_u, m->nu, u), HF_FN_SET_REAL, row);
+    return 0;
+}
+
+/* dx (n, nx) = f(t, x, u) for every row. t has stride t_stride (0: one time for all rows). */
+int hf_derivatives(hf_model *m, size_t n, const double *t, size_t t_stride, const double *x,
+                   const double *u, double *dx) {
+    size_t r;
+    m->failed_function = HF_FN_NONE;
+    for (r = 0; r < n; ++r) {
+        int st = hf_set_point(m, t[r * t_stride], x + r * m->nx, u + r * m->nu, (long long)r);
+        if (st) return st;
+        HF_CHECK(m, m->get_derivatives(m->component, dx + r * m->nx, m->nx), HF_FN_GET_DERIVATIVES,
+                 r);
+    }
+    return 0;
+}
+
+/* z (n, nz): the event indicators at every row. */
+int hf_event_indicators(hf_model *m, size_t n, const double *t, size_t t_stride, const double *x,
+                        const double *u, double *z) {
+    size_t r;
+    m->failed_function = HF_FN_NONE;
+    for (r = 0; r < n; ++r) {
+        int st = hf_set_point(m, t[r * t_stride], x + r * m->nx, u + r * m->nu, (long long)r);
+        if (st) return st;
+        HF_CHECK(m, m->get_event_indicators(m->component, z + r * m->nz, m->nz),
+                 HF_FN_GET_EVENT_INDICATORS, r);
+    }
+    return 0;
+}
+
+/* y (n, ny): the Real variables vr_y at every row. */
+int hf_outputs(hf_model *m, size_t n, const double *t, size_t t_stride, const double *x,
+               const double *u, const hf_vr *vr_y, size_t ny, double *y) {
+    size_t r;
+    m->failed_function = HF_FN_NONE;
+    for (r = 0; r < n; ++r) {
+        int st = hf_set_point(m, t[r * t_stride], x + r * m->nx, u + r * m->nu, (long long)r);
+        if (st) return st;
+        HF_CHECK(m, m->get_real(m->component, vr_y, ny, y + r * ny), HF_FN_GET_REAL, r);
+    }
+    return 0;
+}
+
+/* Jacobians from fmi2GetDirectionalDerivative, one call per column:
+   dfdx (n, nx, nx) with dfdx[r, i, j] = d f_i / d x_j, dfdu (n, nx, nu) likewise.
+   column: nx doubles of work space. */
+int hf_jacobians_directional(hf_model *m, size_t n, const double *t, size_t t_stride,
+                             const double *x, const double *u, double *dfdx, double *dfdu,
+                             double *column) {
+    const size_t nx = m->nx, nu = m->nu;
+    const double seed = 1.0;
+    size_t r, i, j;
+    m->failed_function = HF_FN_NONE;
+    for (r = 0; r < n; ++r) {
+        double *jx = dfdx + r * nx * nx, *ju = dfdu + r * nx * nu;
+        int st = hf_set_point(m, t[r * t_stride], x + r * nx, u + r * nu, (long long)r);
+        if (st) return st;
+        for (j = 0; j < nx; ++j) {
+            HF_CHECK(m, m->get_directional_derivative(m->component, m->vr_dx, nx, m->vr_x + j, 1,
+                                                      &seed, column),
+                     HF_FN_GET_DIR_DER, r);
+            for (i = 0; i < nx; ++i) jx[i * nx + j] = column[i];
+        }
+        for (j = 0; j < nu; ++j) {
+            HF_CHECK(m, m->get_directional_derivative(m->component, m->vr_dx, nx, m->vr_u + j, 1,
+                                                      &seed, column),
+                     HF_FN_GET_DIR_DER, r);
+            for (i = 0; i < nx; ++i) ju[i * nu + j] = column[i];
+        }
+    }
+    return 0;
+}
+
+/* Central finite difference step for value v with scale s (>0) and relative step rel:
+   h = rel * max(|v|, s), rounded so that v + h and v - h are exactly representable offsets. */
+static double hf_fd_step(double v, double s, double rel) {
+    volatile double plus;
+    double h = rel * (fabs(v) > s ? fabs(v) : s);
+    plus = v + h;
+    return plus - v;
+}
+
+/* Jacobians by central finite differences of fmi2GetDerivatives (for FMUs without directional
+   derivatives). x_scale (nx,), u_scale (nu,): positive scales (nominal values); rel: the relative
+   step. Layout as in hf_jacobians_directional. */
+int hf_jacobians_fd(hf_model *m, size_t n, const double *t, size_t t_stride, const double *x,
+                    const double *u, const double *x_scale, const double *u_scale, double rel,
+                    double *dfdx, double *dfdu) {
+    const size_t nx = m->nx, nu = m->nu;
+    double *work = (double *)malloc((2 * nx + nu + 2 * nx + 1) * sizeof(double));
+    double *xp, *up, *fp, *fm;
+    size_t r, i, j;
+    int st = 0;
+    m->failed_function = HF_FN_NONE;
+    if (!work) HF_FAIL(m, HF_FN_MALLOC, 0, HF_ERR_NO_MEMORY);
+    xp = work;
+    up = xp + nx;
+    fp = up + nu;
+    fm = fp + nx;
+    for (r = 0; r < n && st == 0; ++r) {
+        const double tr = t[r * t_stride];
+        const double *xr = x + r * nx, *ur = u + r * nu;
+        double *jx = dfdx + r * nx * nx, *ju = dfdu + r * nx * nu;
+        if (nx) memcpy(xp, xr, nx * sizeof(double));
+        if (nu) memcpy(up, ur, nu * sizeof(double));
+        if ((st = hf_set_point(m, tr, xr, ur, (long long)r))) break;
+        for (j = 0; j < nx && st == 0; ++j) {
+            const double h = hf_fd_step(xr[j], x_scale[j], rel);
+            xp[j] = xr[j] + h;
+            if ((st = m->set_states(m->component, xp, nx)) > 1) { m->failed_function = HF_FN_SET_STATES; break; }
+            if ((st = m->get_derivatives(m->component, fp, nx)) > 1) { m->failed_function = HF_FN_GET_DERIVATIVES; break; }
+            xp[j] = xr[j] - h;
+            if ((st = m->set_states(m->component, xp, nx)) > 1) { m->failed_function = HF_FN_SET_STATES; break; }
+            if ((st = m->get_derivatives(m->component, fm, nx)) > 1) { m->failed_function = HF_FN_GET_DERIVATIVES; break; }
+            xp[j] = xr[j];
+            st = 0;
+            for (i = 0; i < nx; ++i) jx[i * nx + j] = (fp[i] - fm[i]) / (2.0 * h);
+        }
+        if (st) break;
+        if (nu && (st = m->set_states(m->component, xr, nx)) > 1) { m->failed_function = HF_FN_SET_STATES; break; }
+        st = 0;
+        for (j = 0; j < nu && st == 0; ++j) {
+            const double h = hf_fd_step(ur[j], u_scale[j], rel);
+            up[j] = ur[j] + h;
+            if ((st = m->set_real(m->component, m->vr_u, nu, up)) > 1) { m->failed_function = HF_FN_SET_REAL; break; }
+            if ((st = m->get_derivatives(m->component, fp, nx)) > 1) { m->failed_function = HF_FN_GET_DERIVATIVES; break; }
+            up[j] = ur[j] - h;
+            if ((st = m->set_real(m->component, m->vr_u, nu, up)) > 1) { m->failed_function = HF_FN_SET_REAL; break; }
+            if ((st = m->get_derivatives(m->component, fm, nx)) > 1) { m->failed_function = HF_FN_GET_DERIVATIVES; break; }
+            up[j] = ur[j];
+            st = 0;
+            for (i = 0; i < nx; ++i) ju[i * nu + j] = (fp[i] - fm[i]) / (2.0 * h);
+        }
+        if (st) break;
+    }
+    if (st) {
+        m->failed_row = (long long)(r < n ? r : n - 1);
+        m->failed_status = st;
+    }
+    free(work);
+    return st;
+}
+
+/* ---------------------------------------------------------------- integration */
+
+/* out = f(t, x, u) + correction(x, u); the inputs must already be set in the FMU. */
+static int hf_rhs(hf_model *m, double t, const double *x, const double *u, double *out,
+                  long long row) {
+    size_t i;
+    HF_CHECK(m, m->set_time(m->component, t), HF_FN_SET_TIME, row);
+    HF_CHECK(m, m->set_states(m->component, x, m->nx), HF_FN_SET_STATES, row);
+    HF_CHECK(m, m->get_derivatives(m->component, out, m->nx), HF_FN_GET_DERIVATIVES, row);
+    if (m->correction) {
+        memcpy(m->cb_x, x, m->nx * sizeof(double));
+        if (m->nu) memcpy(m->cb_u, u, m->nu * sizeof(double));
+        if (m->correction() != 0) HF_FAIL(m, HF_FN_CORRECTION, row, HF_ERR_CALLBACK);
+        for (i = 0; i < m->nx; ++i) out[i] += m->cb_dx[i];
+    }
+    for (i = 0; i < m->nx; ++i)
+        if (!isfinite(out[i])) HF_FAIL(m, HF_FN_GET_DERIVATIVES, row, HF_ERR_NOT_FINITE);
+    return 0;
+}
+
+/* One classical Runge-Kutta step of size h from (t, x) with the inputs u held; leaves the FMU at
+   (t + h, x_new) and, if nz > 0, writes the event indicators there into z_new.
+   work: 5 * nx doubles. */
+static int hf_rk4(hf_model *m, double t, double h, const double *x, const double *u,
+                  double *x_new, double *z_new, double *work, long long row) {
+    const size_t nx = m->nx;
+    double *k1 = work, *k2 = k1 + nx, *k3 = k2 + nx, *k4 = k3 + nx, *xs = k4 + nx;
+    size_t i;
+    int st;
+    if ((st = hf_rhs(m, t, x, u, k1, row))) return st;
+    for (i = 0; i < nx; ++i) xs[i] = x[i] + 0.5 * h * k1[i];
+    if ((st = hf_rhs(m, t + 0.5 * h, xs, u, k2, row))) return st;
+    for (i = 0; i < nx; ++i) xs[i] = x[i] + 0.5 * h * k2[i];
+    if ((st = hf_rhs(m, t + 0.5 * h, xs, u, k3, row))) return st;
+    for (i = 0; i < nx; ++i) xs[i] = x[i] + h * k3[i];
+    if ((st = hf_rhs(m, t + h, xs, u, k4, row))) return st;
+    for (i = 0; i < nx; ++i) x_new[i] = x[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+    HF_CHECK(m, m->set_time(m->component, t + h), HF_FN_SET_TIME, row);
+    HF_CHECK(m, m->set_states(m->component, x_new, nx), HF_FN_SET_STATES, row);
+    if (m->nz)
+        HF_CHECK(m, m->get_event_indicators(m->component, z_new, m->nz), HF_FN_GET_EVENT_INDICATORS,
+                 row);
+    return 0;
+}
+
+/* 1 if some event indicator changed its domain (z > 0 versus z <= 0) from a to b. */
+static int hf_crossed(const double *a, const double *b, size_t nz) {
+    size_t i;
+    for (i = 0; i < nz; ++i)
+        if ((a[i] > 0.0) != (b[i] > 0.0)) return 1;
+    return 0;
+}
+
+/* One RK4 step for the event search (see hf_rk4); sets the inputs u first. */
+int hf_rk4_step(hf_model *m, double t, double h, const double *x, const double *u, double *x_new,
+                double *z_new, double *work) {
+    m->failed_function = HF_FN_NONE;
+    if (m->nu) HF_CHECK(m, m->set_real(m->component, m->vr_u, m->nu, u), HF_FN_SET_REAL, -1);
+    return hf_rk4(m, t, h, x, u, x_new, z_new, work, -1);
+}
+
+/* fmi2CompletedIntegratorStep; flags[0] = enterEventMode, flags[1] = terminateSimulation. */
+int hf_completed_step(hf_model *m, int *flags) {
+    m->failed_function = HF_FN_NONE;
+    flags[0] = flags[1] = 0;
+    HF_CHECK(m, m->completed_integrator_step(m->component, 1, flags, flags + 1),
+             HF_FN_COMPLETED_STEP, -1);
+    return 0;
+}
+
+/* Fixed-step RK4 on the grid time (T,) with zero-order-hold inputs u (T, nu), starting at step
+   k_start with X[k_start] (X is (T, nx)) and the event indicators z_prev (nz,) valid at
+   (time[k_start], X[k_start], u[k_start - 1]). Steps until the end of the grid or until an event
+   needs the caller; result[0] = reason (HF_SIM_*), result[1] = the step index k concerned
+   (for STATE/INPUT/TIME events: X[k] is valid and step k is not done; for STEP/TERMINATE: step k
+   is done and X[k + 1] is valid; for DONE: T - 1). z_prev is kept current.
+   next_time_event: the FMU's next time event (INFINITY if none). work: 5 * nx + nz doubles. */
+int hf_simulate(hf_model *m, size_t T, const double *time, const double *u, size_t k_start,
+                double next_time_event, double *X, double *z_prev, double *work,
+                long long *result) {
+    const size_t nx = m->nx, nu = m->nu, nz = m->nz;
+    double *z_new = work + 5 * nx;
+    size_t k;
+    int st, flags[2];
+    m->failed_function = HF_FN_NONE;
+    for (k = k_start; k + 1 < T; ++k) {
+        const double t = time[k], h = time[k + 1] - time[k];
+        const double *uk = u + k * nu;
+        const double *xk = X + k * nx;
+        double *x1 = X + (k + 1) * nx;
+        if (nu && nz) {
+            /* new inputs may move an event indicator across zero: an event at time[k] */
+            if ((st = hf_set_point(m, t, xk, uk, (long long)k))) return st;
+            HF_CHECK(m, m->get_event_indicators(m->component, z_new, nz),
+                     HF_FN_GET_EVENT_INDICATORS, (long long)k);
+            if (hf_crossed(z_prev, z_new, nz)) {
+                result[0] = HF_SIM_INPUT_EVENT;
+                result[1] = (long long)k;
+                return 0;
+            }
+            memcpy(z_prev, z_new, nz * sizeof(double));
+        } else if (nu) {
+            HF_CHECK(m, m->set_real(m->component, m->vr_u, nu, uk), HF_FN_SET_REAL, (long long)k);
+        }
+        if (time[k + 1] >= next_time_event) {
+            result[0] = HF_SIM_TIME_EVENT;
+            result[1] = (long long)k;
+            return 0;
+        }
+        if ((st = hf_rk4(m, t, h, xk, uk, x1, z_new, work, (long long)k))) return st;
+        if (nz && hf_crossed(z_prev, z_new, nz)) {
+            result[0] = HF_SIM_STATE_EVENT;
+            result[1] = (long long)k;
+            return 0;
+        }
+        if (nz) memcpy(z_prev, z_new, nz * sizeof(double));
+        HF_CHECK(m, m->completed_integrator_step(m->component, 1, flags, flags + 1),
+                 HF_FN_COMPLETED_STEP, (long long)k);
+        if (flags[1] || flags[0]) {
+            result[0] = flags[1] ? HF_SIM_TERMINATE : HF_SIM_STEP_EVENT;
+            result[1] = (long long)k;
+            return 0;
+        }
+    }
+    result[0] = HF_SIM_DONE;
+    result[1] = (long long)(T ? T - 1 : 0);
+    return 0;
+}

@@ -1,0 +1,177 @@
+"""Compile, cache and load the C shim (``shim.c``) that evaluates an FMU over a whole batch.
+
+The shim is compiled with gcc at first use into a cache folder keyed by the hash of its source,
+the compiler and the flags: ``$HYBRIDFMU_CACHE`` if set, else ``~/.cache/hybridfmu``. The
+library is compiled into a temporary file in that folder and renamed over the final name, so
+several processes that start at once are safe (each may compile; the last rename wins, and every
+one of them loads a complete file).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+import threading
+from ctypes import POINTER, c_char_p, c_double, c_int, c_longlong, c_size_t, c_uint, c_void_p
+from pathlib import Path
+
+SOURCE_PATH = Path(__file__).with_name("shim.c")
+COMPILE_FLAGS = ("-O2", "-std=c99", "-shared", "-fPIC", "-Wall")
+
+# Codes of the FMI function that failed (mirror of the enum in shim.c).
+FUNCTION_NAMES = {
+    0: "(none)",
+    1: "fmi2SetTime",
+    2: "fmi2SetContinuousStates",
+    3: "fmi2SetReal",
+    4: "fmi2GetReal",
+    5: "fmi2GetDerivatives",
+    6: "fmi2GetEventIndicators",
+    7: "fmi2GetDirectionalDerivative",
+    8: "fmi2CompletedIntegratorStep",
+    9: "the correction callback",
+    10: "memory allocation",
+}
+ERR_CALLBACK = -1
+ERR_NO_MEMORY = -2
+ERR_NOT_FINITE = -3
+
+# Why hf_simulate returned (mirror of shim.c).
+SIM_DONE = 0
+SIM_STATE_EVENT = 1
+SIM_INPUT_EVENT = 2
+SIM_TIME_EVENT = 3
+SIM_STEP_EVENT = 4
+SIM_TERMINATE = 5
+
+CORRECTION_FN = ctypes.CFUNCTYPE(c_int)
+_DOUBLE_P = POINTER(c_double)
+_UINT_P = POINTER(c_uint)
+
+
+class ShimModel(ctypes.Structure):
+    """Mirror of ``hf_model`` in shim.c: the FMU's function addresses, its component and sizes."""
+
+    _fields_ = [
+        ("component", c_void_p),
+        ("set_time", c_void_p),
+        ("set_states", c_void_p),
+        ("set_real", c_void_p),
+        ("get_real", c_void_p),
+        ("get_derivatives", c_void_p),
+        ("get_event_indicators", c_void_p),
+        ("get_directional_derivative", c_void_p),
+        ("completed_integrator_step", c_void_p),
+        ("nx", c_size_t),
+        ("nu", c_size_t),
+        ("nz", c_size_t),
+        ("vr_u", _UINT_P),
+        ("vr_x", _UINT_P),
+        ("vr_dx", _UINT_P),
+        ("correction", CORRECTION_FN),
+        ("cb_x", _DOUBLE_P),
+        ("cb_u", _DOUBLE_P),
+        ("cb_dx", _DOUBLE_P),
+        ("failed_function", c_int),
+        ("failed_row", c_longlong),
+        ("failed_status", c_int),
+    ]
+
+
+class ShimBuildError(RuntimeError):
+    """The C shim could not be compiled or loaded."""
+
+
+_lock = threading.Lock()
+_library: ctypes.CDLL | None = None
+
+
+def cache_dir() -> Path:
+    """The folder holding compiled shims: ``$HYBRIDFMU_CACHE`` or ``~/.cache/hybridfmu``."""
+    env = os.environ.get("HYBRIDFMU_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "hybridfmu"
+
+
+def _compiler() -> str:
+    compiler = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
+    if not compiler:
+        raise ShimBuildError("no C compiler found (need gcc or cc on PATH, or $CC) to build the FMU shim")
+    return compiler
+
+
+def _compiler_version(compiler: str) -> str:
+    try:
+        out = subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=60)
+    except OSError as err:
+        raise ShimBuildError(f"cannot run the C compiler {compiler!r}: {err}") from None
+    return out.stdout.splitlines()[0] if out.stdout else ""
+
+
+def shim_path() -> Path:
+    """Path of the compiled shim for the current source, compiler and flags (built if missing)."""
+    compiler = _compiler()
+    source = SOURCE_PATH.read_bytes()
+    key = hashlib.sha256(
+        source + _compiler_version(compiler).encode() + " ".join(COMPILE_FLAGS).encode()
+    ).hexdigest()[:16]
+    target = cache_dir() / f"fmushim-{key}.so"
+    if target.is_file():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    handle, tmp_name = tempfile.mkstemp(prefix=".fmushim-", suffix=".so", dir=target.parent)
+    os.close(handle)
+    try:
+        proc = subprocess.run(
+            [compiler, *COMPILE_FLAGS, "-o", tmp_name, str(SOURCE_PATH), "-lm"],
+            capture_output=True, text=True, timeout=300,
+        )
+        if proc.returncode != 0:
+            raise ShimBuildError(f"compiling {SOURCE_PATH} with {compiler} failed:\n{proc.stderr}")
+        os.replace(tmp_name, target)
+    finally:
+        if os.path.exists(tmp_name):
+            os.unlink(tmp_name)
+    return target
+
+
+def load_shim() -> ctypes.CDLL:
+    """Load the compiled shim (compiling it at first use) and declare its functions."""
+    global _library
+    with _lock:
+        if _library is None:
+            lib = ctypes.CDLL(str(shim_path()))
+            _declare(lib)
+            _library = lib
+        return _library
+
+
+def _declare(lib: ctypes.CDLL) -> None:
+    # Pointers are passed as plain addresses (int) for speed; callers keep the arrays alive.
+    ptr = c_void_p
+    batch = [ptr, c_size_t, ptr, c_size_t, ptr, ptr]
+    signatures = {
+        "hf_log_new": (c_void_p, [c_size_t]),
+        "hf_log_free": (None, [c_void_p]),
+        "hf_log_take": (c_size_t, [c_void_p, c_char_p, c_size_t]),
+        "hf_derivatives": (c_int, batch + [ptr]),
+        "hf_event_indicators": (c_int, batch + [ptr]),
+        "hf_outputs": (c_int, batch + [ptr, c_size_t, ptr]),
+        "hf_jacobians_directional": (c_int, batch + [ptr, ptr, ptr]),
+        "hf_jacobians_fd": (c_int, batch + [ptr, ptr, c_double, ptr, ptr]),
+        "hf_rk4_step": (c_int, [ptr, c_double, c_double, ptr, ptr, ptr, ptr, ptr]),
+        "hf_completed_step": (c_int, [ptr, ptr]),
+        "hf_simulate": (c_int, [ptr, c_size_t, ptr, ptr, c_size_t, c_double, ptr, ptr, ptr, ptr]),
+    }
+    for name, (restype, argtypes) in signatures.items():
+        fn = getattr(lib, name)
+        fn.restype = restype
+        fn.argtypes = argtypes
+
+
+def function_address(lib: ctypes.CDLL, name: str) -> int:
+    """Address of the exported C function ``name`` of ``lib``."""
+    return ctypes.cast(getattr(lib, name), c_void_p).value
