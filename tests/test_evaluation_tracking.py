@@ -1,0 +1,42 @@
+"""The evaluation is an MLflow run of its own, linked to the best trial, with metrics and artifacts."""
+
+import json
+
+from hybridfmu.evaluation.metrics import improvement_factors
+from hybridfmu.evaluation.tracking import log_evaluation_run, log_report_artifacts, resolve_tracking
+
+
+def test_default_tracking_uri_is_absolute(tmp_path):
+    uri, experiment = resolve_tracking({"tracking_uri": "", "experiment": ""}, tmp_path / "res", "tiny")
+    assert uri == f"sqlite:///{(tmp_path / 'res').resolve()}/mlflow.db" and experiment == "tiny"
+    assert resolve_tracking({"tracking_uri": "http://x:5000", "experiment": "e"}, "r", "c") == ("http://x:5000", "e")
+
+
+def test_evaluation_run_records_metrics_and_artifacts(tmp_path):
+    from mlflow.tracking import MlflowClient
+
+    fmu = {"angle_mae": 2.0, "angle_mse": 8.0, "speed_mae": 1.0, "speed_mse": 3.0}
+    neural = {"angle_mae": 0.5, "angle_mse": 0.5, "speed_mae": 0.5, "speed_mse": 0.0}
+    metrics = {"test": {"fmu": fmu, "neural_fmu": neural, "improvement": improvement_factors(fmu, neural)}}
+    metric_file = tmp_path / "test.json"
+    metric_file.write_text(json.dumps(metrics["test"]))
+    uri, experiment = resolve_tracking({}, tmp_path, "tiny")
+    info = log_evaluation_run(tmp_path / "run.json", uri, experiment, tmp_path, metrics, [metric_file],
+                              {"dt_s": -2e-5, "width": 8}, "abc123", "tiny")
+    assert json.loads((tmp_path / "run.json").read_text())["run_id"] == info["run_id"]
+    figure = tmp_path / "fig.png"
+    figure.write_bytes(b"\x89PNG fake")
+    report = tmp_path / "report.md"
+    report.write_text("# report\n")
+    log_report_artifacts(tmp_path / "run.json", [figure], report)
+
+    client = MlflowClient(tracking_uri=uri)
+    run = client.get_run(info["run_id"])
+    assert run.info.status == "FINISHED"
+    assert run.data.tags["best_trial_run_id"] == "abc123" and run.data.tags["stage"] == "evaluation"
+    assert run.data.metrics["test/improvement/angle_mae"] == 4.0
+    assert "test/improvement/speed_mse" not in run.data.metrics       # unbounded factor is not logged
+    assert run.data.params["dt_s"] == "-2e-05"
+    artifacts = {a.path for a in client.list_artifacts(info["run_id"])}
+    assert {"metrics", "figures", "report.md"} <= artifacts
+    assert [a.path for a in client.list_artifacts(info["run_id"], "figures")] == ["figures/fig.png"]
