@@ -375,7 +375,7 @@ class FmuModel:
         self._fmi("setupExperiment", None, float(start_time_s), None)
         self._fmi("enterInitializationMode")
         self._fmi("exitInitializationMode")
-        self._next_time_event_s = self._event_iteration(float(start_time_s))
+        self._next_time_event_s, _ = self._event_iteration(float(start_time_s))
         self._fmi("enterContinuousTimeMode")
         x = np.empty(self.n_states)
         if self.n_states:
@@ -383,16 +383,19 @@ class FmuModel:
         self.initial_states = x
         self._needs_reinit = False
 
-    def _event_iteration(self, time_s: float) -> float:
-        """fmi2NewDiscreteStates until the FMU needs no more; return the next time event (inf if none)."""
+    def _event_iteration(self, time_s: float) -> tuple[float, bool]:
+        """fmi2NewDiscreteStates until the FMU needs no more; return the next time event in s
+        (inf if none) and whether the FMU changed the values of continuous states."""
+        values_changed = False
         for _ in range(1000):
-            (needed, terminate, _nominals_changed, _values_changed,
+            (needed, terminate, _nominals_changed, changed,
              next_defined, next_time) = self._fmi("newDiscreteStates")
+            values_changed = values_changed or bool(changed)
             if terminate:
                 self._needs_reinit = True
                 raise FmuError(f"{self.path}: the FMU asked to terminate at t = {time_s} s", self.log_messages())
             if not needed:
-                return float(next_time) if next_defined else float("inf")
+                return (float(next_time) if next_defined else float("inf")), values_changed
         raise FmuError(f"{self.path}: event iteration at t = {time_s} s did not converge in 1000 iterations",
                        self.log_messages())
 
