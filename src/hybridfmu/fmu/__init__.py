@@ -7,7 +7,15 @@ indicators, outputs), :class:`FmuRhs` (differentiable right-hand side for PyTorc
 
 from hybridfmu.fmu.bridge import FmuError, FmuFormatError, FmuModel, load_fmu
 from hybridfmu.fmu.simulate import SimulationResult, simulate_open_loop
-from hybridfmu.fmu.torch_rhs import FmuRhs
+
+def __getattr__(name: str):
+    # FmuRhs needs torch; import it only when asked for, so that building an FMU stays light.
+    if name == "FmuRhs":
+        from hybridfmu.fmu.torch_rhs import FmuRhs
+
+        return FmuRhs
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "FmuError",

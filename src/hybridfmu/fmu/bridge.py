@@ -86,20 +86,36 @@ def _read_description(path: Path):
         with zipfile.ZipFile(path) as archive:
             if "modelDescription.xml" not in archive.namelist():
                 raise FmuFormatError(f"{path}: zip archive has no modelDescription.xml (expected an FMU)")
+    version = _fmi_version(path)
+    if version != "2.0":
+        raise FmuFormatError(f"{path}: fmiVersion is {version!r}, expected '2.0' (FMI 2.0 Model Exchange)")
     try:
         description = fmpy.read_model_description(str(path), validate=False)
-    except Exception as err:  # FMPy raises plain exceptions for malformed XML
+    except Exception as err:  # FMPy raises plain exceptions for malformed descriptions
         raise FmuFormatError(f"{path}: modelDescription.xml cannot be read: {err}") from None
-    if description.fmiVersion != "2.0":
-        raise FmuFormatError(
-            f"{path}: fmiVersion is {description.fmiVersion!r}, expected '2.0' (FMI 2.0 Model Exchange)"
-        )
     if description.modelExchange is None:
         raise FmuFormatError(
             f"{path}: the FMU does not support Model Exchange (expected a <ModelExchange> element; "
             "Co-Simulation-only FMUs cannot be used)"
         )
     return description
+
+
+def _fmi_version(path: Path) -> str | None:
+    """The fmiVersion attribute of modelDescription.xml (read before FMPy parses the rest)."""
+    from xml.etree import ElementTree
+
+    try:
+        if path.is_dir():
+            root = ElementTree.parse(path / "modelDescription.xml").getroot()
+        else:
+            with zipfile.ZipFile(path) as archive, archive.open("modelDescription.xml") as stream:
+                root = ElementTree.parse(stream).getroot()
+    except ElementTree.ParseError as err:
+        raise FmuFormatError(f"{path}: modelDescription.xml cannot be read: {err}") from None
+    if root.tag != "fmiModelDescription":
+        raise FmuFormatError(f"{path}: modelDescription.xml has root <{root.tag}>, expected <fmiModelDescription>")
+    return root.get("fmiVersion")
 
 
 def _library_platform() -> str:
