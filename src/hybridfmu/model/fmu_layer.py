@@ -1,0 +1,72 @@
+"""FMU layer: the physical model's state derivative xdot_F = f(x, u) inside the neural FMU."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+from torch import nn
+
+Rhs = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+class FmuLayer(nn.Module):
+    """Wraps a differentiable right-hand side ``rhs(x (N, n_x), u (N, n_u)) -> (N, n_x)``.
+
+    Typically ``hybridfmu.fmu.FmuRhs(model)``; any callable with that signature works (e.g. the
+    pure-torch ``MotorRhs``). The layer has no parameters of its own.
+    """
+
+    def __init__(self, rhs: Rhs, n_states: int, n_inputs: int) -> None:
+        super().__init__()
+        if not callable(rhs):
+            raise TypeError(f"FmuLayer: rhs must be callable, got {type(rhs).__name__}")
+        self.rhs = rhs
+        self.n_states = int(n_states)
+        self.n_inputs = int(n_inputs)
+
+    def forward(self, x: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """x (N, n_x), u (N, n_u) -> xdot_F (N, n_x)."""
+        xdot = self.rhs(x, u)
+        if xdot.shape != x.shape:
+            raise ValueError(f"FmuLayer: rhs returned shape {tuple(xdot.shape)}, expected {tuple(x.shape)}")
+        return xdot
+
+
+JacobianFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
+
+
+def jacobian_function(rhs: Rhs) -> JacobianFn | None:
+    """A function ``(x (N, n_x), u (N, n_u)) -> (xdot (N, n_x), dfdx (N, n_x, n_x), dfdu (N, n_x, n_u))``
+    evaluating ``rhs`` and its Jacobians in one go, if ``rhs`` offers them; else None.
+
+    Recognised: an object with ``value_and_jacobians(x, u)``, or one with an attribute ``model`` that has
+    the bridge's batched ``derivatives(x, u)`` and ``jacobians(x, u)`` (e.g. ``hybridfmu.fmu.FmuRhs``).
+    Without it, gradients through ``rhs`` come from autograd.
+    """
+    if isinstance(rhs, FmuLayer):
+        rhs = rhs.rhs
+    method = getattr(rhs, "value_and_jacobians", None)
+    if callable(method):
+        return method
+    model = getattr(rhs, "model", None)
+    if model is not None and callable(getattr(model, "derivatives", None)) and callable(
+            getattr(model, "jacobians", None)):
+        def value_and_jacobians(x: torch.Tensor, u: torch.Tensor):
+            x_np, u_np = x.detach().numpy(), u.detach().numpy()
+            xdot = model.derivatives(x_np, u_np)
+            dfdx, dfdu = model.jacobians(x_np, u_np)
+            as_tensor = lambda a: torch.from_numpy(a).to(x.dtype)  # noqa: E731
+            return as_tensor(xdot), as_tensor(dfdx), as_tensor(dfdu)
+        return value_and_jacobians
+    return None
+
+
+def value_function(rhs: Rhs) -> Rhs:
+    """A gradient-free evaluation of ``rhs`` (the bridge's batched ``derivatives`` when available)."""
+    if isinstance(rhs, FmuLayer):
+        rhs = rhs.rhs
+    model = getattr(rhs, "model", None)
+    if model is not None and callable(getattr(model, "derivatives", None)):
+        return lambda x, u: torch.from_numpy(model.derivatives(x.numpy(), u.numpy())).to(x.dtype)
+    return rhs

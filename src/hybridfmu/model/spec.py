@@ -1,0 +1,90 @@
+"""Everything needed to rebuild a neural FMU (architecture, signal names, delay bounds), JSON-serialisable."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class EndStop:
+    """A hard stop of a position state: the position is clamped to [min, max] after every solver step and
+    the rate state is set to 0 while the position sits on (or is pushed beyond) the stop."""
+
+    state: str
+    rate_state: str
+    min: float
+    max: float
+
+
+@dataclass(frozen=True)
+class NeuralFmuSpec:
+    """Architecture of a neural FMU (paper Fig. 7).
+
+    Attributes:
+        state_names, input_names: FMU states x (n_x) and inputs u (n_u), in FMU order.
+        corrected_states: states whose derivative the ANN corrects (via the gates); the others are forwarded.
+        ann_states, ann_inputs, ann_derivatives: which states, delayed inputs and FMU state derivatives
+            feed the ANN (time never does).
+        sample_period_s: solver step = sampling period of the data (s).
+        width, depth: tanh MLP layout.
+        gate_opening: initial ANN gate g_A.
+        delay_min_s, delay_max_s, delay_init_s, delay_scale_s: input-delay bounds, start and raw scale (s).
+        sample_position: how sampled inputs are placed within their interval (see ``InputDelay``).
+        solver: fixed-step method on the sample grid ("rk4" or "euler").
+        end_stop: optional hard stop of a position state.
+    """
+
+    state_names: list[str]
+    input_names: list[str]
+    corrected_states: list[str]
+    ann_states: list[str]
+    ann_inputs: list[str]
+    ann_derivatives: list[str]
+    sample_period_s: float
+    width: int = 8
+    depth: int = 2
+    gate_opening: float = 0.0
+    delay_min_s: float = 0.0
+    delay_max_s: float = 0.0
+    delay_init_s: float = 0.0
+    delay_scale_s: float = 1e-4
+    sample_position: str = "hold_center"
+    solver: str = "rk4"
+    end_stop: EndStop | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for group in ("corrected_states", "ann_states", "ann_derivatives"):
+            unknown = [name for name in getattr(self, group) if name not in self.state_names]
+            if unknown:
+                raise ValueError(f"model.{group}: unknown state(s) {unknown}; the FMU's states are {self.state_names}")
+        unknown = [name for name in self.ann_inputs if name not in self.input_names]
+        if unknown:
+            raise ValueError(f"model.ann_inputs: unknown input(s) {unknown}; the FMU's inputs are {self.input_names}")
+        if not self.corrected_states:
+            raise ValueError("model.corrected_states: name at least one state")
+        if not (self.ann_states or self.ann_inputs or self.ann_derivatives):
+            raise ValueError("model: the ANN needs at least one input signal (ann_states/ann_inputs/ann_derivatives)")
+        if self.solver not in ("rk4", "euler"):
+            raise ValueError(f"model.solver: expected 'rk4' or 'euler', got {self.solver!r}")
+        if self.end_stop is not None:
+            for name in (self.end_stop.state, self.end_stop.rate_state):
+                if name not in self.state_names:
+                    raise ValueError(f"model.end_stop: unknown state {name!r}; the FMU's states are {self.state_names}")
+
+    def state_index(self, names: list[str]) -> list[int]:
+        return [self.state_names.index(name) for name in names]
+
+    def input_index(self, names: list[str]) -> list[int]:
+        return [self.input_names.index(name) for name in names]
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "NeuralFmuSpec":
+        data = dict(data)
+        if data.get("end_stop") is not None:
+            data["end_stop"] = EndStop(**data["end_stop"])
+        return cls(**data)

@@ -1,0 +1,240 @@
+"""Fast rollout of the neural FMU with a hand-written discrete adjoint (reverse sweep) of the solver.
+
+Same result and gradients as ``solver.rollout`` with autograd, with far fewer tensor operations:
+the forward pass runs without building an autograd graph and records the stage values; the reverse
+sweep propagates the adjoint through the solver stages, the MLP and the FMU Jacobians; the weight
+gradients of all stages are summed in one matrix product per layer at the end.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from hybridfmu.model.fmu_layer import jacobian_function, value_function
+from hybridfmu.model.neural_fmu import FusedDerivative
+
+
+@dataclass
+class _Weights:
+    w_xd_t: torch.Tensor
+    w_out: torch.Tensor
+    b_out: torch.Tensor
+    g_fmu: torch.Tensor
+    hidden: list[tuple[torch.Tensor, torch.Tensor]]
+
+
+class SolverEngine:
+    """Solver stages of one rollout on plain (graph-free) tensors.
+
+    Args:
+        stage: the fused derivative (its rhs is used; the weights are passed to ``run``).
+        h: step size (s). method: "rk4" or "euler". clamp: optional end stop (position index,
+            rate index, lower, upper).
+    """
+
+    def __init__(self, stage: FusedDerivative, h: float, method: str,
+                 clamp: tuple[int, int, float, float] | None) -> None:
+        self.rhs = stage.rhs
+        self.jacobians = jacobian_function(stage.rhs)
+        self.value = value_function(stage.rhs)
+        self.h = h
+        self.method = method
+        self.clamp = clamp
+
+    # ------------------------------------------------------------------ forward
+    def _stage(self, wts: _Weights, x, u, z, record: list | None):
+        if record is None:
+            xdot_f = self.value(x, u)
+            rhs_record = None
+        elif self.jacobians is not None:
+            xdot_f, dfdx, dfdu = self.jacobians(x, u)
+            rhs_record = (dfdx, dfdu)
+        else:
+            with torch.enable_grad():
+                x_leaf = x.detach().requires_grad_(True)
+                u_leaf = u.detach().requires_grad_(True)
+                xdot_graph = self.rhs(x_leaf, u_leaf)
+            xdot_f = xdot_graph.detach()
+            rhs_record = (x_leaf, u_leaf, xdot_graph)
+        xf = torch.cat([x, xdot_f], dim=1)
+        h = torch.tanh(torch.addmm(z, xf, wts.w_xd_t))
+        activations = [h]
+        for weight_t, bias in wts.hidden:
+            h = torch.tanh(torch.addmm(bias, h, weight_t))
+            activations.append(h)
+        y = torch.addmm(torch.addcmul(wts.b_out, xdot_f, wts.g_fmu), h, wts.w_out)
+        if record is not None:
+            record.append((xf, xdot_f, activations, rhs_record))
+        return y
+
+    def _apply_clamp(self, x):
+        if self.clamp is None:
+            return x, None
+        i_pos, i_rate, lower, upper = self.clamp
+        position = x[:, i_pos]
+        outside = (position <= lower) | (position >= upper)
+        if not bool(outside.any()):
+            return x, None
+        x = x.clone()
+        x[:, i_pos] = position.clamp(lower, upper)
+        x[:, i_rate] = torch.where(outside, torch.zeros_like(position), x[:, i_rate])
+        mask = torch.ones_like(x)
+        mask[:, i_pos] = (~outside).to(x.dtype)
+        mask[:, i_rate] = (~outside).to(x.dtype)
+        return x, mask
+
+    def run(self, wts: _Weights, x0, u_grid, u_half, z_grid, z_half, records: list | None):
+        """Integrate; returns states (n+1, B, n_x). ``records`` (a list) receives per step
+        (stage records, clamp mask) for the reverse sweep; None runs without them."""
+        n_steps = u_grid.shape[0] - 1
+        h = self.h
+        states = [x0]
+        x = x0
+        for k in range(n_steps):
+            stage_records = [] if records is not None else None
+            if self.method == "rk4":
+                k1 = self._stage(wts, x, u_grid[k], z_grid[k], stage_records)
+                k2 = self._stage(wts, torch.add(x, k1, alpha=0.5 * h), u_half[k], z_half[k], stage_records)
+                k3 = self._stage(wts, torch.add(x, k2, alpha=0.5 * h), u_half[k], z_half[k], stage_records)
+                k4 = self._stage(wts, torch.add(x, k3, alpha=h), u_grid[k + 1], z_grid[k + 1], stage_records)
+                x = torch.add(torch.add(x, k1 + k4, alpha=h / 6.0), k2 + k3, alpha=h / 3.0)
+            else:
+                x = torch.add(x, self._stage(wts, x, u_grid[k], z_grid[k], stage_records), alpha=h)
+            x, mask = self._apply_clamp(x)
+            if records is not None:
+                records.append((stage_records, mask))
+            states.append(x)
+        return torch.stack(states, dim=0)
+
+    # ------------------------------------------------------------------ reverse sweep
+    def _stage_backward(self, wts: _Weights, gy, record, acc: "_Accumulator"):
+        xf, xdot_f, activations, rhs_record = record
+        n_x = xdot_f.shape[1]
+        acc.out_inputs.append(activations[-1])
+        acc.out_grads.append(gy)
+        acc.fmu_values.append(xdot_f)
+        g_h = torch.mm(gy, wts.w_out.t())
+        for layer in range(len(activations) - 1, 0, -1):
+            h = activations[layer]
+            g_a = torch.addcmul(g_h, g_h * h, h, value=-1.0)
+            acc.hidden_inputs[layer - 1].append(activations[layer - 1])
+            acc.hidden_grads[layer - 1].append(g_a)
+            g_h = torch.mm(g_a, wts.hidden[layer - 1][0].t())
+        h = activations[0]
+        g_a1 = torch.addcmul(g_h, g_h * h, h, value=-1.0)
+        acc.first_inputs.append(xf)
+        acc.first_grads.append(g_a1)
+        g_xf = torch.mm(g_a1, wts.w_xd_t.t())
+        g_fmu_out = torch.addcmul(g_xf[:, n_x:], gy, wts.g_fmu)
+        if len(rhs_record) == 2:
+            dfdx, dfdu = rhs_record
+            row = g_fmu_out.unsqueeze(1)
+            g_x_rhs = torch.bmm(row, dfdx).squeeze(1)
+            g_u = torch.bmm(row, dfdu).squeeze(1)
+        else:
+            x_leaf, u_leaf, xdot_graph = rhs_record
+            g_x_rhs, g_u = torch.autograd.grad(xdot_graph, (x_leaf, u_leaf), g_fmu_out)
+        return g_xf[:, :n_x] + g_x_rhs, g_u, g_a1
+
+    def backward(self, wts: _Weights, records, grad_states, n_hidden: int):
+        """Reverse sweep. grad_states (n+1, B, n_x) -> grads of x0, u_grid, u_half, z_grid, z_half and
+        the weights (w_xd_t, w_out, b_out, g_fmu, hidden...)."""
+        n_steps = len(records)
+        h = self.h
+        acc = _Accumulator(n_hidden)
+        g_u_grid = grad_states.new_zeros((n_steps + 1,) + tuple(self._u_shape))
+        g_z_grid = grad_states.new_zeros((n_steps + 1,) + tuple(self._z_shape))
+        g_u_half = g_u_grid.new_zeros((n_steps,) + tuple(self._u_shape)) if self.method == "rk4" else None
+        g_z_half = g_z_grid.new_zeros((n_steps,) + tuple(self._z_shape)) if self.method == "rk4" else None
+        lam = grad_states[n_steps].clone()
+        for k in range(n_steps - 1, -1, -1):
+            stage_records, mask = records[k]
+            if mask is not None:
+                lam = lam * mask
+            if self.method == "rk4":
+                gx4, gu4, gz4 = self._stage_backward(wts, lam * (h / 6.0), stage_records[3], acc)
+                gx3, gu3, gz3 = self._stage_backward(
+                    wts, torch.add(lam * (h / 3.0), gx4, alpha=h), stage_records[2], acc)
+                gx2, gu2, gz2 = self._stage_backward(
+                    wts, torch.add(lam * (h / 3.0), gx3, alpha=0.5 * h), stage_records[1], acc)
+                gx1, gu1, gz1 = self._stage_backward(
+                    wts, torch.add(lam * (h / 6.0), gx2, alpha=0.5 * h), stage_records[0], acc)
+                g_u_grid[k + 1] += gu4
+                g_z_grid[k + 1] += gz4
+                g_u_grid[k] += gu1
+                g_z_grid[k] += gz1
+                g_u_half[k] = gu2 + gu3
+                g_z_half[k] = gz2 + gz3
+                lam = lam + ((gx1 + gx2) + (gx3 + gx4)) + grad_states[k]
+            else:
+                gx, gu, gz = self._stage_backward(wts, lam * h, stage_records[0], acc)
+                g_u_grid[k] += gu
+                g_z_grid[k] += gz
+                lam = lam + gx + grad_states[k]
+        weight_grads = acc.weight_grads(wts)
+        return lam, g_u_grid, g_u_half, g_z_grid, g_z_half, weight_grads
+
+
+class _Accumulator:
+    """Per-stage inputs and output gradients of every layer; summed into weight gradients at the end."""
+
+    def __init__(self, n_hidden: int) -> None:
+        self.first_inputs, self.first_grads = [], []
+        self.hidden_inputs = [[] for _ in range(n_hidden)]
+        self.hidden_grads = [[] for _ in range(n_hidden)]
+        self.out_inputs, self.out_grads, self.fmu_values = [], [], []
+
+    @staticmethod
+    def _outer(inputs, grads):
+        return torch.mm(torch.cat(inputs).t(), torch.cat(grads))
+
+    def weight_grads(self, wts: _Weights):
+        gy = torch.cat(self.out_grads)
+        g_w_xd_t = self._outer(self.first_inputs, self.first_grads)
+        g_w_out = torch.mm(torch.cat(self.out_inputs).t(), gy)
+        g_b_out = gy.sum(0)
+        g_g_fmu = (torch.cat(self.fmu_values) * gy).sum(0)
+        hidden = []
+        for inputs, grads in zip(self.hidden_inputs, self.hidden_grads):
+            g_a = torch.cat(grads)
+            hidden.extend([self._outer(inputs, grads), g_a.sum(0)])
+        return [g_w_xd_t, g_w_out, g_b_out, g_g_fmu] + hidden
+
+
+class _Rollout(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, engine: SolverEngine, x0, u_grid, u_half, z_grid, z_half, w_xd_t, w_out, b_out, g_fmu,
+                *hidden_flat):
+        wts = _Weights(w_xd_t, w_out, b_out, g_fmu, list(zip(hidden_flat[0::2], hidden_flat[1::2])))
+        records: list = []
+        states = engine.run(wts, x0, u_grid, u_half, z_grid, z_half, records)
+        engine._u_shape = u_grid.shape[1:]
+        engine._z_shape = z_grid.shape[1:]
+        ctx.engine, ctx.wts, ctx.records = engine, wts, records
+        ctx.has_half = u_half.numel() > 0
+        return states
+
+    @staticmethod
+    def backward(ctx, grad_states):
+        engine, wts, records = ctx.engine, ctx.wts, ctx.records
+        g_x0, g_u_grid, g_u_half, g_z_grid, g_z_half, weight_grads = engine.backward(
+            wts, records, grad_states.contiguous(), len(wts.hidden))
+        ctx.records = None
+        if not ctx.has_half:
+            g_u_half = g_z_half = None
+        return (None, g_x0, g_u_grid, g_u_half, g_z_grid, g_z_half, *weight_grads)
+
+
+def rollout_adjoint(stage: FusedDerivative, h: float, method: str, clamp, x0, u_grid, u_half, z_grid, z_half):
+    """Time-major rollout: inputs u_grid (n+1, B, n_u), u_half (n, B, n_u) (empty for Euler), their first-layer
+    terms z_grid, z_half (…, H), x0 (B, n_x) -> states (n+1, B, n_x), differentiable w.r.t. all tensors."""
+    engine = SolverEngine(stage, h, method, clamp)
+    hidden_flat = [t for pair in stage.hidden for t in pair]
+    tensors = (x0, u_grid, u_half, z_grid, z_half, stage.w_xd_t, stage.w_out, stage.b_out, stage.g_fmu, *hidden_flat)
+    if not torch.is_grad_enabled() or not any(t.requires_grad for t in tensors):
+        wts = _Weights(stage.w_xd_t, stage.w_out, stage.b_out, stage.g_fmu, list(stage.hidden))
+        with torch.no_grad():
+            return engine.run(wts, x0, u_grid, u_half, z_grid, z_half, None)
+    return _Rollout.apply(engine, *tensors)

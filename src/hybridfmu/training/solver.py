@@ -1,0 +1,93 @@
+"""Fixed-step integration of the neural FMU on the sample grid, many windows side by side in the batch."""
+
+from __future__ import annotations
+
+import torch
+
+from hybridfmu.model.neural_fmu import NeuralFmu
+from hybridfmu.training.adjoint import rollout_adjoint
+
+
+def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.Tensor, n_steps: int,
+            gradients: str = "adjoint") -> torch.Tensor:
+    """Simulate ``n_steps`` solver steps of size h (the sample period) from ``x0``.
+
+    Args:
+        model: the neural FMU (solver method and end stop from ``model.spec``).
+        u_seq: sampled inputs (B, T, n_u) on the data grid; the window starts at ``start_index`` and the
+            sequence must reach far enough around the window for the input delay (ends are held).
+        start_index: index in ``u_seq`` of the window's first instant (where ``x0`` applies).
+        x0: initial states (B, n_x).
+        n_steps: number of steps.
+        gradients: "adjoint" (hand-written reverse sweep, fast; ``training.adjoint``) or "autograd"
+            (the reference: every operation recorded by autograd). Both give the same values and gradients.
+
+    Returns:
+        states (B, n_steps + 1, n_x) at t_start + k h, k = 0..n_steps (row 0 is ``x0``).
+
+    Inputs at the stage times are the delayed, linearly interpolated samples ``model.delay``; all of them
+    (and their first-layer contributions) are computed before the time loop.
+    """
+    spec = model.spec
+    h = spec.sample_period_s
+    stage = model.fused()
+    rk4 = spec.solver == "rk4"
+    u_grid_t = model.delay(u_seq, start_index, n_steps + 1, 0.0).transpose(0, 1).contiguous()  # (n+1, B, n_u)
+    z_grid_t = stage.input_term(u_grid_t)  # (n+1, B, H)
+    u_half_t = model.delay(u_seq, start_index, n_steps if rk4 else 0, 0.5).transpose(0, 1).contiguous()
+    z_half_t = stage.input_term(u_half_t)
+    if gradients == "adjoint":
+        states_t = rollout_adjoint(stage, h, spec.solver, _end_stop_indices(model), x0,
+                                   u_grid_t, u_half_t, z_grid_t, z_half_t)
+        return states_t.transpose(0, 1)
+    if gradients != "autograd":
+        raise ValueError(f"rollout: gradients must be 'adjoint' or 'autograd', got {gradients!r}")
+    # Time-major sequences split once (one backward node each instead of one per step).
+    u_grid, z_grid = u_grid_t.unbind(0), z_grid_t.unbind(0)
+    u_half, z_half = u_half_t.unbind(0), z_half_t.unbind(0)
+    clamp = _end_stop(model)
+    x = x0
+    states = [x0]
+    for k in range(n_steps):
+        if spec.solver == "rk4":
+            k1 = stage(x, u_grid[k], z_grid[k])
+            k2 = stage(torch.add(x, k1, alpha=0.5 * h), u_half[k], z_half[k])
+            k3 = stage(torch.add(x, k2, alpha=0.5 * h), u_half[k], z_half[k])
+            k4 = stage(torch.add(x, k3, alpha=h), u_grid[k + 1], z_grid[k + 1])
+            x = torch.add(torch.add(x, k1 + k4, alpha=h / 6.0), k2 + k3, alpha=h / 3.0)
+        else:
+            x = torch.add(x, stage(x, u_grid[k], z_grid[k]), alpha=h)
+        if clamp is not None:
+            x = clamp(x)
+        states.append(x)
+    return torch.stack(states, dim=1)
+
+
+def _end_stop_indices(model: NeuralFmu) -> tuple[int, int, float, float] | None:
+    stop = model.spec.end_stop
+    if stop is None:
+        return None
+    names = model.spec.state_names
+    return names.index(stop.state), names.index(stop.rate_state), float(stop.min), float(stop.max)
+
+
+def _end_stop(model: NeuralFmu):
+    stop = model.spec.end_stop
+    if stop is None:
+        return None
+    names = model.spec.state_names
+    i_pos, i_rate = names.index(stop.state), names.index(stop.rate_state)
+    lower, upper = float(stop.min), float(stop.max)
+
+    def clamp(x: torch.Tensor) -> torch.Tensor:
+        position = x[:, i_pos]
+        outside = (position <= lower) | (position >= upper)
+        if not bool(outside.any()):
+            return x
+        rate_kept = torch.where(outside, torch.zeros_like(position), x[:, i_rate])
+        columns = list(x.unbind(dim=1))
+        columns[i_pos] = position.clamp(lower, upper)
+        columns[i_rate] = rate_kept
+        return torch.stack(columns, dim=1)
+
+    return clamp

@@ -1,0 +1,186 @@
+"""Neural-FMU layers: delay, gates, pre/post-processing, forwarding, gradients to every parameter."""
+
+import math
+
+import pytest
+import torch
+
+from hybridfmu.model import (EndStop, Gates, InputDelay, MotorRhs, NeuralFmu, NeuralFmuSpec, ScaleShift,
+                             ShiftScale, TanhMLP)
+from hybridfmu.training.solver import rollout
+
+H = 1e-4
+STATS = dict(x_mean=[0.0, 10.0, 30.0, 0.0], x_std=[5.0, 30.0, 10.0, 100.0],
+             u_mean=[0.5, 0.5, 0.5, 12.0, 0.5], u_std=[0.1, 0.1, 0.1, 0.1, 0.3],
+             xdot_mean=[0.0, 0.0, 0.0, 0.0], xdot_std=[1e4, 1e4, 100.0, 1e3])
+
+
+def make_spec(**overrides):
+    kwargs = dict(state_names=MotorRhs.state_names, input_names=MotorRhs.input_names, corrected_states=["omega"],
+                  ann_states=MotorRhs.state_names, ann_inputs=MotorRhs.input_names,
+                  ann_derivatives=MotorRhs.state_names, sample_period_s=H, width=8, depth=2, gate_opening=0.3,
+                  delay_min_s=-5e-4, delay_max_s=5e-4)
+    kwargs.update(overrides)
+    return NeuralFmuSpec(**kwargs)
+
+
+def inputs(batch, length, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+    u = torch.rand(batch, length, 5, dtype=torch.float64, generator=gen) * 0.2 + 0.4
+    u[..., 3] = 12.0
+    u[..., 4] = 0.01
+    return u
+
+
+def test_delay_shifts_by_whole_samples_and_interpolates():
+    seq = torch.arange(20, dtype=torch.float64).reshape(1, 20, 1)
+    delay = InputDelay(H, -5e-4, 5e-4, init_s=2 * H, sample_position="sample_instant")
+    assert delay.delay_s().item() == pytest.approx(2 * H, rel=1e-12)
+    out = delay(seq, 5, 4)
+    assert torch.allclose(out.flatten(), torch.tensor([7.0, 8.0, 9.0, 10.0], dtype=torch.float64))
+    half = InputDelay(H, -5e-4, 5e-4, init_s=-0.25 * H, sample_position="sample_instant")(seq, 5, 3, 0.5)
+    assert torch.allclose(half.flatten(), torch.tensor([5.25, 6.25, 7.25], dtype=torch.float64))
+    centred = InputDelay(H, -5e-4, 5e-4, init_s=0.0, sample_position="hold_center")(seq, 5, 2)
+    assert torch.allclose(centred.flatten(), torch.tensor([4.5, 5.5], dtype=torch.float64))
+    # beyond the ends the edge values are held
+    edge = InputDelay(H, -5e-4, 5e-4, init_s=-3 * H, sample_position="sample_instant")(seq, 2, 3)
+    assert torch.allclose(edge.flatten(), torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), atol=1e-9)
+
+
+def test_delay_is_bounded_and_gradient_is_right():
+    delay = InputDelay(H, -2e-4, 3e-4, init_s=0.0, scale_s=1e-4)
+    with torch.no_grad():
+        delay.raw.fill_(1e6)
+    assert delay.delay_s().item() <= 3e-4 + 1e-18
+    delay = InputDelay(H, -5e-4, 5e-4, init_s=0.37 * H, scale_s=1e-4)
+    seq = torch.randn(2, 30, 3, dtype=torch.float64, requires_grad=True)
+
+    def fn(raw, u):
+        with torch.no_grad():
+            delay.raw.copy_(raw)
+        delay.raw.grad = None
+        return delay(u, 10, 12, 0.5)
+
+    # gradcheck of the interpolation w.r.t. the inputs and (by finite differences in raw) w.r.t. dt
+    assert torch.autograd.gradcheck(lambda u: delay(u, 10, 12, 0.5), (seq,))
+    out = delay(seq, 10, 12, 0.5)
+    weights = torch.randn_like(out)
+    (out * weights).sum().backward()
+    analytic = delay.raw.grad.item()
+    raw0 = delay.raw.detach().clone()
+    eps = 1e-6
+    plus = (fn(raw0 + eps, seq) * weights).sum().item()
+    minus = (fn(raw0 - eps, seq) * weights).sum().item()
+    assert analytic == pytest.approx((plus - minus) / (2 * eps), rel=1e-6)
+
+
+def test_fixed_delay_has_no_parameter():
+    delay = InputDelay(H, 1e-4, 1e-4, init_s=1e-4)
+    assert list(delay.parameters()) == []
+    assert delay.delay_s().item() == pytest.approx(1e-4)
+
+
+def test_gates_mix_and_forward():
+    gates = Gates(4, [3], opening=0.25)
+    xdot_f = torch.tensor([[1.0, 2.0, 3.0, 4.0]], dtype=torch.float64)
+    xdot_a = torch.tensor([[8.0]], dtype=torch.float64)
+    assert gates(xdot_f, xdot_a).tolist() == [[1.0, 2.0, 3.0, 4.0 + 0.25 * 8.0]]
+    with torch.no_grad():
+        gates.g_F.fill_(0.5)
+    assert gates(xdot_f, xdot_a).tolist() == [[1.0, 2.0, 3.0, 2.0 + 2.0]]
+
+
+def test_pre_and_post_invert_each_other():
+    pre = ShiftScale.from_statistics(torch.tensor([1.0, -2.0, 30.0]), torch.tensor([2.0, 0.5, 10.0]))
+    z = torch.randn(5, 3, dtype=torch.float64) * 10
+    normalised = pre(z)
+    assert torch.allclose(pre.inverse()(normalised), z, atol=1e-12)
+    data = torch.randn(10000, 3, dtype=torch.float64) * torch.tensor([2.0, 0.5, 10.0]) + torch.tensor([1.0, -2.0, 30.0])
+    out = pre(data)
+    assert out.mean(0).abs().max() < 0.05 and (out.std(0) - 1).abs().max() < 0.05
+    post = ScaleShift.from_statistics(torch.tensor([3.0]), torch.tensor([7.0]))
+    assert post(torch.zeros(1, 1, dtype=torch.float64)).item() == 3.0
+    assert post(torch.ones(1, 1, dtype=torch.float64)).item() == 10.0
+
+
+def test_mlp_layout():
+    mlp = TanhMLP(13, 1, width=16, depth=3)
+    assert len(mlp.hidden) == 3 and mlp.output.out_features == 1
+    assert mlp(torch.zeros(4, 13, dtype=torch.float64)).shape == (4, 1)
+
+
+def test_forwarded_derivatives_untouched_and_fused_equals_layers():
+    torch.manual_seed(0)
+    model = NeuralFmu(MotorRhs(), make_spec(depth=3), STATS)
+    x = torch.randn(6, 4, dtype=torch.float64) * torch.tensor([5.0, 30.0, 10.0, 100.0])
+    u = inputs(6, 1)[:, 0]
+    xdot = model.derivative(x, u)
+    xdot_f = MotorRhs()(x, u)
+    assert torch.equal(xdot[:, :3], xdot_f[:, :3])
+    assert not torch.allclose(xdot[:, 3], xdot_f[:, 3])
+    fused = model.fused()
+    assert torch.allclose(fused(x, u, fused.input_term(u)), xdot, rtol=1e-13, atol=1e-9)
+    with torch.no_grad():
+        model.gates.g_A.zero_()
+    assert torch.equal(model.derivative(x, u), xdot_f)
+
+
+@pytest.mark.parametrize("solver", ["rk4", "euler"])
+def test_gradients_reach_every_parameter_and_adjoint_matches_autograd(solver):
+    torch.manual_seed(1)
+    stop = EndStop("theta", "omega", -1.0, 0.02)
+    model = NeuralFmu(MotorRhs(), make_spec(solver=solver, delay_init_s=0.3 * H, end_stop=stop), STATS)
+    u = inputs(3, 60).requires_grad_(True)
+    x0 = torch.tensor([[1.0, 2.0, 0.0, 50.0]] * 3, dtype=torch.float64, requires_grad=True)
+    results = {}
+    for mode in ("autograd", "adjoint"):
+        model.zero_grad()
+        u.grad = x0.grad = None
+        states = rollout(model, u, 10, x0, 40, gradients=mode)
+        assert states.shape == (3, 41, 4)
+        loss = (states[:, :, 2] * torch.linspace(0, 1, 41, dtype=torch.float64)).sum() + 1e-3 * states[:, :, 3].pow(2).mean()
+        loss.backward()
+        results[mode] = (states.detach(), {n: p.grad.clone() for n, p in model.named_parameters()}, u.grad.clone(),
+                         x0.grad.clone())
+    ref, fast = results["autograd"], results["adjoint"]
+    assert torch.allclose(ref[0], fast[0], rtol=0, atol=1e-12)
+    assert (ref[0][:, :, 2] >= 0.02 - 1e-15).any(), "the end stop must be reached in this test"
+    for name, grad in ref[1].items():
+        assert torch.isfinite(grad).all() and grad.abs().sum() > 0, f"no gradient reaches {name}"
+        assert torch.allclose(fast[1][name], grad, rtol=1e-9, atol=1e-12 * grad.abs().max()), name
+    assert torch.allclose(fast[2], ref[2], rtol=1e-9, atol=1e-14)
+    assert torch.allclose(fast[3], ref[3], rtol=1e-9, atol=1e-14)
+
+
+def test_adjoint_uses_rhs_jacobians_when_offered():
+    class JacobianMotor(MotorRhs):
+        calls = 0
+
+        def value_and_jacobians(self, x, u):
+            JacobianMotor.calls += 1
+            dfdx, dfdu = torch.func.vmap(torch.func.jacrev(lambda a, b: super(JacobianMotor, self).__call__(
+                a[None], b[None])[0], argnums=(0, 1)))(x, u)
+            return MotorRhs.__call__(self, x, u), dfdx, dfdu
+
+    torch.manual_seed(2)
+    spec = make_spec()
+    plain, jac = NeuralFmu(MotorRhs(), spec, STATS), NeuralFmu(JacobianMotor(), spec, STATS)
+    jac.load_state_dict(plain.state_dict())
+    u = inputs(2, 40)
+    x0 = torch.tensor([[1.0, 2.0, 0.0, 50.0]] * 2, dtype=torch.float64)
+    grads = []
+    for model in (plain, jac):
+        rollout(model, u, 5, x0, 20)[:, :, 3].sum().backward()
+        grads.append(torch.cat([p.grad.flatten() for p in model.parameters()]))
+    assert JacobianMotor.calls == 4 * 20
+    assert torch.allclose(grads[0], grads[1], rtol=1e-10)
+
+
+def test_spec_names_are_checked():
+    with pytest.raises(ValueError, match="corrected_states"):
+        make_spec(corrected_states=["speed"])
+    with pytest.raises(ValueError, match="ann_inputs"):
+        make_spec(ann_inputs=["voltage"])
+    spec = make_spec(end_stop=EndStop("theta", "omega", 0.0, 60.0))
+    assert NeuralFmuSpec.from_dict(spec.to_dict()) == spec
+    assert math.isclose(spec.sample_period_s, H)
