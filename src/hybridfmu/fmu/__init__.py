@@ -5,6 +5,7 @@ indicators, outputs), :class:`FmuRhs` (differentiable right-hand side for PyTorc
 ``simulate_open_loop`` (fixed-step RK4 with state events on the input grid).
 """
 
+from hybridfmu.fmu.build import FmuBuildError, build_fmu
 from hybridfmu.fmu.bridge import FmuError, FmuFormatError, FmuModel, load_fmu
 from hybridfmu.fmu.simulate import SimulationResult, simulate_open_loop
 
@@ -18,11 +19,13 @@ def __getattr__(name: str):
 
 
 __all__ = [
+    "FmuBuildError",
     "FmuError",
     "FmuFormatError",
     "FmuModel",
     "FmuRhs",
     "SimulationResult",
+    "build_fmu",
     "load_fmu",
     "simulate_open_loop",
 ]
