@@ -1,0 +1,44 @@
+"""The rules ingest and select_segments run through Snakemake on a case with its own raw log."""
+
+from __future__ import annotations
+
+import copy
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+from test_data_ingest import INGEST, raw_signals, write_mdf
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.slow
+def test_ingest_and_select_segments_rules(tmp_path):
+    raw = write_mdf(tmp_path / "logs" / "run1.mf4", raw_signals(duration_s=2.0))
+    case = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    case["case"] = "datacase"
+    case["results_dir"] = str(tmp_path / "results")
+    case["maneuvers"] = {"run1": {"role": "train", "raw": str(raw)}}
+    case["ingest"] = copy.deepcopy(INGEST)
+    config_path = tmp_path / "case.yaml"
+    config_path.write_text(yaml.safe_dump(case))
+    target = tmp_path / "results" / "datacase" / "segments" / "run1.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "snakemake", "-j1", str(target), "--configfile", str(config_path)],
+        cwd=REPO, capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    results = tmp_path / "results" / "datacase"
+    frame = pd.read_parquet(results / "data" / "run1.parquet")
+    assert frame["time_s"].iloc[0] == 0.0 and len(frame) > 19000
+    record = json.loads(target.read_text())
+    assert record["maneuver"] == "run1" and 0.0 < record["fraction_kept"] <= 1.0
+    assert (results / "segments" / "run1.png").stat().st_size > 10_000
+    for rule in ("ingest", "select_segments"):
+        assert (results / "logs" / rule / "run1.log").read_text().strip()
+        assert (results / "benchmarks" / rule / "run1.tsv").is_file()

@@ -1,0 +1,46 @@
+# Raw logs -> canonical signals on the case's grid (rule ingest), and the spans of each maneuver
+# that carry information (rule select_segments, paper Fig. 8).
+
+
+def raw_log(wildcards):
+    """The raw log of a maneuver, as the case config names it."""
+    return config["maneuvers"][wildcards.maneuver]["raw"]
+
+
+rule ingest:
+    input:
+        raw=raw_log,
+    output:
+        data=f"{RESULTS}/data/{{maneuver}}.parquet",
+    params:
+        ingest=config.get("ingest", {}),
+    wildcard_constraints:
+        maneuver="|".join(MANEUVERS),
+    log:
+        f"{RESULTS}/logs/ingest/{{maneuver}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/ingest/{{maneuver}}.tsv"
+    script:
+        "../scripts/ingest.py"
+
+
+rule select_segments:
+    input:
+        data=f"{RESULTS}/data/{{maneuver}}.parquet",
+    output:
+        segments=f"{RESULTS}/segments/{{maneuver}}.json",
+        plot=f"{RESULTS}/segments/{{maneuver}}.png",
+    params:
+        segments=config.get("segments", {}),
+    wildcard_constraints:
+        maneuver="|".join(MANEUVERS),
+    log:
+        f"{RESULTS}/logs/select_segments/{{maneuver}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/select_segments/{{maneuver}}.tsv"
+    script:
+        "../scripts/select_segments.py"
+
+
+ALL_TARGETS.extend(expand(f"{RESULTS}/data/{{maneuver}}.parquet", maneuver=MANEUVERS))
+ALL_TARGETS.extend(expand(f"{RESULTS}/segments/{{maneuver}}.{{ext}}", maneuver=MANEUVERS, ext=["json", "png"]))

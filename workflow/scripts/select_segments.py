@@ -1,0 +1,8 @@
+"""Rule select_segments: the informative spans of one ingested maneuver (JSON) and their plot."""
+
+from hybridfmu.data.segments import select_segments_to_files
+from hybridfmu.progress import setup_rule_logging
+
+setup_rule_logging(snakemake.log[0])
+select_segments_to_files(snakemake.input.data, snakemake.output.segments, snakemake.output.plot,
+                         snakemake.wildcards.maneuver, snakemake.params.segments)
