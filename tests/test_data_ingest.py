@@ -347,12 +347,16 @@ def test_bad_csv_inputs(tmp_path):
         assert not out.exists()
 
 
-def test_corrupt_parquet_and_unknown_format(tmp_path):
+def test_corrupt_or_empty_parquet_and_unknown_format(tmp_path):
     good = write_table(tmp_path / "good.parquet", raw_signals())
     broken = tmp_path / "broken.parquet"
     broken.write_bytes(good.read_bytes()[:-200])
     with pytest.raises(DataError, match="broken.parquet: cannot read the Parquet file"):
         ingest_log(broken, INGEST)
+    empty = tmp_path / "empty.parquet"
+    pd.read_parquet(good).iloc[:0].to_parquet(empty, index=False)
+    with pytest.raises(DataError, match="empty.parquet: the file is empty"):
+        ingest_log(empty, INGEST)
     other = tmp_path / "log.xlsx"
     other.write_bytes(b"PK")
     with pytest.raises(DataError, match=r"unknown log format '.xlsx'"):
