@@ -19,6 +19,7 @@ extracts and loads its own copy of the shared library, so instances do not share
 from __future__ import annotations
 
 import ctypes
+import math
 import numbers
 import os
 import shutil
@@ -163,7 +164,7 @@ class FmuModel:
     Attributes (read-only): ``path``, ``model_name``, ``state_names`` (continuous states in the
     order of the FMU's state vector), ``derivative_names``, ``input_names`` (continuous Real
     inputs), ``output_names``, ``parameter_names``, ``n_states``, ``n_inputs``, ``n_outputs``,
-    ``n_event_indicators``, ``provides_directional_derivative``, ``state_nominals`` (n_x,),
+    ``n_event_indicators``, ``real_output_names``, ``provides_directional_derivative``, ``state_nominals`` (n_x,),
     ``input_nominals`` (n_u,), ``initial_states`` (n_x,): the states after initialisation.
 
     ``jacobian_method`` ("auto", "directional" or "fd") chooses how :meth:`jacobians` works;
@@ -281,6 +282,7 @@ class FmuModel:
         ]
         self.input_names = [v.name for v in self._input_vars]
         self.output_names = [v.name for v in variables if v.causality == "output"]
+        self.real_output_names = [v.name for v in variables if v.causality == "output" and v.type == "Real"]
         self._parameter_vars = {v.name: v for v in variables if v.causality == "parameter"}
         self.parameter_names = list(self._parameter_vars)
         self.n_states = len(states)
@@ -321,6 +323,8 @@ class FmuModel:
         self._shim_model = m
         self._m = ctypes.addressof(m)
         self._column = np.empty(max(self.n_states, 1))
+        self._t_scalar = np.zeros(1)
+        self._t_scalar_address = self._t_scalar.ctypes.data
         self._empty = np.empty(1)
 
     # ------------------------------------------------------------------ life cycle
@@ -542,11 +546,17 @@ class FmuModel:
         return array
 
     def _batch(self, x, u, t_s):
+        """Checked (x, u) as float64 C arrays, the time (array, stride 0 for one time) and N."""
         x = self._as_matrix("x", x, self.n_states, self.state_names, None)
         n = x.shape[0]
         u = self._as_matrix("u", u, self.n_inputs, self.input_names, n)
+        if type(t_s) is float or type(t_s) is int:  # the common case, without array overhead
+            if not math.isfinite(t_s):
+                raise ValueError(f"t_s: non-finite time {t_s}")
+            self._t_scalar[0] = t_s
+            return x, u, self._t_scalar, self._t_scalar_address, 0, n
         t = self._as_time(t_s, n)
-        return x, u, t, n
+        return x, u, t, t.ctypes.data, (1 if t.size > 1 else 0), n
 
     @staticmethod
     def _as_time(t_s, n: int) -> np.ndarray:
@@ -580,10 +590,10 @@ class FmuModel:
         scalar or (N,). Returns (N, n_x) float64 in the units of the states per second.
         """
         self._require_open()
-        x, u, t, n = self._batch(x, u, t_s)
+        x, u, _t, t_ptr, t_stride, n = self._batch(x, u, t_s)
         dx = np.empty((n, self.n_states))
         if n:
-            status = self._lib.hf_derivatives(self._m, n, t.ctypes.data, 1 if t.size > 1 else 0,
+            status = self._lib.hf_derivatives(self._m, n, t_ptr, t_stride,
                                               self._data(x), self._data(u), self._data(dx))
             if status:
                 self._raise_shim_error(status, "derivatives")
@@ -592,20 +602,24 @@ class FmuModel:
     def event_indicators(self, x, u=None, t_s=0.0) -> np.ndarray:
         """Event indicators for a batch: (N, n_event_indicators) float64 (arguments as derivatives)."""
         self._require_open()
-        x, u, t, n = self._batch(x, u, t_s)
+        x, u, _t, t_ptr, t_stride, n = self._batch(x, u, t_s)
         z = np.empty((n, self.n_event_indicators))
         if n and self.n_event_indicators:
-            status = self._lib.hf_event_indicators(self._m, n, t.ctypes.data, 1 if t.size > 1 else 0,
+            status = self._lib.hf_event_indicators(self._m, n, t_ptr, t_stride,
                                                    self._data(x), self._data(u), self._data(z))
             if status:
                 self._raise_shim_error(status, "event_indicators")
         return z
 
     def outputs(self, x, u=None, names: Sequence[str] | None = None, t_s=0.0) -> np.ndarray:
-        """Real variables ``names`` (default: all outputs) for a batch: (N, len(names)) float64."""
+        """Real variables ``names`` (default: all Real outputs, ``real_output_names``) for a batch.
+
+        Returns (N, len(names)) float64. Any Real variable of the FMU may be named; Integer and
+        Boolean variables (discrete, constant between events) are not evaluated per row.
+        """
         self._require_open()
         if names is None:
-            names = self.output_names
+            names = self.real_output_names
         if isinstance(names, str):
             raise ValueError(f"names: expected a list of variable names, got the string {names!r}")
         names = list(names)
@@ -618,13 +632,14 @@ class FmuModel:
                     "any Real variable of the FMU may be named)"
                 )
             if variable.type != "Real":
-                raise ValueError(f"{self.path}: variable {name!r} has type {variable.type}, expected Real")
+                raise ValueError(f"{self.path}: variable {name!r} has type {variable.type}, expected a Real "
+                                 f"variable (Real outputs: {self.real_output_names})")
             vrs.append(variable.valueReference)
-        x, u, t, n = self._batch(x, u, t_s)
+        x, u, _t, t_ptr, t_stride, n = self._batch(x, u, t_s)
         y = np.empty((n, len(names)))
         vr = np.array(vrs, dtype=np.uint32)
         if n and names:
-            status = self._lib.hf_outputs(self._m, n, t.ctypes.data, 1 if t.size > 1 else 0, self._data(x),
+            status = self._lib.hf_outputs(self._m, n, t_ptr, t_stride, self._data(x),
                                           self._data(u), vr.ctypes.data, len(vrs), self._data(y))
             if status:
                 self._raise_shim_error(status, "outputs")
@@ -638,24 +653,23 @@ class FmuModel:
         differences with step h_j = fd_relative_step * max(|v_j|, nominal_j).
         """
         self._require_open()
-        x, u, t, n = self._batch(x, u, t_s)
+        x, u, _t, t_ptr, t_stride, n = self._batch(x, u, t_s)
         nx, nu = self.n_states, self.n_inputs
         dfdx = np.empty((n, nx, nx))
         dfdu = np.empty((n, nx, nu))
         if n == 0 or nx == 0:
             return dfdx, dfdu
         method = self._resolved_jacobian_method()
-        t_stride = 1 if t.size > 1 else 0
         if method == "directional":
             status = self._lib.hf_jacobians_directional(
-                self._m, n, t.ctypes.data, t_stride, self._data(x), self._data(u), self._data(dfdx),
+                self._m, n, t_ptr, t_stride, self._data(x), self._data(u), self._data(dfdx),
                 self._data(dfdu) or self._empty.ctypes.data, self._column.ctypes.data)
         else:
             rel = float(self.fd_relative_step)
             if not (np.isfinite(rel) and 0 < rel < 1):
                 raise ValueError(f"fd_relative_step: expected a number in (0, 1), got {self.fd_relative_step}")
             status = self._lib.hf_jacobians_fd(
-                self._m, n, t.ctypes.data, t_stride, self._data(x), self._data(u),
+                self._m, n, t_ptr, t_stride, self._data(x), self._data(u),
                 self.state_nominals.ctypes.data, self._data(self.input_nominals) or self._empty.ctypes.data,
                 rel, self._data(dfdx), self._data(dfdu) or self._empty.ctypes.data)
         if status:

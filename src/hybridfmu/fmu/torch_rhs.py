@@ -91,7 +91,7 @@ class FmuRhs(torch.nn.Module):
             raise ValueError(f"u: expected a floating-point tensor of shape {(*lead, model.n_inputs)} "
                              f"({model.input_names}), got shape {tuple(u.shape)}, dtype {u.dtype}")
         x2 = x.reshape(-1, model.n_states)
-        u2 = u.reshape(-1, model.n_inputs)
+        u2 = u.reshape(x2.shape[0], model.n_inputs)
         dx = _FmuRhsFunction.apply(x2, u2, model, _time_argument(t_s))
         return dx.reshape(x.shape)
 
