@@ -1,0 +1,7 @@
+"""Rule emulate_bench: emulate one maneuver on the test bench (MDF4 log + ground truth)."""
+from hybridfmu.bench.emulate import emulate_bench
+from hybridfmu.progress import setup_rule_logging
+
+setup_rule_logging(snakemake.log[0])
+emulate_bench(snakemake.config, snakemake.wildcards.maneuver, mdf_path=snakemake.output.mdf,
+              truth_path=snakemake.output.truth)
