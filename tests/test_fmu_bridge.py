@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 
+import fmpy
 import numpy as np
 import pytest
 import torch
@@ -248,3 +249,11 @@ def test_shim_compiles_once_per_source_and_concurrently(tmp_path):
     paths = {out.strip() for out, _ in outputs}
     assert len(paths) == 1
     assert [p.name for p in cache.iterdir()] == [os.path.basename(paths.pop())]
+
+
+def test_load_from_an_extracted_folder(ipbmotor_fmu, tmp_path, motor):
+    folder = fmpy.extract(str(ipbmotor_fmu), unzipdir=str(tmp_path / "extracted"))
+    x, u = ipb_points(4, seed=10)
+    with load_fmu(folder) as model:
+        np.testing.assert_array_equal(model.derivatives(x, u), motor.derivatives(x, u))
+    assert (tmp_path / "extracted" / "modelDescription.xml").is_file()  # the user's folder is kept

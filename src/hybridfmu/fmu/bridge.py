@@ -35,6 +35,7 @@ import numpy as np
 from hybridfmu.fmu import shim as _shim
 
 LOG_CAPACITY_CHARS = 1 << 16
+MAX_LOG_LINES_IN_MESSAGE = 20
 # Central differences: the step that balances truncation (h^2) and round-off (eps/h) errors.
 DEFAULT_FD_RELATIVE_STEP = float(np.finfo(np.float64).eps ** (1.0 / 3.0))
 _STATUS_LABELS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
@@ -46,7 +47,10 @@ class FmuError(RuntimeError):
     def __init__(self, message: str, log: Sequence[str] = ()):
         self.log = list(log)
         if self.log:
-            message = message + "\nFMU log:\n  " + "\n  ".join(self.log)
+            shown = self.log[-MAX_LOG_LINES_IN_MESSAGE:]
+            skipped = len(self.log) - len(shown)
+            message += "\nFMU log" + (f" (last {len(shown)} of {len(self.log)} lines)" if skipped else "") + ":\n  "
+            message += "\n  ".join(shown)
         super().__init__(message)
 
 

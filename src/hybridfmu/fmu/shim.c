@@ -108,7 +108,8 @@ typedef struct {
 
 /* ---------------------------------------------------------------- log collection */
 
-/* Messages of the FMU's logger callback, appended to one bounded buffer per model. */
+/* Messages of the FMU's logger callback, appended to one bounded buffer per model; when it is
+   full, the older messages are dropped. */
 typedef struct {
     char *text;
     size_t capacity;
@@ -176,9 +177,11 @@ void hf_logger(void *environment, const char *instance_name, int status, const c
     va_end(args);
     {
         size_t n = strlen(line);
+        if (n + 1 > log->capacity) n = log->capacity - 1;
         if (log->length + n + 1 > log->capacity) {
+            /* full: drop the older messages, keep the newest (they explain a failure) */
             log->dropped++;
-            return;
+            log->length = 0;
         }
         memcpy(log->text + log->length, line, n);
         log->length += n;
