@@ -1,7 +1,8 @@
 """Compile, cache and load the C shim (``shim.c``) that evaluates an FMU over a whole batch.
 
 The shim is compiled with gcc at first use into a cache folder keyed by the hash of its source,
-the compiler and the flags: ``$HYBRIDFMU_CACHE`` if set, else ``~/.cache/hybridfmu``. The
+the compiler and the flags: ``$HYBRIDFMU_CACHE`` if set, else ``~/.cache/hybridfmu`` (a folder in
+the system's temp folder if that one is not writable). The
 library is compiled into a temporary file in that folder and renamed over the final name, so
 several processes that start at once are safe (each may compile; the last rename wins, and every
 one of them loads a complete file).
@@ -121,7 +122,17 @@ def shim_path() -> Path:
     target = cache_dir() / f"fmushim-{key}.so"
     if target.is_file():
         return target
-    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        probe = tempfile.NamedTemporaryFile(dir=target.parent, prefix=".probe-")
+        probe.close()
+    except OSError:
+        # the cache folder is not writable (e.g. a read-only home): use one in the temp folder
+        fallback = Path(tempfile.gettempdir()) / f"hybridfmu-cache-{os.getuid()}"
+        fallback.mkdir(parents=True, exist_ok=True)
+        target = fallback / target.name
+        if target.is_file():
+            return target
     handle, tmp_name = tempfile.mkstemp(prefix=".fmushim-", suffix=".so", dir=target.parent)
     os.close(handle)
     try:

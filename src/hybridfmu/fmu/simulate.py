@@ -204,7 +204,7 @@ class _Session:
                     lo = mid
             t_e = t_a + hi * span if hi < 1.0 else t_b
             crossed = _crossed(z_a, z_hi)
-            self._rk4_step(t_a, t_e - t_a, x_a, u)  # leave the FMU at the accepted point
+            self._indicators(t_e, x_hi, u)  # leave the FMU at the accepted point
             _, terminate = self._completed_step(t_e)
             self._check_terminate(terminate, t_e)
             x_e, z_e = self._handle_event(
