@@ -45,7 +45,8 @@ def test_zoom_without_interval_or_with_bad_shapes_fails(tmp_path):
 def test_time_offset_figure(tmp_path):
     t = np.arange(0, 0.02, 1e-4)
     _assert_png(plot_time_offset(t, np.tanh((t - 0.01) * 500), np.tanh((t - 0.0098) * 500),
-                                 tmp_path / "offset.png", lag_s=2e-4, maneuver="train", options=OPTIONS))
+                                 tmp_path / "offset.png", np.tanh((t - 0.01) * 500) + 0.01, input_delay_s=2e-4,
+                                 maneuver="train", options=OPTIONS))
 
 
 def test_decimation_keeps_extremes():

@@ -89,15 +89,18 @@ def test_configured_intervals_replace_auto_and_are_checked():
         choose_zoom_intervals(t, zero, zero, 0.5, 0.2, configured=[{"t_start_s": 5, "t_end_s": 6}])
 
 
-def test_time_offset_window_and_lag():
-    from hybridfmu.evaluation.offset import estimate_lag_s, steepest_window
+def test_time_offset_window_and_input_shift():
+    from hybridfmu.evaluation.offset import estimate_input_delay_s, shift_inputs, steepest_window
 
     t = np.arange(0, 1.0, 1e-4)
     speed = 100 * np.tanh((t - 0.6) * 200)
     start, end = steepest_window(t, speed, 0.01)
     assert start < 0.6 < end
-    window = (t >= start) & (t <= end)
-    model = 100 * np.tanh((t - 0.6 + 2.5e-4) * 200)     # the model leads the data by 250 µs
-    lag = estimate_lag_s(t[window], speed[window], model[window], max_lag_s=1e-3)
-    assert lag == pytest.approx(2.5e-4, abs=1e-5)
-    assert estimate_lag_s(t[window], speed[window], speed[window], 1e-3) == 0.0
+    u = np.column_stack([np.arange(6.0), 10 * np.arange(6.0)])
+    np.testing.assert_array_equal(shift_inputs(u, 0.0, 0.1), u)
+    np.testing.assert_allclose(shift_inputs(u, 0.2, 0.1)[:, 0], [2, 3, 4, 5, 5, 5])      # two steps ahead, held
+    np.testing.assert_allclose(shift_inputs(u, -0.05, 0.1)[:, 0], [0, 0.5, 1.5, 2.5, 3.5, 4.5])
+    measured = np.sin(np.arange(50) * 0.1 + 0.3)
+    best, fit = estimate_input_delay_s(lambda d: np.sin(np.arange(50) * 0.1 + d), measured,
+                                       np.linspace(-1, 1, 201))
+    assert best == pytest.approx(0.3) and np.allclose(fit, measured)

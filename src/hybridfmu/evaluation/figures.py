@@ -178,30 +178,39 @@ def plot_zooms(traj: Trajectories, path: str | Path, options: PlotOptions = Plot
 
 
 def plot_time_offset(time_s: np.ndarray, speed_data_rad_s: np.ndarray, speed_fmu_rad_s: np.ndarray,
-                     path: str | Path, lag_s: float | None = None, maneuver: str = "",
+                     path: str | Path, speed_fmu_delayed_rad_s: np.ndarray | None = None,
+                     input_delay_s: float | None = None, maneuver: str = "",
                      options: PlotOptions = PlotOptions()) -> Path:
-    """Speed data against the FMU on a short interval, showing the time shift (paper Fig. 6).
+    """Speed data against the FMU on a short window, showing the time shift (paper Fig. 6).
 
     Args:
-        time_s: time grid of the interval (T,), s.
-        speed_data_rad_s, speed_fmu_rad_s: measured and simulated speed (T,), rad/s.
-        lag_s: estimated shift of the data against the FMU (s; positive: the data lags), shown
-            in the legend and drawn as the FMU curve shifted by it, when given.
+        time_s: time grid of the window (T,), s.
+        speed_data_rad_s, speed_fmu_rad_s: measured and simulated speed (T,), rad/s; the FMU starts from
+            the measured state at the window's start and sees the inputs as logged.
+        speed_fmu_delayed_rad_s: the FMU with the estimated input delay ``input_delay_s`` (s), drawn
+            dashed when given.
     """
     time_s = np.asarray(time_s, float)
+    data_speed = np.asarray(speed_data_rad_s, float)
     with plt.rc_context(_style(options)):
         fig, ax = plt.subplots(figsize=(options.width_in, options.height_in))
         t_ms = (time_s - time_s[0]) * 1e3
-        ax.plot(t_ms, speed_data_rad_s, color="black", lw=options.line_width * 1.6, alpha=0.7,
-                marker=".", ms=3, label="data")
+
+        def label(name: str, values: np.ndarray) -> str:
+            return f"{name} [MSE {format_error(float(np.mean((values - data_speed) ** 2)), '(rad/s)²')}]"
+
+        ax.plot(t_ms, data_speed, color="black", lw=options.line_width * 1.6, alpha=0.7, marker=".", ms=3,
+                label="data")
         ax.plot(t_ms, speed_fmu_rad_s, color=FMU_STYLE["color"], lw=options.line_width, marker=".", ms=3,
-                label="FMU")
-        if lag_s is not None:
-            ax.plot(t_ms + lag_s * 1e3, speed_fmu_rad_s, color="tab:orange", lw=options.line_width,
-                    ls="--", alpha=0.7, label=f"FMU shifted by the estimated offset [{lag_s * 1e6:.1f} µs]")
-        ax.set_xlabel(f"time t - {time_s[0]:.4f} s [ms]")
+                label=label("FMU, inputs as logged", np.asarray(speed_fmu_rad_s, float)))
+        if speed_fmu_delayed_rad_s is not None:
+            delayed = np.asarray(speed_fmu_delayed_rad_s, float)
+            ax.plot(t_ms, delayed, color="tab:orange", lw=options.line_width, ls="--",
+                    label=label(f"FMU, inputs delayed by the estimated Δt = {input_delay_s * 1e6:.1f} µs", delayed))
+        ax.set_xlabel(f"time t − {time_s[0]:.4f} s [ms]")
         ax.set_ylabel(f"{QUANTITY_LABELS['speed']} [rad/s]")
-        ax.set_title(f"{maneuver + ': ' if maneuver else ''}time offset between data and model (speed)")
+        ax.set_title(f"{maneuver + ': ' if maneuver else ''}time offset between data and model "
+                     "(FMU started from the measured state)")
         ax.legend(loc="best")
         return _save(fig, path, options)
 

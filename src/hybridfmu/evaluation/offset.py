@@ -3,7 +3,8 @@
 On a short window where the measured speed changes fast, the FMU is started from the measured
 state at the window's start and driven by the logged inputs; a constant time offset between the
 logged inputs and states then shows as a shift between the simulated and the measured speed.
-The shift is estimated by least squares over sub-sample shifts.
+The offset is estimated as the input delay u(t + dt) (the neural FMU's convention) whose
+simulation fits the measured speed best, over sub-sample delays.
 """
 
 from __future__ import annotations
@@ -39,58 +40,57 @@ def steepest_window(time_s: np.ndarray, speed_rad_s: np.ndarray, length_s: float
     return float(time_s[k]), float(time_s[k + n])
 
 
-def estimate_lag_s(time_s: np.ndarray, measured: np.ndarray, simulated: np.ndarray, max_lag_s: float,
-                   resolution: int = 20) -> float:
-    """Shift of ``measured`` against ``simulated`` that fits best in the least-squares sense.
+def shift_inputs(u: np.ndarray, delay_s: float, step_s: float) -> np.ndarray:
+    """Inputs seen with an input delay: row k = u(t_k + h/2 + delay_s), each sample j placed at the centre
+    t_j + h/2 of the step it is held over, linear between samples, held beyond the ends.
 
-    The returned ``lag_s`` minimises the mean of (measured(t) - simulated(t - lag_s))^2 over the
-    samples where the shifted curve is defined; positive means the measurement lags the model.
-    Shifts are searched on a grid of ``step / resolution`` within ``[-max_lag_s, max_lag_s]``
-    (linear interpolation between samples).
+    With ``delay_s = 0`` the sequence is returned unchanged; with a whole number of steps it is shifted by
+    whole rows. Args: u (T, n_u); delay_s and step_s (h) in s. Returns (T, n_u).
+    """
+    u = np.asarray(u, dtype=float)
+    position = np.arange(u.shape[0]) + delay_s / step_s
+    lower = np.floor(position).astype(int)
+    fraction = (position - lower)[:, None]
+    last = u.shape[0] - 1
+    return (1.0 - fraction) * u[np.clip(lower, 0, last)] + fraction * u[np.clip(lower + 1, 0, last)]
+
+
+def estimate_input_delay_s(simulate, measured: np.ndarray, candidates_s: np.ndarray) -> tuple[float, np.ndarray]:
+    """The input delay whose simulation fits the measurement best (least squares), among ``candidates_s``.
 
     Args:
-        time_s: uniform time grid (T,), s.
-        measured, simulated: the same quantity (T,).
-        max_lag_s: largest shift searched, s.
-        resolution: grid points per sample step.
+        simulate: callable delay_s -> simulated quantity (T,).
+        measured: the measured quantity (T,).
+        candidates_s: the delays to try (s); ties go to the smallest magnitude.
+
+    Returns:
+        (best delay in s, its simulated quantity (T,)).
     """
-    time_s = np.asarray(time_s, dtype=float)
-    measured = np.asarray(measured, dtype=float)
-    simulated = np.asarray(simulated, dtype=float)
-    if not (time_s.shape == measured.shape == simulated.shape) or time_s.size < 3:
-        raise ValueError(f"time, measured and simulated must share one shape with at least 3 samples, got "
-                         f"{time_s.shape}, {measured.shape}, {simulated.shape}")
-    step_s = float(np.median(np.diff(time_s)))
-    max_lag_s = min(max_lag_s, 0.5 * (time_s[-1] - time_s[0]))
-    fine_s = step_s / resolution
-    count = int(np.floor(max_lag_s / fine_s))
-    candidates = np.arange(-count, count + 1) * fine_s
-    best_lag, best_cost = 0.0, np.inf
-    for lag in candidates:
-        shifted_t = time_s - lag
-        valid = (shifted_t >= time_s[0]) & (shifted_t <= time_s[-1])
-        if valid.sum() < 3:
-            continue
-        cost = float(np.mean((measured[valid] - np.interp(shifted_t[valid], time_s, simulated)) ** 2))
-        if cost < best_cost - 1e-15 or (abs(cost - best_cost) <= 1e-15 and abs(lag) < abs(best_lag)):
-            best_lag, best_cost = float(lag), cost
-    return best_lag
+    best = (np.inf, 0.0, None)
+    for delay_s in sorted(np.asarray(candidates_s, dtype=float), key=abs):
+        simulated = simulate(float(delay_s))
+        cost = float(np.mean((simulated - measured) ** 2))
+        if cost < best[0]:
+            best = (cost, float(delay_s), simulated)
+    return best[1], best[2]
 
 
 def run_time_offset(fmu_path: str | Path, data_path: str | Path, window_path: str | Path,
                     summary_path: str | Path, options: dict[str, Any], fmu_parameters: dict[str, float] | None,
-                    signals_config: dict[str, Any] | None, maneuver: str) -> dict[str, Any]:
-    """Simulate the FMU on the time-offset window and estimate the offset (rule ``time_offset``).
+                    signals_config: dict[str, Any] | None, maneuver: str, resolution: int = 20) -> dict[str, Any]:
+    """Simulate the FMU on the time-offset window and estimate the input delay (rule ``time_offset``).
 
-    The FMU starts from the measured state at the window's start (one sample before it, so the
-    first compared sample is already simulated) and is driven by the logged inputs.
+    The FMU starts from the measured state at the window's start and is driven by the logged inputs,
+    as logged (no delay) and with every candidate input delay u(t + dt) (grid of ``step / resolution``
+    within ``±max_lag_s``); the delay whose speed fits the data best is the estimate.
 
     Args:
         options: config ``evaluation.time_offset`` (``length_s``, ``t_start_s`` or None, ``max_lag_s``).
 
     Writes ``window_path`` (Parquet: ``time_s``, ``data_speed_rad_s``, ``fmu_speed_rad_s``,
-    ``data_angle_rad``, ``fmu_angle_rad``) and ``summary_path`` (JSON: maneuver, window, ``lag_s``,
-    errors before and after the shift). Returns the summary.
+    ``fmu_delayed_speed_rad_s`` (with the estimated delay), ``data_angle_rad``, ``fmu_angle_rad``) and
+    ``summary_path`` (JSON: maneuver, window, ``input_delay_s``, speed MSE without and with it).
+    Returns the summary.
     """
     from hybridfmu.evaluation.baseline import mechanical_states, read_maneuver, simulate_fmu_open_loop
     from hybridfmu.fmu import load_fmu
@@ -116,22 +116,30 @@ def run_time_offset(fmu_path: str | Path, data_path: str | Path, window_path: st
         if last - first < 3:
             raise ValueError(f"time-offset window [{t_start_s}, {t_end_s}] s of {maneuver!r} holds {last - first} "
                              "samples; at least 3 are needed (config.evaluation.time_offset.length_s)")
-        window = slice(first, last)
-        states, _ = simulate_fmu_open_loop(model, time_s[window], u[window], x_measured[first],
-                                           label=f"{maneuver} time-offset window")
-    t = time_s[window]
-    data_speed, fmu_speed = x_measured[window, speed_i], states[:, speed_i]
-    lag_s = estimate_lag_s(t, data_speed, fmu_speed, max_lag_s)
-    shifted = np.interp(t - lag_s, t, fmu_speed)
-    valid = (t - lag_s >= t[0]) & (t - lag_s <= t[-1])
-    frame = pd.DataFrame({"time_s": t, "data_speed_rad_s": data_speed, "fmu_speed_rad_s": fmu_speed,
-                          "data_angle_rad": x_measured[window, angle_i], "fmu_angle_rad": states[:, angle_i]})
+        step_s = float(np.median(np.diff(time_s)))
+        # inputs from the whole maneuver, so a shifted window reads the samples around it
+        t = time_s[first:last]
+        data_speed = x_measured[first:last, speed_i]
+
+        def simulate(delay_s: float) -> np.ndarray:
+            shifted = shift_inputs(u, delay_s, step_s)[first:last]
+            return simulate_fmu_open_loop(model, t, shifted, x_measured[first], label=f"{maneuver} time-offset window")[0]
+
+        plain = simulate(0.0)
+        fine_s = step_s / resolution
+        count = int(np.floor(max_lag_s / fine_s))
+        delay_s, _ = estimate_input_delay_s(lambda d: simulate(d)[:, speed_i], data_speed,
+                                            np.arange(-count, count + 1) * fine_s)
+        delayed = simulate(delay_s)
+    frame = pd.DataFrame({"time_s": t, "data_speed_rad_s": data_speed, "fmu_speed_rad_s": plain[:, speed_i],
+                          "fmu_delayed_speed_rad_s": delayed[:, speed_i],
+                          "data_angle_rad": x_measured[first:last, angle_i], "fmu_angle_rad": plain[:, angle_i]})
     write_parquet_atomic(window_path, frame)
     summary = {"maneuver": maneuver, "t_start_s": float(t[0]), "t_end_s": float(t[-1]), "window": how,
-               "lag_s": lag_s, "max_lag_s": max_lag_s,
-               "speed_mse_unshifted": float(np.mean((data_speed[valid] - fmu_speed[valid]) ** 2)),
-               "speed_mse_shifted": float(np.mean((data_speed[valid] - shifted[valid]) ** 2)),
-               "sign": "positive lag_s: the measured speed lags the FMU driven by the logged inputs"}
+               "input_delay_s": delay_s, "max_lag_s": max_lag_s,
+               "speed_mse_without_delay": float(np.mean((data_speed - plain[:, speed_i]) ** 2)),
+               "speed_mse_with_delay": float(np.mean((data_speed - delayed[:, speed_i]) ** 2)),
+               "convention": "the FMU sees the logged inputs as u(t + input_delay_s), as the neural FMU's delay"}
     write_json_atomic(summary_path, summary)
-    LOG.info("%s: time-offset window %.4f-%.4f s, estimated offset %.3g s", maneuver, t[0], t[-1], lag_s)
+    LOG.info("%s: time-offset window %.4f-%.4f s, estimated input delay %.3g s", maneuver, t[0], t[-1], delay_s)
     return summary
