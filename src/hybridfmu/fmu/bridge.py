@@ -26,7 +26,7 @@ import shutil
 import tempfile
 import weakref
 import zipfile
-from ctypes import c_double, c_int, c_void_p
+from ctypes import c_double, c_void_p
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
@@ -165,10 +165,11 @@ def _cleanup(fmu, component_holder, log_pointer, lib, unzip_dir, owns_unzip_dir)
 class FmuModel:
     """One instance of an FMI 2.0 Model-Exchange FMU with batched evaluation (see module doc).
 
-    Attributes (read-only): ``path``, ``model_name``, ``state_names`` (continuous states in the
-    order of the FMU's state vector), ``derivative_names``, ``input_names`` (continuous Real
-    inputs), ``output_names``, ``parameter_names``, ``n_states``, ``n_inputs``, ``n_outputs``,
-    ``n_event_indicators``, ``real_output_names``, ``provides_directional_derivative``, ``state_nominals`` (n_x,),
+    Attributes (not to be modified): ``path``, ``model_name``, ``state_names`` (continuous
+    states in the order of the FMU's state vector), ``derivative_names``, ``input_names``
+    (continuous Real inputs), ``output_names`` (all outputs), ``real_output_names`` (the Real
+    ones), ``parameter_names``, ``n_states``, ``n_inputs``, ``n_outputs``,
+    ``n_event_indicators``, ``provides_directional_derivative``, ``state_nominals`` (n_x,),
     ``input_nominals`` (n_u,), ``initial_states`` (n_x,): the states after initialisation.
 
     ``jacobian_method`` ("auto", "directional" or "fd") chooses how :meth:`jacobians` works;
@@ -212,7 +213,10 @@ class FmuModel:
         )
         try:
             if owns_dir:
-                extract(str(self.path), unzipdir=unzip_dir)
+                try:
+                    extract(str(self.path), unzipdir=unzip_dir)
+                except Exception as err:
+                    raise FmuFormatError(f"{self.path}: cannot extract the FMU archive: {err}") from None
             self._unzip_dir = unzip_dir
             library = Path(unzip_dir, "binaries", _library_platform(), self._identifier + ".so")
             if not library.is_file():
