@@ -21,7 +21,7 @@ def test_evaluation_run_records_metrics_and_artifacts(tmp_path):
     metric_file = tmp_path / "test.json"
     metric_file.write_text(json.dumps(metrics["test"]))
     uri, experiment = resolve_tracking({}, tmp_path, "tiny")
-    info = log_evaluation_run(tmp_path / "run.json", uri, experiment, tmp_path, metrics, [metric_file],
+    info = log_evaluation_run(tmp_path / "run.json", uri, experiment, metrics, [metric_file],
                               {"dt_s": -2e-5, "width": 8}, "abc123", "tiny")
     assert json.loads((tmp_path / "run.json").read_text())["run_id"] == info["run_id"]
     figure = tmp_path / "fig.png"
@@ -33,7 +33,7 @@ def test_evaluation_run_records_metrics_and_artifacts(tmp_path):
     client = MlflowClient(tracking_uri=uri)
     run = client.get_run(info["run_id"])
     assert run.info.status == "FINISHED"
-    assert run.data.tags["best_trial_run_id"] == "abc123" and run.data.tags["stage"] == "evaluation"
+    assert run.data.tags["best_trial_run_id"] == "abc123" and run.data.tags["hybridfmu.role"] == "evaluation"
     assert run.data.metrics["test/improvement/angle_mae"] == 4.0
     assert "test/improvement/speed_mse" not in run.data.metrics       # unbounded factor is not logged
     assert run.data.params["dt_s"] == "-2e-05"
