@@ -1,0 +1,159 @@
+"""MLflow access for concurrent Snakemake jobs.
+
+- URI: config ``mlflow.tracking_uri``, default ``sqlite:///<absolute results_dir>/mlflow.db``.
+- SQLite under concurrent writers: every call is retried with exponential backoff and jitter while the
+  database is locked; the store is created (schema migrations) under an exclusive file lock, so two jobs
+  that open a fresh database at once do not race.
+- Experiments and runs are found by name / tags before they are created, so a rerun reuses them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import logging
+import random
+import subprocess
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterator, TypeVar
+
+LOG = logging.getLogger(__name__)
+T = TypeVar("T")
+
+#: Substrings of errors that mean "try again": SQLite lock contention.
+RETRYABLE_MESSAGES = ("database is locked", "database table is locked", "disk i/o error", "unable to open database")
+
+
+def default_tracking_uri(results_dir: str | Path) -> str:
+    return f"sqlite:///{Path(results_dir).resolve() / 'mlflow.db'}"
+
+
+def tracking_uri(mlflow_config: dict[str, Any] | None, results_dir: str | Path) -> str:
+    """The configured tracking URI, or the SQLite store under ``results_dir``."""
+    uri = (mlflow_config or {}).get("tracking_uri") or ""
+    return uri or default_tracking_uri(results_dir)
+
+
+def experiment_name(mlflow_config: dict[str, Any] | None, case: str) -> str:
+    """The configured experiment, or the case name (one experiment per case)."""
+    return (mlflow_config or {}).get("experiment") or case
+
+
+def retry_locked(fn: Callable[..., T], *args: Any, attempts: int = 15, base_delay_s: float = 0.05,
+                 max_delay_s: float = 5.0, **kwargs: Any) -> T:
+    """Call ``fn``; while it fails because the database is locked, wait (exponential backoff with jitter)
+    and call again, up to ``attempts`` times. Other errors propagate at once."""
+    for attempt in range(attempts):
+        try:
+            return fn(*args, **kwargs)
+        except Exception as err:  # MLflow wraps SQLAlchemy errors in its own exception types
+            text = str(err).lower()
+            if attempt == attempts - 1 or not any(message in text for message in RETRYABLE_MESSAGES):
+                raise
+            delay = min(max_delay_s, base_delay_s * 2 ** attempt) * (0.5 + random.random())
+            LOG.info("MLflow store busy (%s); retrying in %.2f s", text.splitlines()[0][:120], delay)
+            time.sleep(delay)
+    raise AssertionError("unreachable")
+
+
+@contextlib.contextmanager
+def _file_lock(path: Path) -> Iterator[None]:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def git_commit(directory: str | Path | None = None) -> str | None:
+    """The current git commit of ``directory`` (default: the working directory), or None."""
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=directory, capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() or None if out.returncode == 0 else None
+
+
+class Tracker:
+    """An MLflow client with retries. ``artifact_root``: folder for the artifacts of experiments this
+    tracker creates (default: ``mlartifacts`` beside a SQLite database)."""
+
+    def __init__(self, uri: str, artifact_root: str | Path | None = None) -> None:
+        from mlflow.tracking import MlflowClient
+
+        self.uri = uri
+        database = Path(uri[len("sqlite:///"):]) if uri.startswith("sqlite:///") else None
+        if artifact_root is None and database is not None:
+            artifact_root = database.parent / "mlartifacts"
+        self.artifact_root = Path(artifact_root).resolve() if artifact_root is not None else None
+        self.client = MlflowClient(tracking_uri=uri)
+        if database is not None:
+            # Create the store (schema migrations) under an exclusive lock: concurrent first use is safe.
+            with _file_lock(database.with_name(database.name + ".lock")):
+                retry_locked(self.client.search_experiments, max_results=1)
+
+    def call(self, method: str, *args: Any, **kwargs: Any) -> Any:
+        """``client.<method>(*args, **kwargs)`` with retries while the store is locked."""
+        return retry_locked(getattr(self.client, method), *args, **kwargs)
+
+    def experiment_id(self, name: str) -> str:
+        """Id of experiment ``name``, created if missing (safe when another job creates it meanwhile)."""
+        experiment = self.call("get_experiment_by_name", name)
+        if experiment is not None:
+            return experiment.experiment_id
+        location = (self.artifact_root / name).as_uri() if self.artifact_root is not None else None
+        try:
+            return self.call("create_experiment", name, artifact_location=location)
+        except Exception:
+            experiment = self.call("get_experiment_by_name", name)
+            if experiment is None:
+                raise
+            return experiment.experiment_id
+
+    def find_run(self, experiment_id: str, tags: dict[str, str]) -> str | None:
+        """Id of the oldest live run carrying all ``tags``, or None."""
+        clauses = " and ".join(f"tags.`{key}` = '{value}'" for key, value in sorted(tags.items()))
+        runs = self.call("search_runs", [experiment_id], filter_string=clauses, order_by=["attributes.start_time ASC"],
+                         max_results=10)
+        return runs[0].info.run_id if runs else None
+
+    def get_or_create_run(self, experiment_id: str, tags: dict[str, str], run_name: str,
+                          parent_run_id: str | None = None) -> str:
+        """The run with ``tags`` (found by them), or a new one with them (a child of ``parent_run_id``)."""
+        found = self.find_run(experiment_id, tags)
+        if found is not None:
+            return found
+        all_tags = dict(tags)
+        if parent_run_id:
+            all_tags["mlflow.parentRunId"] = parent_run_id
+        run = self.call("create_run", experiment_id, tags=all_tags, run_name=run_name)
+        return run.info.run_id
+
+    def log(self, run_id: str, params: dict[str, Any] | None = None,
+            metrics: list[tuple[str, float, int]] | None = None, tags: dict[str, Any] | None = None) -> None:
+        """Log params, metrics ``(key, value, step)`` and tags in batches (MLflow's batch limits)."""
+        from mlflow.entities import Metric, Param, RunTag
+
+        timestamp = int(time.time() * 1000)
+        params = [Param(k, str(v)[:6000]) for k, v in (params or {}).items()]
+        tags = [RunTag(k, str(v)[:5000]) for k, v in (tags or {}).items()]
+        metric_rows = [Metric(k, float(v), timestamp, int(step)) for k, v, step in (metrics or [])]
+        for start in range(0, max(len(params), 1), 100):
+            chunk = params[start:start + 100]
+            if chunk or start == 0:
+                self.call("log_batch", run_id, params=chunk, tags=tags if start == 0 else [])
+        for start in range(0, len(metric_rows), 1000):
+            self.call("log_batch", run_id, metrics=metric_rows[start:start + 1000])
+
+    def log_artifact(self, run_id: str, path: str | Path, artifact_path: str | None = None) -> None:
+        self.call("log_artifact", run_id, str(path), artifact_path=artifact_path)
+
+    def set_status(self, run_id: str, status: str) -> None:
+        """RUNNING, FINISHED or FAILED."""
+        if status == "RUNNING":
+            self.call("update_run", run_id, status="RUNNING")
+        else:
+            self.call("set_terminated", run_id, status=status)

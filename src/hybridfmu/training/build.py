@@ -1,0 +1,56 @@
+"""Neural FMU from the case config, the FMU and a configuration of the search."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from hybridfmu.model.neural_fmu import NeuralFmu
+from hybridfmu.model.spec import EndStop, NeuralFmuSpec
+
+
+def _names(value: Any, available: list[str], field: str) -> list[str]:
+    if value == "all":
+        return list(available)
+    unknown = [name for name in value if name not in available]
+    if unknown:
+        raise ValueError(f"config.model.{field}: unknown name(s) {unknown}; the FMU has {available}")
+    return list(value)
+
+
+def model_spec(model_config: dict[str, Any], fmu_model: Any, sample_period_s: float, width: int, depth: int,
+               gate_opening: float) -> NeuralFmuSpec:
+    """The architecture: ``model_config`` is the validated ``model`` section; the FMU gives the state and
+    input names (and the end-stop values from its parameters)."""
+    states, inputs = list(fmu_model.state_names), list(fmu_model.input_names)
+    delay = model_config["input_delay"]
+    end_stop = None
+    stop = model_config.get("end_stop")
+    if stop:
+        names = [stop["min_parameter"], stop["max_parameter"]]
+        unknown = [name for name in names if name not in fmu_model.parameter_names]
+        if unknown:
+            raise ValueError(f"config.model.end_stop: FMU parameter(s) {unknown} do not exist; the FMU has "
+                             f"{fmu_model.parameter_names}")
+        values = fmu_model.get_parameters(names)
+        end_stop = EndStop(stop["state"], stop["rate_state"], float(values[names[0]]), float(values[names[1]]))
+    ann = model_config["ann_inputs"]
+    return NeuralFmuSpec(
+        state_names=states, input_names=inputs,
+        corrected_states=_names(model_config["corrected_states"], states, "corrected_states"),
+        ann_states=_names(ann["states"], states, "ann_inputs.states"),
+        ann_inputs=_names(ann["inputs"], inputs, "ann_inputs.inputs"),
+        ann_derivatives=_names(ann["derivatives"], states, "ann_inputs.derivatives"),
+        sample_period_s=float(sample_period_s), width=int(width), depth=int(depth), gate_opening=float(gate_opening),
+        delay_min_s=float(delay["min_s"]), delay_max_s=float(delay["max_s"]), delay_init_s=float(delay["init_s"]),
+        delay_scale_s=float(delay["scale_s"]), sample_position=delay["sample_position"],
+        solver=model_config["solver"], end_stop=end_stop)
+
+
+def build_neural_fmu(rhs: Any, spec: NeuralFmuSpec, statistics: dict[str, Any] | None, seed: int) -> NeuralFmu:
+    """A neural FMU whose MLP weights are drawn from a torch generator seeded with ``seed`` (the global
+    torch RNG is left as it was)."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return NeuralFmu(rhs, spec, statistics)

@@ -1,0 +1,178 @@
+"""The search's workflow steps (one function per Snakemake rule; the per-trial job is ``trial.run_trial_rung``):
+prepare the training data, plan the search, select the survivors of a rung, pick the best configuration."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import shutil
+from pathlib import Path
+from typing import Any
+
+from hybridfmu.io import atomic_path, read_json, write_json_atomic
+from hybridfmu.training.data import build_maneuver_arrays
+from hybridfmu.training.hyperband import rank_results, select_survivors
+from hybridfmu.training.plan import search_plan
+from hybridfmu.training.statistics import data_statistics
+
+LOG = logging.getLogger(__name__)
+
+#: Fields of each trial (one per configuration and rung) in the search summary.
+TRIAL_SUMMARY_KEYS = ("trial_id", "bracket", "rung", "config", "hash", "status", "reason", "objective", "validation",
+                      "resource_s", "steps", "skipped_steps", "delay_s", "gates", "hyperparameters", "curve",
+                      "mlflow_run_id", "wall_time_s")
+
+
+def role_maneuver(config: dict[str, Any], role: str, chosen: str = "") -> str:
+    """The maneuver used for ``role`` (train / validation): ``chosen`` if set, else the first of that role."""
+    maneuvers = config["maneuvers"]
+    if chosen:
+        if chosen not in maneuvers:
+            raise ValueError(f"config.training: maneuver {chosen!r} is not in config.maneuvers {list(maneuvers)}")
+        return chosen
+    for name, item in maneuvers.items():
+        if item["role"] == role:
+            return name
+    raise ValueError(f"config.maneuvers: no maneuver with role {role!r} (training needs one)")
+
+
+def prepare_training_data(*, fmu_path: str | Path, fmu_parameters: dict[str, float] | None,
+                          signals_config: dict[str, Any] | None, maneuvers: dict[str, str],
+                          data_paths: dict[str, str], segments_paths: dict[str, str],
+                          baseline_paths: dict[str, str | None], array_paths: dict[str, str],
+                          statistics_path: str | Path) -> dict[str, Any]:
+    """Arrays of the train and validation maneuvers, and the training data statistics.
+
+    Args:
+        maneuvers: role ("train", "validation") -> maneuver name; the other dicts are keyed by role.
+        baseline_paths: the FMU baseline per role, used only for states that are not measured (may be None
+            or missing, then the FMU is simulated here).
+    """
+    from hybridfmu.fmu import load_fmu
+
+    fmu_model = load_fmu(fmu_path, parameters=fmu_parameters or None)
+    arrays = {}
+    for role, name in maneuvers.items():
+        arrays[role] = build_maneuver_arrays(name, data_paths[role], segments_paths[role], fmu_model, signals_config,
+                                             baseline_paths.get(role))
+        kept = int((arrays[role].spans[:, 1] - arrays[role].spans[:, 0]).sum())
+        LOG.info("%s (%s): %d samples, %d segments with %d samples (%.3g s)", name, role, arrays[role].time_s.size,
+                 len(arrays[role].spans), kept, kept * arrays[role].sample_period_s)
+    statistics = data_statistics(arrays["train"], fmu_model)
+    for role, array in arrays.items():
+        array.save(array_paths[role])
+    write_json_atomic(statistics_path, statistics)
+    return statistics
+
+
+def search_id(case: str, seed: int, sections: dict[str, Any]) -> str:
+    """Stable id of a search: hash of the case, the master seed and the sections that define it."""
+    text = json.dumps({"case": case, "seed": seed, **sections}, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def plan_search(*, case: str, seed: int, hpo_config: dict[str, Any], training_config: dict[str, Any],
+                model_config: dict[str, Any], plan_path: str | Path, tracking_uri: str | None,
+                experiment: str | None) -> dict[str, Any]:
+    """Write the search plan (brackets, rungs, sampled configurations) and create the MLflow parent run
+    (skipped when ``tracking_uri`` is None)."""
+    identifier = search_id(case, seed, {"hpo": hpo_config, "training": training_config, "model": model_config})
+    plan = search_plan(hpo_config, training_config, seed, identifier)
+    if tracking_uri:
+        from hybridfmu.tracking.search import start_search
+
+        params = {"R": plan["R"], "eta": plan["eta"], "max_resource_s": plan["max_resource_s"],
+                  "unit_s": plan["unit_s"], "n_configurations": plan["n_configurations"],
+                  "objective": json.dumps(plan["objective"]), "seed": seed,
+                  "search_space": json.dumps(hpo_config["search_space"], sort_keys=True)}
+        plan["tracking"] = start_search(tracking_uri, experiment or case, identifier, case, params)
+    write_json_atomic(plan_path, plan)
+    LOG.info("search %s: %d brackets, %d configurations, one unit = %.4g s of data", identifier,
+             len(plan["brackets"]), plan["n_configurations"], plan["unit_s"])
+    return plan
+
+
+def select_rung(*, plan_path: str | Path, bracket: int, rung: int, result_paths: list[str],
+                selection_path: str | Path) -> dict[str, Any]:
+    """Rank the rung's results by validation objective and keep the next rung's number of survivors."""
+    plan = read_json(plan_path)
+    entry = next((b for b in plan["brackets"] if b["bracket"] == bracket), None)
+    if entry is None:
+        raise ValueError(f"{plan_path}: no bracket {bracket}")
+    results = []
+    for path in result_paths:
+        result = read_json(path)
+        if result.get("bracket") != bracket or result.get("rung") != rung:
+            raise ValueError(f"{path}: result of b{result.get('bracket')} r{result.get('rung')}, "
+                             f"expected b{bracket} r{rung}")
+        results.append({**result, "result_path": str(path)})
+    last = rung == len(entry["rungs"]) - 1
+    n_keep = 0 if last else entry["rungs"][rung + 1]["n_configs"]
+    survivors = select_survivors(results, n_keep)
+    ranking = [{"config": r["config"], "trial_id": r["trial_id"], "status": r["status"], "reason": r["reason"],
+                "objective": r["objective"], "result": r["result_path"]} for r in rank_results(results)]
+    selection = {"bracket": bracket, "rung": rung, "last_rung": last, "survivors": survivors,
+                 "n_failed": sum(r["status"] != "ok" for r in results), "ranking": ranking}
+    write_json_atomic(selection_path, selection)
+    LOG.info("bracket %d rung %d: %d results (%d failed), survivors %s", bracket, rung, len(results),
+             selection["n_failed"], survivors)
+    return selection
+
+
+def select_best(*, plan_path: str | Path, selection_paths: list[str], best_path: str | Path,
+                best_model_path: str | Path, summary_path: str | Path, case: str) -> dict[str, Any]:
+    """The best configuration over all brackets (by the validation objective of the brackets' last rungs).
+
+    ``selection_paths``: the selections of every rung of every bracket (the last rungs' decide).
+
+    Writes ``summary_path`` (every trial of every rung: hyperparameters, status, validation, training
+    curve), copies the best checkpoint to ``best_model_path`` and writes ``best_path``:
+    ``{"trial_id", "bracket", "config", "rung", "checkpoint", "source_checkpoint", "hyperparameters",
+    "validation", "objective", "delay_s", "gates", "model_spec", "fmu", "mlflow_run_id", "tracking",
+    "summary", ...}``.
+    """
+    import torch
+
+    plan = read_json(plan_path)
+    finals, trials = [], []
+    for path in selection_paths:
+        selection = read_json(path)
+        for item in selection["ranking"]:
+            record = read_json(item["result"])
+            if selection.get("last_rung"):
+                finals.append(record)
+            trials.append({key: record.get(key) for key in TRIAL_SUMMARY_KEYS})
+    trials.sort(key=lambda t: (-t["bracket"], t["config"], t["rung"]))
+    ranked = [r for r in rank_results(finals) if r["status"] == "ok" and r["objective"] is not None]
+    summary = {"search_id": plan["search_id"], "R": plan["R"], "eta": plan["eta"], "unit_s": plan["unit_s"],
+               "max_resource_s": plan["max_resource_s"], "objective": plan["objective"],
+               "n_configurations": plan["n_configurations"], "trials": trials,
+               "best_trial": ranked[0]["trial_id"] if ranked else None}
+    write_json_atomic(summary_path, summary)
+    if not ranked:
+        if plan.get("tracking"):
+            from hybridfmu.tracking.search import finish_search
+            finish_search(plan["tracking"], None, summary_path)
+        raise RuntimeError(f"hyperparameter search of case {case}: every configuration of the last rungs failed "
+                           f"or diverged; see {summary_path}")
+    best = ranked[0]
+    checkpoint = torch.load(best["checkpoint"], map_location="cpu", weights_only=False)
+    with atomic_path(best_model_path) as tmp:
+        shutil.copyfile(best["checkpoint"], tmp)
+    record = {
+        "case": case, "trial_id": best["trial_id"], "bracket": best["bracket"], "config": best["config"],
+        "rung": best["rung"], "checkpoint": str(best_model_path), "source_checkpoint": best["checkpoint"],
+        "hyperparameters": best["hyperparameters"], "objective": best["objective"], "validation": best["validation"],
+        "resource_s": best["resource_s"], "delay_s": best["delay_s"], "gates": best["gates"],
+        "model_spec": checkpoint["spec"], "fmu": best["fmu"], "mlflow_run_id": best.get("mlflow_run_id"),
+        "tracking": plan.get("tracking"), "search_id": plan["search_id"], "summary": str(summary_path),
+        "ranking": [{"trial_id": r["trial_id"], "objective": r["objective"]} for r in ranked],
+    }
+    write_json_atomic(best_path, record)
+    if plan.get("tracking"):
+        from hybridfmu.tracking.search import finish_search
+        finish_search(plan["tracking"], record, summary_path)
+    LOG.info("best: %s (objective %.4g, dt = %.4g s, gates %s)", best["trial_id"], best["objective"],
+             best["delay_s"], best["gates"])
+    return record

@@ -1,0 +1,73 @@
+"""Using a trained neural FMU: load the best model of a search and simulate it open loop."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from hybridfmu.io import read_json
+from hybridfmu.model.neural_fmu import NeuralFmu
+from hybridfmu.model.spec import NeuralFmuSpec
+from hybridfmu.training.data import check_uniform_grid
+from hybridfmu.training.solver import rollout
+from hybridfmu.training.windows import delay_padding
+
+
+def load_trained_neural_fmu(best_json_path: str | Path, fmu_path: str | Path,
+                            fmu_parameters: dict[str, float] | None = None) -> NeuralFmu:
+    """The neural FMU named by ``hpo/best.json`` (its ``checkpoint``), around the FMU at ``fmu_path``.
+
+    The learned delay is ``model.delay_s()`` (s), the gates ``model.gate_values()``.
+    """
+    from hybridfmu.fmu import FmuRhs, load_fmu
+    from hybridfmu.training.trial import load_checkpoint
+
+    best = read_json(best_json_path)
+    if "checkpoint" not in best:
+        raise ValueError(f"{best_json_path}: field 'checkpoint' missing (expected the best.json of a search)")
+    checkpoint_path = Path(best["checkpoint"])
+    checkpoint = load_checkpoint(checkpoint_path)
+    spec = NeuralFmuSpec.from_dict(checkpoint["spec"])
+    fmu_model = load_fmu(fmu_path, parameters=fmu_parameters or None)
+    if list(fmu_model.state_names) != spec.state_names or list(fmu_model.input_names) != spec.input_names:
+        raise ValueError(f"{fmu_path}: FMU states {fmu_model.state_names} / inputs {fmu_model.input_names} differ "
+                         f"from the trained model's {spec.state_names} / {spec.input_names}")
+    model = NeuralFmu(FmuRhs(fmu_model), spec, None)
+    model.load_state_dict(checkpoint["model"])
+    model.eval()
+    return model
+
+
+def simulate_neural_fmu(model: NeuralFmu, time_s: Any, u: Any, x0: Any) -> np.ndarray:
+    """Open-loop simulation from ``x0`` over the whole grid.
+
+    Args:
+        model: a trained neural FMU.
+        time_s: (T,) uniform sample times (s) with the model's sample period.
+        u: (T, n_u) inputs in FMU order.
+        x0: (n_x,) initial state at ``time_s[0]``.
+
+    Returns:
+        states (T, n_x), float64 (non-finite rows if the simulation diverged).
+    """
+    time_s = np.asarray(time_s, dtype=np.float64)
+    u = np.asarray(u, dtype=np.float64)
+    x0 = np.asarray(x0, dtype=np.float64).reshape(-1)
+    spec = model.spec
+    step = check_uniform_grid(time_s, "simulate_neural_fmu")
+    if abs(step - spec.sample_period_s) > 1e-6 * spec.sample_period_s:
+        raise ValueError(f"simulate_neural_fmu: time_s has step {step:.6g} s, the model was trained with "
+                         f"{spec.sample_period_s:.6g} s")
+    if u.shape != (time_s.size, len(spec.input_names)):
+        raise ValueError(f"simulate_neural_fmu: u has shape {u.shape}, expected {(time_s.size, len(spec.input_names))}")
+    if x0.shape != (len(spec.state_names),):
+        raise ValueError(f"simulate_neural_fmu: x0 has shape {x0.shape}, expected ({len(spec.state_names)},)")
+    pad = delay_padding(spec.sample_period_s, spec.delay_min_s, spec.delay_max_s)
+    index = np.clip(np.arange(-pad, time_s.size + pad), 0, time_s.size - 1)
+    u_seq = torch.from_numpy(np.ascontiguousarray(u[index]))[None]
+    with torch.no_grad():
+        states = rollout(model, u_seq, pad, torch.from_numpy(x0)[None], time_s.size - 1)
+    return states[0].numpy()

@@ -1,0 +1,175 @@
+"""One Snakemake training job: a configuration trained through one Hyperband rung, resumed from the
+previous rung's checkpoint, validated open loop, checkpointed and tracked.
+
+A trial that diverges (too many skipped steps, a non-finite validation) or fails (an error while
+training or validating) still writes its checkpoint and result, with ``status`` and ``reason``; the
+selection ranks it last and the search goes on.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import math
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from hybridfmu.io import atomic_path, read_json, write_json_atomic
+from hybridfmu.progress import Progress
+from hybridfmu.training.build import build_neural_fmu, model_spec
+from hybridfmu.training.data import ManeuverArrays
+from hybridfmu.training.plan import plan_entry
+from hybridfmu.training.trainer import Hyperparameters, Trainer, TrainerSettings, TrialDiverged
+from hybridfmu.training.validation import validate
+
+LOG = logging.getLogger(__name__)
+CHECKPOINT_FORMAT = 1
+
+
+def file_sha256(path: str | Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Read a trial checkpoint written by ``run_trial_rung``."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: checkpoint does not exist")
+    checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path}: not a trial checkpoint (expected format {CHECKPOINT_FORMAT})")
+    return checkpoint
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
+
+
+def _curve(history: list[list[float]], points: int) -> list[list[float]]:
+    """At most ``points`` rows [resource_s, loss] (means over consecutive steps)."""
+    rows = [(r, l) for r, l, *_ in history]
+    if not rows:
+        return []
+    groups = np.array_split(np.arange(len(rows)), min(points, len(rows)))
+    curve = []
+    for group in groups:
+        losses = [rows[i][1] for i in group if math.isfinite(rows[i][1])]
+        curve.append([rows[group[-1]][0], float(np.mean(losses)) if losses else None])
+    return curve
+
+
+def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_index: int,
+                   train_arrays_path: str | Path, validation_arrays_path: str | Path, statistics_path: str | Path,
+                   fmu_path: str | Path, fmu_parameters: dict[str, float] | None, model_config: dict[str, Any],
+                   training_config: dict[str, Any], previous_checkpoint: str | Path | None,
+                   checkpoint_path: str | Path, result_path: str | Path, track: bool = True) -> dict[str, Any]:
+    """Train configuration ``config_index`` of ``bracket`` up to the resource of ``rung`` and validate it.
+
+    Args:
+        plan_path: the search plan (``hpo/plan.json``; also names the MLflow parent run).
+        train_arrays_path, validation_arrays_path, statistics_path: outputs of ``prepare_training_data``.
+        fmu_path, fmu_parameters: the FMU and parameter overrides.
+        model_config, training_config: validated ``model`` and ``training`` sections.
+        previous_checkpoint: the previous rung's checkpoint (None for rung 0).
+        checkpoint_path, result_path: outputs (written atomically, also for a failed trial).
+        track: log to MLflow (the plan's tracking store).
+
+    Returns:
+        The result record (also written to ``result_path``).
+    """
+    from hybridfmu.fmu import FmuRhs, load_fmu
+
+    wall_start = time.perf_counter()
+    plan = read_json(plan_path)
+    entry = plan_entry(plan, bracket, rung, config_index)
+    hyper = Hyperparameters.from_dict(entry["hyperparameters"])
+    trial_id = f"b{bracket}c{config_index}"
+    train = ManeuverArrays.load(train_arrays_path)
+    valid = ManeuverArrays.load(validation_arrays_path)
+    statistics = read_json(statistics_path)
+    fmu_model = load_fmu(fmu_path, parameters=fmu_parameters or None)
+    spec = model_spec(model_config, fmu_model, train.sample_period_s, hyper.width, hyper.depth, hyper.gate_opening)
+    model = build_neural_fmu(FmuRhs(fmu_model), spec, statistics, entry["seed"])
+    settings = TrainerSettings(max_skipped_steps=int(training_config["max_skipped_steps"]),
+                               max_grad_norm=float(training_config["max_grad_norm"]))
+    validations: list[dict[str, Any]] = []
+    mlflow_run_id = None
+    status, reason = "ok", ""
+    trainer = None
+    start_resource_s = 0.0
+    if previous_checkpoint:
+        previous = load_checkpoint(previous_checkpoint)
+        if previous["config"] != config_index or previous["bracket"] != bracket or previous["rung"] != rung - 1:
+            raise ValueError(f"{previous_checkpoint}: checkpoint of b{previous['bracket']} r{previous['rung']} "
+                             f"c{previous['config']}, expected b{bracket} r{rung - 1} c{config_index}")
+        validations = list(previous["validations"])
+        mlflow_run_id = previous.get("mlflow_run_id")
+        if previous["status"] != "ok":
+            status, reason = previous["status"], f"previous rung: {previous['reason']}"
+    LOG.info("trial %s rung %d: %s, train to %.4g s of data", trial_id, rung, entry["hyperparameters"],
+             entry["resource_s"])
+    try:
+        trainer = Trainer(model, train, hyper, statistics, settings, entry["seed"])
+        if previous_checkpoint:
+            trainer.load_state_dict(previous["trainer"])
+        start_resource_s = trainer.resource_used_s
+        if status == "ok":
+            progress = Progress(max(entry["resource_s"] - trainer.resource_used_s, 0.0), f"trial {trial_id} rung {rung}",
+                                unit="s of data", logger=LOG, interval_s=10.0)
+            trainer.train_until(entry["resource_s"], progress)
+            progress.finish()
+            metrics = validate(model, valid, hyper.loss, hyper.w_speed, plan["objective"], statistics)
+            metrics.update(resource_s=trainer.resource_used_s, rung=rung)
+            validations.append(metrics)
+            if not metrics["finite"]:
+                status, reason = "diverged", "open-loop validation diverged (non-finite states)"
+    except TrialDiverged as err:
+        status, reason = "diverged", str(err)
+    except Exception as err:  # the search goes on; the failure is recorded
+        status, reason = "failed", f"{type(err).__name__}: {err}"
+        LOG.error("trial %s rung %d failed:\n%s", trial_id, rung, traceback.format_exc())
+    if status != "ok":
+        LOG.warning("trial %s rung %d ends: %s (%s)", trial_id, rung, status, reason)
+    last = validations[-1] if validations and status == "ok" else {}
+    result = {
+        "trial_id": trial_id, "bracket": bracket, "rung": rung, "config": config_index, "hash": entry["hash"],
+        "status": status, "reason": reason, "objective": _finite_or_none(last.get("objective", math.inf)),
+        "validation": {key: _finite_or_none(value) for key, value in last.items()},
+        "resource_s": trainer.resource_used_s if trainer else 0.0, "target_resource_s": entry["resource_s"],
+        "steps": trainer.steps if trainer else 0, "skipped_steps": trainer.skipped_steps if trainer else 0,
+        "delay_s": model.delay_s(), "gates": model.gate_values(), "hyperparameters": entry["hyperparameters"],
+        "checkpoint": str(checkpoint_path), "last_rung": rung == entry["last_rung"],
+        "curve": _curve(trainer.history if trainer else [], int(training_config.get("curve_points", 200))),
+        "validations": [{key: _finite_or_none(value) for key, value in v.items()} for v in validations],
+        "fmu": {"path": str(fmu_path), "sha256": file_sha256(fmu_path)},
+    }
+    checkpoint = {
+        "format": CHECKPOINT_FORMAT, "status": status, "reason": reason, "bracket": bracket, "rung": rung,
+        "config": config_index, "hash": entry["hash"], "spec": spec.to_dict(), "statistics": statistics,
+        "hyperparameters": entry["hyperparameters"], "trainer": trainer.state_dict() if trainer else None,
+        "model": model.state_dict(), "validations": validations, "fmu": result["fmu"],
+    }
+    if track and plan.get("tracking"):
+        from hybridfmu.tracking.search import log_trial_rung
+
+        mlflow_run_id = log_trial_rung(plan["tracking"], plan["search_id"], result, trainer.history if trainer else [],
+                                       model, spec, mlflow_run_id, start_resource_s)
+    result["mlflow_run_id"] = mlflow_run_id
+    checkpoint["mlflow_run_id"] = mlflow_run_id
+    result["wall_time_s"] = time.perf_counter() - wall_start
+    with atomic_path(checkpoint_path) as tmp:
+        torch.save(checkpoint, tmp)
+    write_json_atomic(result_path, result)
+    LOG.info("trial %s rung %d: %s, objective %s, %.4g s of data, %d steps (%d skipped), dt = %.4g s, %.1f s wall",
+             trial_id, rung, status, result["objective"], result["resource_s"], result["steps"],
+             result["skipped_steps"], result["delay_s"], result["wall_time_s"])
+    return result
