@@ -57,3 +57,52 @@ def test_decimation_keeps_extremes():
     td, yd = decimate_minmax(t, y, 1000)
     assert td.size <= 1000 and yd.max() == 7.0 and yd.min() == -3.0
     assert np.all(np.diff(td) > 0)
+
+
+def _write_search(root):
+    """Result files of a tiny search: bracket 1 (2 configs, 2 rungs; c1 stops), bracket 0 (1 config, failed)."""
+    import json
+
+    def write(bracket, rung, config, resource_s, objective, status="ok"):
+        folder = root / f"b{bracket}" / f"r{rung}" / f"c{config}"
+        folder.mkdir(parents=True)
+        curve = [[r, 1.0 / (1 + r) + 0.01 * config] for r in np.linspace(0.1, resource_s, 20)]
+        curve[3][1] = None
+        folder.joinpath("result.json").write_text(json.dumps({
+            "trial_id": f"b{bracket}c{config}", "bracket": bracket, "config": config, "rung": rung,
+            "resource_s": resource_s, "objective": objective, "status": status, "curve": curve,
+            "hyperparameters": {"lr": 1e-5, "width": 8}}))
+
+    write(1, 0, 0, 1.0, 0.5)
+    write(1, 0, 1, 1.0, 0.7)
+    write(1, 1, 0, 3.0, 0.3)
+    write(0, 0, 0, 3.0, None, status="diverged")
+    best = root / "best.json"
+    best.write_text('{"trial_id": "b1c0"}')
+    return best
+
+
+def test_histories_and_search_figures(tmp_path):
+    from hybridfmu.evaluation.figures import plot_hyperband, plot_training_curves
+    from hybridfmu.evaluation.history import read_histories
+
+    best = _write_search(tmp_path)
+    search = read_histories(tmp_path, best)
+    assert [t.trial_id for t in search.trials] == ["b0c0", "b1c0", "b1c1"]
+    b1c0 = search.trials[1]
+    assert [r["rung"] for r in b1c0.rungs] == [0, 1] and b1c0.curve[-1, 0] == pytest.approx(3.0)
+    assert np.isnan(b1c0.curve[3, 1]) and search.trials[0].status == "diverged" and search.brackets == [0, 1]
+    _assert_png(plot_training_curves(search, tmp_path / "curves.png", OPTIONS))
+    _assert_png(plot_hyperband(search, tmp_path / "hyperband.png", OPTIONS))
+
+
+def test_histories_missing_are_named(tmp_path):
+    from hybridfmu.evaluation.history import read_histories
+
+    with pytest.raises(FileNotFoundError, match="no trial results"):
+        read_histories(tmp_path)
+    folder = tmp_path / "b0" / "r0" / "c0"
+    folder.mkdir(parents=True)
+    (folder / "result.json").write_text('{"trial_id": "b0c0"}')
+    with pytest.raises(ValueError, match=r"result\.json: field 'bracket' missing"):
+        read_histories(tmp_path)

@@ -221,3 +221,97 @@ def _check(traj: Trajectories) -> None:
     shapes = {np.shape(a) for a in (traj.time_s, traj.data, traj.fmu, traj.neural_fmu)}
     if len(shapes) != 1:
         raise ValueError(f"{traj.maneuver} {traj.quantity}: time, data, FMU and neural FMU differ in shape {shapes}")
+
+
+def _bracket_colors(brackets: Sequence[int]) -> dict[int, tuple]:
+    cmap = plt.get_cmap("tab10")
+    return {bracket: cmap(index % 10) for index, bracket in enumerate(sorted(brackets))}
+
+
+def _bracket_handles(colors: dict[int, tuple], marker: str | None = None) -> list:
+    from matplotlib.lines import Line2D
+
+    return [Line2D([], [], color=color, marker=marker, label=f"bracket {bracket}") for bracket, color in colors.items()]
+
+
+def plot_training_curves(search, path: str | Path, options: PlotOptions = PlotOptions()) -> Path:
+    """Training loss against the resource for every trial (top), and the best trial alone (bottom).
+
+    Args:
+        search: :class:`hybridfmu.evaluation.history.SearchHistory`.
+    """
+    colors = _bracket_colors(search.brackets)
+    best = next((t for t in search.trials if t.trial_id == search.best_trial_id), None)
+    with plt.rc_context(_style(options)):
+        fig, (ax_all, ax_best) = plt.subplots(2, 1, figsize=(options.width_in, options.height_in * 2))
+        handles = _bracket_handles(colors)
+        for trial in search.trials:
+            if trial.curve.size:
+                ax_all.plot(trial.curve[:, 0], trial.curve[:, 1], color=colors[trial.bracket], lw=0.7, alpha=0.6)
+        if best is not None and best.curve.size:
+            handles += ax_all.plot(best.curve[:, 0], best.curve[:, 1], color="black", lw=2.0,
+                                   label=f"best trial {best.trial_id}")
+        ax_all.set_yscale("log")
+        ax_all.set_xlabel("resource: training data processed [s]")
+        ax_all.set_ylabel("training loss (normalised) [-]")
+        ax_all.set_title(f"Training curves of all {len(search.trials)} trials, colored by Hyperband bracket")
+        ax_all.legend(handles=handles, loc="best")
+        if best is not None:
+            if best.curve.size:
+                ax_best.plot(best.curve[:, 0], best.curve[:, 1], color="tab:blue", lw=options.line_width,
+                             label="training loss")
+            points = [(r["resource_s"], r["objective"]) for r in best.rungs if r["objective"] is not None]
+            if points:
+                ax_best.plot(*zip(*points), "o-", color="black",
+                             label=f"validation objective at rung ends [last {points[-1][1]:.3g}]")
+            ax_best.set_yscale("log")
+            ax_best.legend(loc="best")
+            hp = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
+                           for k, v in best.hyperparameters.items())
+            ax_best.set_title(f"Best trial {best.trial_id}: {hp}", fontsize=options.font_size - 1, wrap=True)
+        else:
+            ax_best.set_title("Best trial: none (every trial failed)")
+        ax_best.set_xlabel("resource: training data processed [s]")
+        ax_best.set_ylabel("loss (normalised) [-]")
+        return _save(fig, path, options)
+
+
+def plot_hyperband(search, path: str | Path, options: PlotOptions = PlotOptions()) -> Path:
+    """Validation objective against the resource at every rung of every trial, colored by bracket.
+
+    Lines join the rungs of one trial; failed or diverged rungs are crosses on the top edge; a star
+    marks the best trial's last rung.
+    """
+    colors = _bracket_colors(search.brackets)
+    with plt.rc_context(_style(options)):
+        fig, ax = plt.subplots(figsize=(options.width_in, options.height_in * 1.3))
+        finite = [r["objective"] for t in search.trials for r in t.rungs if r["objective"] is not None]
+        top = max(finite) * 2.0 if finite else 1.0
+        handles = _bracket_handles(colors, marker="o")
+        any_failed = False
+        for trial in search.trials:
+            points = [(r["resource_s"], r["objective"]) for r in trial.rungs if r["objective"] is not None]
+            if points:
+                ax.plot(*zip(*points), "o-", color=colors[trial.bracket], ms=4, lw=0.8, alpha=0.8)
+            failed = [r["resource_s"] for r in trial.rungs if r["objective"] is None]
+            if failed:
+                ax.plot(failed, [top] * len(failed), "x", color=colors[trial.bracket], ms=7)
+                any_failed = True
+        if any_failed:
+            from matplotlib.lines import Line2D
+
+            handles.append(Line2D([], [], color="gray", marker="x", ls="", label="failed / diverged (top edge)"))
+        best = next((t for t in search.trials if t.trial_id == search.best_trial_id), None)
+        if best is not None:
+            points = [(r["resource_s"], r["objective"]) for r in best.rungs if r["objective"] is not None]
+            if points:
+                handles += ax.plot(*points[-1], "*", color="crimson", ms=16, mec="black", ls="",
+                                   label=f"best {best.trial_id} [{points[-1][1]:.3g}]")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("resource: training data processed [s]")
+        ax.set_ylabel("validation objective (normalised) [-]")
+        ax.set_title(f"Hyperband: validation objective of {len(search.trials)} trials in "
+                     f"{len(search.brackets)} brackets")
+        ax.legend(handles=handles, loc="best")
+        return _save(fig, path, options)
