@@ -33,3 +33,47 @@ def test_report_without_truth():
     text = render_report("user", {"test": _metrics("test", fmu, fmu)}, {}, {}, dt_s=1e-6, gates=None,
                          true_dt_s=None, truth_source=None, figures=[], mlflow_run=None)
     assert "no ground truth" in text and "| validation |" not in text
+
+
+def test_write_report_from_files(tmp_path):
+    import json
+
+    import pytest
+
+    from hybridfmu.evaluation.report import true_input_delay, write_report
+
+    fmu = {"angle_mae": 10.0, "angle_mse": 200.0, "speed_mae": 6.0, "speed_mse": 90.0}
+    neural = {"angle_mae": 2.0, "angle_mse": 2.0, "speed_mae": 3.0, "speed_mse": 10.0}
+    paths = []
+    for role in ("validation", "test"):
+        metrics = {**_metrics(role, fmu, neural), "maneuvers": [role], "dt_s": 2.5e-5,
+                   "gates": {"omega": {"g_F": 1.0, "g_A": 0.3}}}
+        path = tmp_path / "metrics" / f"{role}.json"
+        path.parent.mkdir(exist_ok=True)
+        path.write_text(json.dumps(metrics))
+        paths.append(str(path))
+    best = tmp_path / "best.json"
+    best.write_text(json.dumps({"trial_id": "b2c1", "hyperparameters": {"lr": 3e-6, "depth": 4},
+                                "checkpoint": "x.pt", "objective": 0.12, "mlflow_run_id": "r1"}))
+    run = tmp_path / "run.json"
+    run.write_text(json.dumps({"tracking_uri": "sqlite:///x", "experiment": "e", "run_id": "r2"}))
+    offset = tmp_path / "offset.json"
+    offset.write_text(json.dumps({"maneuver": "train", "t_start_s": 1.0, "t_end_s": 1.02, "input_delay_s": 3e-5,
+                                  "speed_mse_without_delay": 4.0, "speed_mse_with_delay": 1.0}))
+    truth = tmp_path / "test.truth.json"
+    truth.write_text(json.dumps({"time_offset": {"input_delay_s": 3e-5}}))
+    figures = {"validation_angle": str(tmp_path / "figures" / "validation_angle.png"),
+               "time_offset": str(tmp_path / "figures" / "time_offset.png")}
+    report = write_report(tmp_path / "report.md", "tiny", paths, best, run, offset, figures, [str(truth)],
+                          log_to_mlflow=False)
+    text = report.read_text()
+    assert "| validation | angle | MAE | 10 rad | 2 rad | ×5 | ×4.6 (Figs. 9-10) |" in text
+    assert "learned input delay Δt: 2.5e-05 s (25.00 µs)" in text and "learned minus true: -5.00 µs" in text
+    assert "![Validation maneuver 'validation': rotor angle, whole trajectory, open loop (cf. paper Fig. 9).]" \
+           "(figures/validation_angle.png)" in text
+    assert "| depth | 4 |" in text and "trial_id: b2c1" in text and "estimated input delay 30.0 µs" in text
+    bad = tmp_path / "bad.truth.json"
+    bad.write_text("{}")
+    with pytest.raises(ValueError, match=r"bad\.truth\.json: field 'time_offset.input_delay_s' missing"):
+        true_input_delay([str(bad)])
+    assert true_input_delay([]) == (None, None)

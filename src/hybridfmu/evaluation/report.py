@@ -151,3 +151,102 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
     for figure in figures:
         out += [f"![{figure.caption}]({figure.path})", "", f"*{figure.caption}*", ""]
     return "\n".join(out)
+
+
+#: Paper figure numbers of the evaluation figures of the validation and the test maneuver.
+PAPER_FIGURES = {("validation", "angle"): 9, ("validation", "angle_zoom"): 10, ("validation", "speed"): 11,
+                 ("validation", "speed_zoom"): 12, ("test", "angle"): 13, ("test", "angle_zoom"): 14,
+                 ("test", "speed"): 15, ("test", "speed_zoom"): 16}
+_KIND_TEXT = {"angle": "rotor angle, whole trajectory", "angle_zoom": "rotor angle, zoomed intervals",
+              "speed": "rotor speed, whole trajectory", "speed_zoom": "rotor speed, zoomed intervals"}
+
+
+def figure_caption(name: str, maneuver_roles: dict[str, str], time_offset: dict[str, Any] | None) -> str:
+    """Caption of figure ``name`` (see ``plots.draw_all`` for the names)."""
+    if name == "time_offset":
+        text = "Time offset between data and model (cf. paper Fig. 6)"
+        if time_offset:
+            text += (f": maneuver '{time_offset['maneuver']}', {time_offset['t_start_s']:.4f}–"
+                     f"{time_offset['t_end_s']:.4f} s; estimated input delay {time_offset['input_delay_s'] * 1e6:.1f} µs")
+        return text + "."
+    if name == "training_curves":
+        return "Training curves of every trial (training loss against seconds of training data), best trial below."
+    if name == "hyperband":
+        return "Hyperband: validation objective of every trial at each rung against the resource, by bracket."
+    for maneuver, role in maneuver_roles.items():
+        if name.startswith(f"{maneuver}_") and name[len(maneuver) + 1:] in _KIND_TEXT:
+            kind = name[len(maneuver) + 1:]
+            number = PAPER_FIGURES.get((role, kind))
+            paper = f" (cf. paper Fig. {number})" if number else ""
+            return f"{role.capitalize()} maneuver '{maneuver}': {_KIND_TEXT[kind]}, open loop{paper}."
+    return name
+
+
+def true_input_delay(truth_paths: list[str]) -> tuple[float | None, str | None]:
+    """The true input delay (s) from the bench's ground-truth files, and the file it comes from.
+
+    Reads ``time_offset.input_delay_s`` (convention u_true(t) = u_logged(t + input_delay_s), the same
+    as the neural FMU's learned delay). None when there is no truth file.
+
+    Raises:
+        ValueError: the files disagree, or the field is missing (names the file).
+    """
+    from hybridfmu.io import read_json
+
+    found: list[tuple[float, str]] = []
+    for path in truth_paths:
+        truth = read_json(path)
+        try:
+            found.append((float(truth["time_offset"]["input_delay_s"]), str(path)))
+        except (KeyError, TypeError):
+            raise ValueError(f"{path}: field 'time_offset.input_delay_s' missing (expected a bench ground truth)") from None
+    if not found:
+        return None, None
+    values = {value for value, _ in found}
+    if len(values) > 1:
+        raise ValueError(f"ground-truth files disagree on time_offset.input_delay_s: {found}")
+    return found[0]
+
+
+def write_report(report_path: str | Path, case: str, metrics_paths: list[str], best_path: str | Path,
+                 run_path: str | Path, time_offset_summary_path: str | Path, figure_paths: dict[str, str],
+                 truth_paths: list[str], log_to_mlflow: bool = True) -> Path:
+    """Write ``report.md`` (figures linked relative to it) and add it and the figures to the evaluation's
+    MLflow run.
+
+    Args:
+        metrics_paths: ``metrics/<role>.json``; best_path: ``hpo/best.json``; run_path: the evaluation run record.
+        time_offset_summary_path: the time-offset window's summary.
+        figure_paths: figure name -> PNG path.
+        truth_paths: ground-truth JSON files (may be empty: no "true" delay then).
+    """
+    import os
+
+    from hybridfmu.evaluation.best import best_trial_summary
+    from hybridfmu.io import read_json, write_text_atomic
+
+    metrics_by_role = {Path(path).stem: read_json(path) for path in metrics_paths}
+    best = read_json(best_path)
+    summary = best_trial_summary(best, best_path)
+    first = next(iter(metrics_by_role.values()))
+    run = read_json(run_path)
+    time_offset = read_json(time_offset_summary_path)
+    true_dt_s, truth_source = true_input_delay(truth_paths)
+    maneuver_roles = {m: role for role, metrics in metrics_by_role.items() for m in metrics.get("maneuvers", [])}
+    folder = Path(report_path).parent
+    figures = [ReportFigure(os.path.relpath(path, folder), figure_caption(name, maneuver_roles, time_offset))
+               for name, path in figure_paths.items()]
+    best_facts = {key: summary[key] for key in ("trial_id", "bracket", "rung", "objective", "resource_s",
+                                                "mlflow_run_id") if summary.get(key) is not None}
+    text = render_report(case, metrics_by_role, summary["hyperparameters"], best_facts, first.get("dt_s"),
+                         first.get("gates"), true_dt_s, truth_source, figures, run)
+    text += ("\n## Time offset seen from the FMU alone\n\n"
+             f"Fitting an input delay to the FMU on a short window of '{time_offset['maneuver']}' "
+             f"({time_offset['t_start_s']:.4f}–{time_offset['t_end_s']:.4f} s) gives {time_offset['input_delay_s'] * 1e6:.1f} µs "
+             f"(speed MSE {time_offset['speed_mse_without_delay']:.3g} → {time_offset['speed_mse_with_delay']:.3g} (rad/s)²).\n")
+    write_text_atomic(report_path, text)
+    if log_to_mlflow:
+        from hybridfmu.evaluation.tracking import log_report_artifacts
+
+        log_report_artifacts(run_path, list(figure_paths.values()), report_path)
+    return Path(report_path)
