@@ -1,0 +1,55 @@
+# The FMU open loop over each whole maneuver (rule simulate_baseline), and the short window that
+# shows the time offset between data and model (rule time_offset, paper Fig. 6).
+
+
+def time_offset_maneuver():
+    """Maneuver of the time-offset figure: the configured one, else the first train maneuver."""
+    chosen = config.get("evaluation", {}).get("time_offset", {}).get("maneuver", "")
+    if chosen:
+        return chosen
+    train = [name for name, item in config["maneuvers"].items() if item["role"] == "train"]
+    return train[0] if train else MANEUVERS[0]
+
+
+rule simulate_baseline:
+    input:
+        fmu=lambda wildcards: fmu_path(),
+        data=f"{RESULTS}/data/{{maneuver}}.parquet",
+    output:
+        trajectory=f"{RESULTS}/baseline/{{maneuver}}.parquet",
+        metrics=f"{RESULTS}/baseline/{{maneuver}}.metrics.json",
+    params:
+        fmu_parameters=config["fmu"].get("parameters", {}),
+        signals=config.get("signals", {}),
+    wildcard_constraints:
+        maneuver="|".join(MANEUVERS),
+    log:
+        f"{RESULTS}/logs/simulate_baseline/{{maneuver}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/simulate_baseline/{{maneuver}}.tsv"
+    script:
+        "../scripts/simulate_baseline.py"
+
+
+rule time_offset:
+    input:
+        fmu=lambda wildcards: fmu_path(),
+        data=f"{RESULTS}/data/{time_offset_maneuver()}.parquet",
+    output:
+        window=f"{RESULTS}/evaluation/time_offset.parquet",
+        summary=f"{RESULTS}/evaluation/time_offset.json",
+    params:
+        maneuver=time_offset_maneuver(),
+        options=config.get("evaluation", {}).get("time_offset", {}),
+        fmu_parameters=config["fmu"].get("parameters", {}),
+        signals=config.get("signals", {}),
+    log:
+        f"{RESULTS}/logs/time_offset/time_offset.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/time_offset/time_offset.tsv"
+    script:
+        "../scripts/time_offset.py"
+
+
+ALL_TARGETS.extend(expand(f"{RESULTS}/baseline/{{maneuver}}.{{ext}}", maneuver=MANEUVERS,
+                          ext=["parquet", "metrics.json"]))

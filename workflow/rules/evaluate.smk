@@ -1,0 +1,115 @@
+# Evaluation of the best neural FMU against the FMU on the validation and test maneuvers
+# (rule evaluate), the paper's figures (rule plot) and the report (rule report).
+
+EVAL_ROLES = [role for role in ("validation", "test")
+              if any(item["role"] == role for item in config["maneuvers"].values())]
+EVAL_MANEUVERS = [name for name, item in config["maneuvers"].items() if item["role"] in EVAL_ROLES]
+EVAL_CONFIG = config.get("evaluation", {})
+FIGURES = f"{RESULTS}/figures"
+
+
+def evaluation_figures():
+    """Figure name -> path: per evaluated maneuver the angle and speed, whole and zoomed
+    (paper Figs. 9-16), the time offset (Fig. 6), training curves and the Hyperband overview."""
+    names = {"time_offset": f"{FIGURES}/time_offset.png",
+             "training_curves": f"{FIGURES}/training_curves.png",
+             "hyperband": f"{FIGURES}/hyperband.png"}
+    for maneuver in EVAL_MANEUVERS:
+        for kind in ("angle", "angle_zoom", "speed", "speed_zoom"):
+            names[f"{maneuver}_{kind}"] = f"{FIGURES}/{maneuver}_{kind}.png"
+    return names
+
+
+def truth_files():
+    """Ground-truth files beside the raw logs (written by the bench emulator of a demo case)."""
+    files = []
+    for name in EVAL_MANEUVERS:
+        raw = config["maneuvers"][name]["raw"]
+        truth = str(Path(raw).with_suffix("")) + ".truth.json"
+        if "bench" in config or Path(truth).exists():
+            files.append(truth)
+    return files
+
+
+rule evaluate:
+    input:
+        best=f"{RESULTS}/hpo/best.json",
+        fmu=lambda wildcards: fmu_path(),
+        data=expand(f"{RESULTS}/data/{{maneuver}}.parquet", maneuver=EVAL_MANEUVERS),
+        baseline=expand(f"{RESULTS}/baseline/{{maneuver}}.parquet", maneuver=EVAL_MANEUVERS),
+    output:
+        metrics=expand(f"{RESULTS}/metrics/{{role}}.json", role=EVAL_ROLES),
+        trajectories=expand(f"{RESULTS}/evaluation/trajectories/{{maneuver}}.parquet", maneuver=EVAL_MANEUVERS),
+        run=f"{RESULTS}/evaluation/mlflow_run.json",
+    params:
+        maneuvers={name: config["maneuvers"][name]["role"] for name in EVAL_MANEUVERS},
+        zoom=EVAL_CONFIG.get("zoom", {}),
+        signals=config.get("signals", {}),
+        mlflow=config.get("mlflow", {}),
+        results_dir=config.get("results_dir", "results"),
+        case=CASE,
+    log:
+        f"{RESULTS}/logs/evaluate/evaluate.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/evaluate/evaluate.tsv"
+    script:
+        "../scripts/evaluate.py"
+
+
+def figure_outputs():
+    """Named plot outputs, each marked as an item of the Snakemake report with its caption."""
+    outputs = {}
+    for name, path in evaluation_figures().items():
+        maneuver = next((m for m in EVAL_MANEUVERS if name.startswith(f"{m}_")), None)
+        kind = name[len(maneuver) + 1:] if maneuver else name
+        subcategory = f"{config['maneuvers'][maneuver]['role']}: {maneuver}" if maneuver else "training and data"
+        outputs[name] = report(path, caption=f"../report/{kind}.rst", category="Evaluation",
+                               subcategory=subcategory, labels={"figure": name})
+    return outputs
+
+
+rule plot:
+    input:
+        metrics=expand(f"{RESULTS}/metrics/{{role}}.json", role=EVAL_ROLES),
+        trajectories=expand(f"{RESULTS}/evaluation/trajectories/{{maneuver}}.parquet", maneuver=EVAL_MANEUVERS),
+        time_offset=f"{RESULTS}/evaluation/time_offset.parquet",
+        time_offset_summary=f"{RESULTS}/evaluation/time_offset.json",
+        best=f"{RESULTS}/hpo/best.json",
+    output:
+        **figure_outputs(),
+    params:
+        plot=EVAL_CONFIG.get("plot", {}),
+        maneuvers={name: config["maneuvers"][name]["role"] for name in EVAL_MANEUVERS},
+        hpo_dir=f"{RESULTS}/hpo",
+    log:
+        f"{RESULTS}/logs/plot/plot.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/plot/plot.tsv"
+    script:
+        "../scripts/plot.py"
+
+
+rule report:
+    input:
+        metrics=expand(f"{RESULTS}/metrics/{{role}}.json", role=EVAL_ROLES),
+        best=f"{RESULTS}/hpo/best.json",
+        run=f"{RESULTS}/evaluation/mlflow_run.json",
+        time_offset_summary=f"{RESULTS}/evaluation/time_offset.json",
+        figures=list(evaluation_figures().values()),
+        truth=truth_files(),
+    output:
+        report(f"{RESULTS}/report.md", caption="../report/report_md.rst", category="Evaluation",
+               subcategory="report"),
+    params:
+        case=CASE,
+        figure_names=list(evaluation_figures()),
+    log:
+        f"{RESULTS}/logs/report/report.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/report/report.tsv"
+    script:
+        "../scripts/report.py"
+
+
+ALL_TARGETS.extend([f"{RESULTS}/report.md", *evaluation_figures().values(),
+                    *expand(f"{RESULTS}/metrics/{{role}}.json", role=EVAL_ROLES)])

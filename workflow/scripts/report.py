@@ -1,0 +1,16 @@
+"""Rule report: report.md (improvement factors beside the paper's, figures, hyperparameters, learned dt)."""
+
+from hybridfmu.evaluation.report import write_report
+from hybridfmu.progress import setup_rule_logging
+
+setup_rule_logging(snakemake.log[0])
+write_report(
+    report_path=snakemake.output[0],
+    case=snakemake.params.case,
+    metrics_paths=list(snakemake.input.metrics),
+    best_path=snakemake.input.best,
+    run_path=snakemake.input.run,
+    time_offset_summary_path=snakemake.input.time_offset_summary,
+    figure_paths=dict(zip(snakemake.params.figure_names, snakemake.input.figures)),
+    truth_paths=list(snakemake.input.truth),
+)
