@@ -202,6 +202,7 @@ def run_maneuver(settings: BenchSettings, maneuver: str, duration_s: float | Non
         if (k + 1) % chunk == 0:
             progress.update(chunk * T)
     wall_s = time.perf_counter() - start
+    progress.done = n * T
     progress.finish()
 
     time_s = refs.time_s
