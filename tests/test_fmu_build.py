@@ -213,7 +213,10 @@ def _motor_input_segment(first_row, second_row):
 @pytest.mark.parametrize("solver", ["CVode", "Euler"])
 def test_motor_simulates_with_fmpy_like_the_reference(ipbmotor_fmu, solver):
     # FMPy's Euler takes one step per output interval
-    options = {"relative_tolerance": 1e-9, "output_interval": 1e-3} if solver == "CVode" else {"output_interval": 2e-6, "step_size": 2e-6}
+    if solver == "CVode":
+        options = {"relative_tolerance": 1e-9, "output_interval": 1e-3}
+    else:
+        options = {"output_interval": 2e-6, "step_size": 2e-6}
     result = fmpy.simulate_fmu(str(ipbmotor_fmu), stop_time=0.03, solver=solver,
                                start_values={"theta": 30.0, "omega": 5.0, "L_q": 70e-6}, input=_motor_input(),
                                record_events=False, output=["i_d", "i_q", "theta", "omega", "stop_mode"], **options)
@@ -239,7 +242,10 @@ def test_motor_simulates_with_fmpy_like_the_reference(ipbmotor_fmu, solver):
 
 @pytest.mark.parametrize("solver", ["CVode", "Euler"])
 def test_oscillator_simulates_with_fmpy_like_the_reference(oscillator_fmu, solver):
-    options = {"relative_tolerance": 1e-9, "output_interval": 0.05} if solver == "CVode" else {"output_interval": 1e-4, "step_size": 1e-4}
+    if solver == "CVode":
+        options = {"relative_tolerance": 1e-9, "output_interval": 0.05}
+    else:  # FMPy's Euler takes one step per output interval
+        options = {"output_interval": 1e-4, "step_size": 1e-4}
     result = fmpy.simulate_fmu(str(oscillator_fmu), stop_time=5.0, solver=solver,
                                start_values={"mu": 0.8, "omega_0": 2.0, "x": 1.0, "v": 0.5},
                                output=["x", "v", "energy"], **options)

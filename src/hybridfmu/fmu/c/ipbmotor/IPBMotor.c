@@ -27,7 +27,13 @@
  *   z0 = theta - theta_min   (free or at theta_max; 1 while held at theta_min)
  *   z1 = theta_max - theta   (free or at theta_min; 1 while held at theta_max)
  *   z2 = tau_drive at theta_max, -tau_drive at theta_min, 1 when free
- * so a crossing from positive to negative always means "an event is due".
+ * so a crossing from positive to negative always means "an event is due". After a release
+ * (or a stop reached while the torque already points away) the rotor sits exactly at the
+ * stop, so z0 or z1 is 0 and turns positive as the rotor leaves: importers that follow FMI's
+ * domains z > 0 / z <= 0 see one more event there, at which nothing changes.
+ * fmi2CompletedIntegratorStep asks for event mode whenever the values contradict the mode
+ * (beyond a stop while free; torque pointing away, or states set off the stop, while held),
+ * a safety net for importers that miss a crossing.
  */
 #include <math.h>
 #include <stdio.h>
@@ -102,7 +108,9 @@ const double model_state_nominal[N_STATES] = {10.0, 10.0, 1.0, 100.0};
 int model_check_value(const VarInfo *variable, double value, char *message, size_t size) {
     const char *expected = NULL;
     switch (variable->index) {
-    case P: if (!(value >= 1.0 && value == floor(value))) expected = "the number of pole pairs must be a whole number >= 1"; break;
+    case P:
+        if (!(value >= 1.0 && value == floor(value))) expected = "the number of pole pairs must be a whole number >= 1";
+        break;
     case R: if (!(value >= 0.0)) expected = "the stator resistance must be >= 0 ohm"; break;
     case L_D: if (!(value > 0.0)) expected = "the d-axis inductance must be > 0 H"; break;
     case L_Q: if (!(value > 0.0)) expected = "the q-axis inductance must be > 0 H"; break;
@@ -394,7 +402,8 @@ int model_directional_derivative(const ModelData *data, const VarInfo *const unk
                                  double dv_unknown[], char *message, size_t size) {
     for (size_t i = 0; i < n_unknowns; ++i) {
         if (row_of(unknowns[i]->index) < 0) {
-            snprintf(message, size, "unknown \"%s\" is not supported: unknowns must be state derivatives or Real outputs",
+            snprintf(message, size,
+                     "unknown \"%s\" is not supported: unknowns must be state derivatives or Real outputs",
                      unknowns[i]->name);
             return 1;
         }
