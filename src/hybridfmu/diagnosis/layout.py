@@ -1,0 +1,110 @@
+"""Where the motor's quantities sit in the model: state/input indices and constants.
+
+The candidate effects need to know which state is the rotor angle or speed, which inputs
+are the PWM duties, the supply voltage and the load torque, the pole-pair number and the
+rotor inertia. ``resolve_layout`` finds them from the model's variable names, the case's
+``signals``/``diagnosis`` config and the model itself (inertia from the load-torque
+Jacobian), so a case with other names only has to configure them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+#: The two equation groups the diagnosis distinguishes.
+GROUPS = ("electrical", "mechanical")
+
+
+@dataclass
+class MotorLayout:
+    """Indices (into the model's state/input vectors) and constants used by the effects.
+
+    ``groups`` maps an equation group to the state indices whose equations it holds.
+    ``inertia_kg_m2`` converts torques (N m) to accelerations (rad/s^2).
+    """
+
+    state_names: list[str]
+    input_names: list[str]
+    theta: int
+    omega: int
+    i_d: int | None = None
+    i_q: int | None = None
+    duty: tuple[int, int, int] | None = None
+    u_dc: int | None = None
+    tau_load: int | None = None
+    pole_pairs: float | None = None
+    inertia_kg_m2: float | None = None
+    groups: dict[str, list[int]] = field(default_factory=dict)
+    dt_s: float = 1e-4
+
+    @property
+    def n_x(self) -> int:
+        return len(self.state_names)
+
+    @property
+    def n_u(self) -> int:
+        return len(self.input_names)
+
+
+def _index(names: list[str], name: str | None, what: str, required: bool) -> int | None:
+    if not name:
+        if required:
+            raise ValueError(f"diagnosis: no {what} configured")
+        return None
+    if name not in names:
+        if required:
+            raise ValueError(f"diagnosis: {what} {name!r} is not among the model's variables {names}")
+        return None
+    return names.index(name)
+
+
+def resolve_layout(model: Any, diagnosis_config: dict[str, Any], signals_config: dict[str, Any] | None,
+                   x_sample: np.ndarray, u_sample: np.ndarray, dt_s: float,
+                   parameter_values: dict[str, float] | None = None) -> MotorLayout:
+    """Build the layout of ``model`` for the diagnosis.
+
+    Args:
+        model: model with ``state_names``, ``input_names``, ``jacobians``.
+        diagnosis_config: the case's ``diagnosis`` section (``variables`` sub-section names the
+            model variables, ``pole_pairs``/``inertia_kg_m2`` override the model's values).
+        signals_config: the case's ``signals`` section (angle/speed states), may be None.
+        x_sample, u_sample: a few measured states/inputs (K, n_x), (K, n_u) at which the inertia
+            is read from the model's load-torque Jacobian (-1 / (d omega_dot / d tau_load)).
+        dt_s: sampling interval of the data (s).
+        parameter_values: the model's parameter values by name (e.g. start values), optional.
+    """
+    names = diagnosis_config.get("variables", {})
+    signals_config = signals_config or {}
+    states = list(model.state_names)
+    inputs = list(model.input_names)
+    theta = _index(states, signals_config.get("angle_state") or names.get("theta", "theta"), "angle state", True)
+    omega = _index(states, signals_config.get("speed_state") or names.get("omega", "omega"), "speed state", True)
+    i_d = _index(states, names.get("i_d", "i_d"), "d-axis current state", False)
+    i_q = _index(states, names.get("i_q", "i_q"), "q-axis current state", False)
+    duty_names = names.get("duties", ["d_a", "d_b", "d_c"])
+    duty_idx = [_index(inputs, n, "duty input", False) for n in duty_names]
+    duty = tuple(duty_idx) if len(duty_idx) == 3 and all(i is not None for i in duty_idx) else None
+    u_dc = _index(inputs, names.get("u_dc", "u_dc"), "supply voltage input", False)
+    tau_load = _index(inputs, names.get("tau_load", "tau_load"), "load torque input", False)
+    parameter_values = parameter_values or {}
+    pole_pairs = diagnosis_config.get("pole_pairs") or parameter_values.get(names.get("pole_pairs", "p"))
+    inertia = diagnosis_config.get("inertia_kg_m2")
+    if not inertia and tau_load is not None:
+        _, dfdu = model.jacobians(np.asarray(x_sample, dtype=float), np.asarray(u_sample, dtype=float))
+        slope = float(np.median(dfdu[:, omega, tau_load]))
+        if slope < 0 and np.isfinite(slope):
+            inertia = -1.0 / slope
+    if not inertia:
+        inertia = parameter_values.get(names.get("inertia", "J"))
+    groups = {"mechanical": [omega]}
+    if i_d is not None and i_q is not None:
+        groups["electrical"] = [i_d, i_q]
+    return MotorLayout(
+        state_names=states, input_names=inputs, theta=theta, omega=omega, i_d=i_d, i_q=i_q,
+        duty=duty, u_dc=u_dc, tau_load=tau_load,
+        pole_pairs=float(pole_pairs) if pole_pairs else None,
+        inertia_kg_m2=float(inertia) if inertia else None, groups=groups, dt_s=float(dt_s),
+    )

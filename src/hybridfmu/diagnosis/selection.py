@@ -1,0 +1,391 @@
+"""Fitting candidate effects to the equation error, sparse selection, uncertainty, stability.
+
+Per equation group (electrical: the dq current equations; mechanical: the speed equation)
+the kernel-averaged equation error ``y`` is sampled at centres one kernel length apart (so
+the noise of neighbouring samples is nearly independent) inside the informative segments.
+Every effect's term is averaged with the same kernel at the same centres. Effects enter by
+stepwise forward selection: at each step every remaining candidate is fitted together with
+those already chosen (linear least squares in its coefficients, grid search plus bounded
+refinement in its nonlinear parameter) and the one with the lowest BIC enters if it lowers
+the BIC by ``min_bic_drop``, removes at least ``min_relative_improvement`` of the remaining
+residual sum of squares, and the remaining residual is still above the noise floor.
+Standard errors come from the regression and from a bootstrap over segments; the
+chosen set is refitted on every fitting maneuver alone to show its stability.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from hybridfmu.diagnosis.derivatives import smooth_at
+from hybridfmu.diagnosis.effects import Effect, EffectInputs
+
+LOGGER = logging.getLogger("hybridfmu.diagnosis")
+
+
+@dataclass
+class ManeuverFitData:
+    """One maneuver prepared for fitting.
+
+    Attributes:
+        name: maneuver name.
+        inputs: effect inputs along the measured trajectory (data mode), M samples.
+        kernel: (W,) smoothing kernel.
+        centres: (K,) sample indices at which the kernel-averaged quantities are fitted.
+        span_id: (K,) index of the segment each centre lies in (for the bootstrap).
+        target: (K, n_x) kernel-averaged equation error at the centres.
+        noise_std: (n_x,) predicted noise std of the kernel-averaged equation error.
+    """
+
+    name: str
+    inputs: EffectInputs
+    kernel: np.ndarray
+    centres: np.ndarray
+    span_id: np.ndarray
+    target: np.ndarray
+    noise_std: np.ndarray
+
+
+@dataclass
+class SelectionSettings:
+    """Thresholds of the forward selection (config ``diagnosis.selection``)."""
+
+    min_bic_drop: float = 10.0
+    min_relative_improvement: float = 0.03
+    noise_margin: float = 0.10
+    max_effects_per_group: int = 3
+    bootstrap_samples: int = 200
+    refine_iterations: int = 30
+
+    @classmethod
+    def from_config(cls, section: dict[str, Any] | None) -> "SelectionSettings":
+        section = section or {}
+        known = {k: v for k, v in section.items() if k in cls.__dataclass_fields__}
+        return cls(**known)
+
+
+def _setting_key(setting: dict[str, float]) -> tuple:
+    return tuple(sorted((k, round(float(v), 12)) for k, v in setting.items()))
+
+
+class DesignCache:
+    """Kernel-averaged effect terms at the fitting centres, cached per (effect, setting, maneuver)."""
+
+    def __init__(self, maneuvers: list[ManeuverFitData], options: dict[str, Any]) -> None:
+        self.maneuvers = {m.name: m for m in maneuvers}
+        self.options = options
+        self._cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+    def _one(self, effect: Effect, setting: dict[str, float], rows: list[int], name: str):
+        key = (effect.name, _setting_key(setting), tuple(rows), name)
+        if key not in self._cache:
+            data = self.maneuvers[name]
+            n_coef = len(effect.coefficient_names(setting))
+            regressors, fixed = effect.terms(data.inputs, setting, self.options)
+            k = len(data.centres)
+            if regressors is not None and n_coef:
+                design = smooth_at(regressors[:, rows, :], data.kernel, data.centres).reshape(k * len(rows), n_coef)
+            else:
+                design = np.zeros((k * len(rows), 0))
+            if fixed is not None:
+                offset = smooth_at(fixed[:, rows], data.kernel, data.centres).reshape(k * len(rows))
+            else:
+                offset = np.zeros(k * len(rows))
+            self._cache[key] = (design, offset)
+        return self._cache[key]
+
+    def design(self, effect: Effect, setting: dict[str, float], rows: list[int],
+               names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+        """Stacked (n, n_coef) regressors and (n,) fixed part over the maneuvers ``names``."""
+        parts = [self._one(effect, setting, rows, name) for name in names]
+        return np.concatenate([p[0] for p in parts], axis=0), np.concatenate([p[1] for p in parts])
+
+    def target(self, rows: list[int], names: list[str]) -> np.ndarray:
+        return np.concatenate([self.maneuvers[n].target[:, rows].reshape(-1) for n in names])
+
+    def groups_of_rows(self, rows: list[int], names: list[str]) -> np.ndarray:
+        """Bootstrap group (maneuver, segment) of every stacked row."""
+        ids = []
+        for j, name in enumerate(names):
+            data = self.maneuvers[name]
+            ids.append(np.repeat(data.span_id + 1000 * j, len(rows)))
+        return np.concatenate(ids)
+
+    def noise_variance(self, rows: list[int], names: list[str]) -> float:
+        """Mean predicted noise variance per stacked row."""
+        values = [np.mean(self.maneuvers[n].noise_std[rows] ** 2) * len(self.maneuvers[n].centres) for n in names]
+        count = sum(len(self.maneuvers[n].centres) for n in names)
+        return float(sum(values) / max(count, 1))
+
+
+@dataclass
+class Term:
+    """An effect with its nonlinear setting (and, once fitted, coefficients)."""
+
+    effect: Effect
+    setting: dict[str, float]
+    coef: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    setting_se: dict[str, float] = field(default_factory=dict)
+
+
+def count_parameters(term: Term, grid_size: int) -> int:
+    """Parameters of a term for the information criterion: coefficients plus searched settings."""
+    n = len(term.effect.coefficient_names(term.setting))
+    if term.effect.continuous or grid_size > 1:
+        n += 1
+    return n
+
+
+@dataclass
+class LinearFit:
+    """Least-squares fit of a set of terms. ``coef`` per term, ``cov`` of all coefficients."""
+
+    coefs: list[np.ndarray]
+    cov: np.ndarray
+    rss: float
+    n: int
+    residual: np.ndarray
+
+
+def fit_terms(cache: DesignCache, terms: list[Term], rows: list[int], names: list[str],
+              row_mask: np.ndarray | None = None) -> LinearFit:
+    """Fit the coefficients of ``terms`` (settings fixed) to the equation error."""
+    y = cache.target(rows, names)
+    designs, sizes = [], []
+    for term in terms:
+        design, offset = cache.design(term.effect, term.setting, rows, names)
+        y = y - offset
+        designs.append(design)
+        sizes.append(design.shape[1])
+    design = np.concatenate(designs, axis=1) if designs else np.zeros((len(y), 0))
+    if row_mask is not None:
+        y, design = y[row_mask], design[row_mask]
+    n = len(y)
+    if design.shape[1]:
+        scale = np.sqrt(np.sum(design ** 2, axis=0))
+        scale[scale == 0] = 1.0
+        coef_scaled, *_ = np.linalg.lstsq(design / scale, y, rcond=None)
+        coef = coef_scaled / scale
+        residual = y - design @ coef
+        dof = max(n - design.shape[1], 1)
+        sigma2 = float(residual @ residual) / dof
+        gram = (design / scale).T @ (design / scale)
+        cov = sigma2 * np.linalg.pinv(gram) / np.outer(scale, scale)
+    else:
+        coef = np.zeros(0)
+        residual = y
+        cov = np.zeros((0, 0))
+    splits = np.cumsum(sizes)[:-1] if sizes else []
+    return LinearFit(coefs=list(np.split(coef, splits)) if sizes else [], cov=cov,
+                     rss=float(residual @ residual), n=n, residual=residual)
+
+
+def bic(rss: float, n: int, k: int) -> float:
+    """Bayesian information criterion of a Gaussian least-squares fit."""
+    return n * math.log(max(rss, 1e-300) / max(n, 1)) + k * math.log(max(n, 2))
+
+
+def _refine(cache: DesignCache, active: list[Term], effect: Effect, best: dict[str, float], grid_values: list[float],
+            rows: list[int], names: list[str], options: dict[str, Any], layout, iterations: int):
+    """Refine the continuous parameter of ``effect`` around the best grid value; return (setting, rss, se)."""
+    param = effect.continuous
+    bounds = effect.bounds(options, layout)
+    centre = best[param]
+    if param is None or bounds is None or centre == 0.0 and effect.log_scale:
+        return best, None, {}
+    values = sorted(v for v in grid_values if v != 0.0 or not effect.log_scale)
+    pos = values.index(centre)
+    lower = values[pos - 1] if pos > 0 else bounds[0]
+    upper = values[pos + 1] if pos + 1 < len(values) else bounds[1]
+    transform = (math.log, math.exp) if effect.log_scale else (lambda v: v, lambda v: v)
+
+    def rss_at(z: float) -> float:
+        setting = dict(best)
+        setting[param] = float(transform[1](z))
+        return fit_terms(cache, active + [Term(effect, setting)], rows, names).rss
+
+    if lower >= upper:
+        return best, None, {}
+    result = minimize_scalar(rss_at, bounds=(transform[0](lower), transform[0](upper)), method="bounded",
+                             options={"maxiter": iterations, "xatol": 1e-4 if effect.log_scale else 1e-9})
+    z_opt = float(result.x)
+    setting = dict(best)
+    setting[param] = float(transform[1](z_opt))
+    rss_opt = float(result.fun)
+    # Profile standard error from the curvature of the residual sum of squares.
+    step = 0.02 if effect.log_scale else max(abs(upper - lower) * 0.02, 1e-12)
+    curvature = (rss_at(z_opt + step) - 2 * rss_opt + rss_at(z_opt - step)) / step ** 2
+    n = len(cache.target(rows, names))
+    se = {}
+    if curvature > 0:
+        z_se = math.sqrt(2.0 * rss_opt / (n * curvature))
+        se[param] = z_se * setting[param] if effect.log_scale else z_se
+    return setting, rss_opt, se
+
+
+def best_setting(cache: DesignCache, active: list[Term], effect: Effect, rows: list[int], names: list[str],
+                 options: dict[str, Any], layout, iterations: int) -> tuple[Term, float, list[dict[str, Any]]]:
+    """Best nonlinear setting of ``effect`` added to ``active``: (term, rss, profile over the grid)."""
+    grid = effect.grid(options, layout)
+    profile = []
+    best_rss, best = math.inf, grid[0]
+    for setting in grid:
+        rss = fit_terms(cache, active + [Term(effect, setting)], rows, names).rss
+        profile.append({"setting": dict(setting), "rss": rss})
+        if rss < best_rss:
+            best_rss, best = rss, setting
+    setting_se: dict[str, float] = {}
+    if effect.continuous:
+        grid_values = [g[effect.continuous] for g in grid]
+        refined, rss, setting_se = _refine(cache, active, effect, best, grid_values, rows, names, options, layout,
+                                           iterations)
+        if rss is not None and rss <= best_rss:
+            best, best_rss = refined, rss
+    return Term(effect, dict(best), setting_se=setting_se), best_rss, profile
+
+
+@dataclass
+class SelectionStep:
+    """One forward step: every candidate's best fit and whether the best one entered."""
+
+    candidates: list[dict[str, Any]]
+    chosen: str | None
+    reason: str
+
+
+@dataclass
+class GroupSelection:
+    """Result of the selection in one equation group."""
+
+    group: str
+    rows: list[int]
+    terms: list[Term]
+    fit: LinearFit
+    rss_none: float
+    n: int
+    noise_variance: float
+    steps: list[SelectionStep]
+
+
+def select_group(cache: DesignCache, group: str, rows: list[int], effects: list[Effect], names: list[str],
+                 options: dict[str, Any], layout, settings: SelectionSettings) -> GroupSelection:
+    """Stepwise forward selection among ``effects`` (all of ``group``) on the maneuvers ``names``."""
+    effects = [e for e in effects if e.group == group]
+    y = cache.target(rows, names)
+    n = len(y)
+    noise_var = cache.noise_variance(rows, names)
+    active: list[Term] = []
+    grid_sizes = {e.name: len(e.grid(options, layout)) for e in effects}
+    rss_cur = float(y @ y)
+    rss_none = rss_cur
+    bic_cur = bic(rss_cur, n, 0)
+    steps: list[SelectionStep] = []
+    while len(active) < settings.max_effects_per_group:
+        remaining = [e for e in effects if e.name not in {t.effect.name for t in active}]
+        if not remaining:
+            break
+        rows_info = []
+        for effect in remaining:
+            term, rss, _ = best_setting(cache, active, effect, rows, names, options, layout,
+                                        settings.refine_iterations)
+            k = sum(count_parameters(t, grid_sizes[t.effect.name]) for t in active + [term])
+            rows_info.append({"effect": effect.name, "setting": term.setting, "rss": rss,
+                              "relative_improvement": (rss_cur - rss) / rss_cur if rss_cur > 0 else 0.0,
+                              "bic": bic(rss, n, k), "term": term})
+        rows_info.sort(key=lambda r: r["bic"])
+        best = rows_info[0]
+        at_noise = rss_cur / n <= noise_var * (1.0 + settings.noise_margin)
+        if best["bic"] > bic_cur - settings.min_bic_drop:
+            reason = f"BIC drop {bic_cur - best['bic']:.1f} below {settings.min_bic_drop}"
+        elif best["relative_improvement"] < settings.min_relative_improvement:
+            reason = (f"relative improvement {best['relative_improvement']:.3f} below "
+                      f"{settings.min_relative_improvement}")
+        elif at_noise:
+            reason = (f"remaining residual at the noise floor (mean square {rss_cur / n:.4g} vs noise "
+                      f"{noise_var:.4g})")
+        else:
+            reason = "accepted"
+        steps.append(SelectionStep(
+            candidates=[{k: v for k, v in r.items() if k != "term"} for r in rows_info],
+            chosen=best["effect"] if reason == "accepted" else None, reason=reason))
+        LOGGER.info("selection %s step %d: best %s (rel. improvement %.3f, BIC %.1f -> %.1f): %s", group,
+                    len(steps), best["effect"], best["relative_improvement"], bic_cur, best["bic"], reason)
+        if reason != "accepted":
+            break
+        active.append(best["term"])
+        rss_cur, bic_cur = best["rss"], best["bic"]
+    active = _polish(cache, active, rows, names, options, layout, settings)
+    fit = fit_terms(cache, active, rows, names)
+    for term, coef in zip(active, fit.coefs):
+        term.coef = coef
+    return GroupSelection(group=group, rows=rows, terms=active, fit=fit, rss_none=rss_none, n=n,
+                          noise_variance=noise_var, steps=steps)
+
+
+def _polish(cache, active: list[Term], rows, names, options, layout, settings) -> list[Term]:
+    """Re-optimise each term's nonlinear setting with the others present (one pass)."""
+    if len(active) < 2:
+        return active
+    polished = list(active)
+    for j, term in enumerate(polished):
+        if len(term.effect.grid(options, layout)) <= 1 and not term.effect.continuous:
+            continue
+        others = polished[:j] + polished[j + 1:]
+        new_term, _, _ = best_setting(cache, others, term.effect, rows, names, options, layout,
+                                      settings.refine_iterations)
+        polished[j] = new_term
+    return polished
+
+
+def drop_one_scores(cache: DesignCache, selection: GroupSelection, names: list[str]) -> dict[str, float]:
+    """Increase of the RSS when each chosen term is dropped, in units of the final residual variance."""
+    scores = {}
+    final = selection.fit
+    variance = final.rss / max(final.n - sum(len(c) for c in final.coefs), 1)
+    for j, term in enumerate(selection.terms):
+        others = selection.terms[:j] + selection.terms[j + 1:]
+        rss = fit_terms(cache, others, selection.rows, names).rss
+        scores[term.effect.name] = (rss - final.rss) / max(variance, 1e-300)
+    return scores
+
+
+def bootstrap_coefficients(cache: DesignCache, terms: list[Term], rows: list[int], names: list[str],
+                           samples: int, seed: int) -> list[np.ndarray]:
+    """Coefficients of ``terms`` refitted on bootstrap resamples of the segments: (samples, n_coef) per term."""
+    if not terms or samples <= 0:
+        return [np.zeros((0, len(t.coef))) for t in terms]
+    groups = cache.groups_of_rows(rows, names)
+    unique = np.unique(groups)
+    members = {g: np.flatnonzero(groups == g) for g in unique}
+    rng = np.random.default_rng(seed)
+    draws = [[] for _ in terms]
+    for _ in range(samples):
+        chosen = rng.choice(unique, size=len(unique), replace=True)
+        index = np.concatenate([members[g] for g in chosen])
+        # Rows of segments drawn several times count several times (weights = counts).
+        counts = np.bincount(index, minlength=len(groups))
+        for j, coef in enumerate(_fit_weighted(cache, terms, rows, names, counts)):
+            draws[j].append(coef)
+    return [np.array(d) for d in draws]
+
+
+def _fit_weighted(cache: DesignCache, terms: list[Term], rows, names, counts: np.ndarray) -> list[np.ndarray]:
+    y = cache.target(rows, names)
+    designs, sizes = [], []
+    for term in terms:
+        design, offset = cache.design(term.effect, term.setting, rows, names)
+        y = y - offset
+        designs.append(design)
+        sizes.append(design.shape[1])
+    design = np.concatenate(designs, axis=1)
+    weights = np.sqrt(counts.astype(float))
+    if design.shape[1] == 0:
+        return [np.zeros(0) for _ in terms]
+    coef, *_ = np.linalg.lstsq(design * weights[:, None], y * weights, rcond=None)
+    return list(np.split(coef, np.cumsum(sizes)[:-1]))
