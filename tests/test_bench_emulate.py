@@ -249,3 +249,17 @@ def test_fmu_reproduces_the_bench_without_effects_but_not_with_the_demo_effects(
     gap_demo = open_loop_gap(short_config())
     assert gap_ideal < 0.05
     assert gap_demo > 20 * gap_ideal and gap_demo > 0.5
+
+
+def test_raw_paths_must_be_the_bench_outputs():
+    from hybridfmu.bench.settings import check_raw_paths
+
+    config = load_case_config(DEMO_CONFIG)
+    check_raw_paths(config, "results/ipb")
+    config["maneuvers"]["test"]["raw"] = "logs/test.mf4"
+    with pytest.raises(ValueError, match=r"config\.maneuvers\.test\.raw: .*'results/ipb/raw/test\.mf4'"):
+        check_raw_paths(config, "results/ipb")
+    config = load_case_config(DEMO_CONFIG)
+    config["maneuvers"]["extra"] = {"role": "train", "raw": "results/ipb/raw/extra.mf4"}
+    with pytest.raises(ValueError, match=r"config\.bench\.maneuvers: no maneuver 'extra'"):
+        check_raw_paths(config, "results/ipb")

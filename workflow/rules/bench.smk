@@ -3,6 +3,9 @@
 # realised max load and max speed differ by at least 10 % pairwise.
 
 if "bench" in config:
+    from hybridfmu.bench.settings import check_raw_paths as _bench_check_raw_paths
+
+    _bench_check_raw_paths(config, RESULTS)
 
     rule emulate_bench:
         output:

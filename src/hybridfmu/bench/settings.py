@@ -7,7 +7,7 @@ a bench section that passed the schema and a partial one built in a test behave 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Mapping
 
 from .controller import ControllerSettings
@@ -84,7 +84,6 @@ class BenchSettings:
     ecu_map: EcuMapSettings
     effects: list[Effect]
     maneuvers: dict[str, dict[str, Any]]
-    effects_config: dict[str, Any] = field(default_factory=dict)
 
     @property
     def period_s(self) -> float:
@@ -159,8 +158,7 @@ def parse_bench_settings(config: Mapping[str, Any]) -> BenchSettings:
     nominal = nominal_parameters(config.get("fmu", {}).get("parameters", {}))
     offsets = {k: float(v) for k, v in (bench.get("true_parameter_offsets") or {}).items()}
     true = true_parameters(nominal, offsets)
-    effects_config = dict(bench.get("effects") or {})
-    effects = build_effects(effects_config, pwm_frequency_hz, where=f"{where}.effects")
+    effects = build_effects(dict(bench.get("effects") or {}), pwm_frequency_hz, where=f"{where}.effects")
     for effect in effects:
         effect.adjust_parameters(true)
     controller_section = dict(bench.get("controller") or {})
@@ -196,5 +194,21 @@ def parse_bench_settings(config: Mapping[str, Any]) -> BenchSettings:
         hydraulics=_dataclass_from(HydraulicsSettings, bench.get("hydraulics"), f"{where}.hydraulics"),
         supply=_dataclass_from(Supply, bench.get("supply"), f"{where}.supply"),
         sensors=sensors, controller=controller, ecu_map=ecu_map, effects=effects, maneuvers=maneuvers,
-        effects_config=effects_config,
     )
+
+
+def check_raw_paths(config: Mapping[str, Any], results_dir: str) -> None:
+    """Check that every maneuver's ``raw`` log is the file the bench writes and that the bench defines it.
+
+    Raises:
+        ValueError: naming ``config.maneuvers.<name>.raw`` (or ``config.bench.maneuvers``) and the expected value.
+    """
+    bench_maneuvers = (config.get("bench") or {}).get("maneuvers") or {}
+    for name, maneuver in config["maneuvers"].items():
+        expected = f"{results_dir}/raw/{name}.mf4"
+        if str(maneuver.get("raw", "")) != expected:
+            raise ValueError(f"config.maneuvers.{name}.raw: the case has a bench section, so the raw log is the "
+                             f"bench's output {expected!r}; got {maneuver.get('raw')!r}")
+        if name not in bench_maneuvers:
+            raise ValueError(f"config.bench.maneuvers: no maneuver {name!r} (the top-level maneuvers section has "
+                             f"it), expected one of {sorted(bench_maneuvers)}")
