@@ -125,11 +125,27 @@ def test_forwarded_derivatives_untouched_and_fused_equals_layers():
     assert torch.equal(model.derivative(x, u), xdot_f)
 
 
-@pytest.mark.parametrize("solver", ["rk4", "euler"])
-def test_gradients_reach_every_parameter_and_adjoint_matches_autograd(solver):
+def plain_motor(x, u):
+    """The motor as a bare callable (no Jacobians offered: the adjoint falls back to autograd)."""
+    return MotorRhs()(x, u)
+
+
+def test_motor_jacobians_match_autograd():
+    x = torch.tensor([[3.0, -20.0, 4.0, 120.0], [0.5, 2.0, -1.0, -30.0]], dtype=torch.float64)
+    u = inputs(2, 1)[:, 0]
+    xdot, dfdx, dfdu = MotorRhs().value_and_jacobians(x, u)
+    ref_x, ref_u = torch.func.vmap(torch.func.jacrev(lambda a, b: MotorRhs()(a[None], b[None])[0],
+                                                     argnums=(0, 1)))(x, u)
+    assert torch.allclose(xdot, MotorRhs()(x, u))
+    assert torch.allclose(dfdx, ref_x, rtol=1e-12, atol=1e-9)
+    assert torch.allclose(dfdu, ref_u, rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize("solver,rhs", [("rk4", MotorRhs()), ("euler", MotorRhs()), ("rk4", plain_motor)])
+def test_gradients_reach_every_parameter_and_adjoint_matches_autograd(solver, rhs):
     torch.manual_seed(1)
     stop = EndStop("theta", "omega", -1.0, 0.02)
-    model = NeuralFmu(MotorRhs(), make_spec(solver=solver, delay_init_s=0.3 * H, end_stop=stop), STATS)
+    model = NeuralFmu(rhs, make_spec(solver=solver, delay_init_s=0.3 * H, end_stop=stop), STATS)
     u = inputs(3, 60).requires_grad_(True)
     x0 = torch.tensor([[1.0, 2.0, 0.0, 50.0]] * 3, dtype=torch.float64, requires_grad=True)
     results = {}
@@ -153,18 +169,16 @@ def test_gradients_reach_every_parameter_and_adjoint_matches_autograd(solver):
 
 
 def test_adjoint_uses_rhs_jacobians_when_offered():
-    class JacobianMotor(MotorRhs):
+    class CountingMotor(MotorRhs):
         calls = 0
 
         def value_and_jacobians(self, x, u):
-            JacobianMotor.calls += 1
-            dfdx, dfdu = torch.func.vmap(torch.func.jacrev(lambda a, b: super(JacobianMotor, self).__call__(
-                a[None], b[None])[0], argnums=(0, 1)))(x, u)
-            return MotorRhs.__call__(self, x, u), dfdx, dfdu
+            CountingMotor.calls += 1
+            return super().value_and_jacobians(x, u)
 
     torch.manual_seed(2)
     spec = make_spec()
-    plain, jac = NeuralFmu(MotorRhs(), spec, STATS), NeuralFmu(JacobianMotor(), spec, STATS)
+    plain, jac = NeuralFmu(plain_motor, spec, STATS), NeuralFmu(CountingMotor(), spec, STATS)
     jac.load_state_dict(plain.state_dict())
     u = inputs(2, 40)
     x0 = torch.tensor([[1.0, 2.0, 0.0, 50.0]] * 2, dtype=torch.float64)
@@ -172,7 +186,7 @@ def test_adjoint_uses_rhs_jacobians_when_offered():
     for model in (plain, jac):
         rollout(model, u, 5, x0, 20)[:, :, 3].sum().backward()
         grads.append(torch.cat([p.grad.flatten() for p in model.parameters()]))
-    assert JacobianMotor.calls == 4 * 20
+    assert CountingMotor.calls == 4 * 20
     assert torch.allclose(grads[0], grads[1], rtol=1e-10)
 
 

@@ -53,11 +53,11 @@ def jacobian_function(rhs: Rhs) -> JacobianFn | None:
     if model is not None and callable(getattr(model, "derivatives", None)) and callable(
             getattr(model, "jacobians", None)):
         def value_and_jacobians(x: torch.Tensor, u: torch.Tensor):
-            x_np, u_np = x.detach().numpy(), u.detach().numpy()
+            x_np = x.detach().to(torch.float64).contiguous().numpy()
+            u_np = u.detach().to(torch.float64).contiguous().numpy()
             xdot = model.derivatives(x_np, u_np)
             dfdx, dfdu = model.jacobians(x_np, u_np)
-            as_tensor = lambda a: torch.from_numpy(a).to(x.dtype)  # noqa: E731
-            return as_tensor(xdot), as_tensor(dfdx), as_tensor(dfdu)
+            return torch.from_numpy(xdot), torch.from_numpy(dfdx), torch.from_numpy(dfdu)
         return value_and_jacobians
     return None
 
@@ -68,5 +68,6 @@ def value_function(rhs: Rhs) -> Rhs:
         rhs = rhs.rhs
     model = getattr(rhs, "model", None)
     if model is not None and callable(getattr(model, "derivatives", None)):
-        return lambda x, u: torch.from_numpy(model.derivatives(x.numpy(), u.numpy())).to(x.dtype)
+        return lambda x, u: torch.from_numpy(model.derivatives(
+            x.to(torch.float64).contiguous().numpy(), u.to(torch.float64).contiguous().numpy()))
     return rhs

@@ -24,6 +24,11 @@ class _Weights:
     g_fmu: torch.Tensor
     hidden: list[tuple[torch.Tensor, torch.Tensor]]
 
+    def transposed(self) -> "_Weights":
+        """Transposes for the reverse sweep (``hidden`` holds the transposed weights only)."""
+        return _Weights(self.w_xd_t.t().contiguous(), self.w_out.t().contiguous(), self.b_out, self.g_fmu,
+                        [(w.t().contiguous(), b) for w, b in self.hidden])
+
 
 class SolverEngine:
     """Solver stages of one rollout on plain (graph-free) tensors.
@@ -50,7 +55,7 @@ class SolverEngine:
             rhs_record = None
         elif self.jacobians is not None:
             xdot_f, dfdx, dfdu = self.jacobians(x, u)
-            rhs_record = (dfdx, dfdu)
+            rhs_record = (torch.cat([dfdx, dfdu], dim=2),)
         else:
             with torch.enable_grad():
                 x_leaf = x.detach().requires_grad_(True)
@@ -109,30 +114,29 @@ class SolverEngine:
         return torch.stack(states, dim=0)
 
     # ------------------------------------------------------------------ reverse sweep
-    def _stage_backward(self, wts: _Weights, gy, record, acc: "_Accumulator"):
+    def _stage_backward(self, wts_t: _Weights, gy, record, acc: "_Accumulator"):
+        """Adjoint of one stage; ``wts_t`` holds the transposed weights (``_Weights.transposed``)."""
         xf, xdot_f, activations, rhs_record = record
         n_x = xdot_f.shape[1]
         acc.out_inputs.append(activations[-1])
         acc.out_grads.append(gy)
         acc.fmu_values.append(xdot_f)
-        g_h = torch.mm(gy, wts.w_out.t())
+        g_h = torch.mm(gy, wts_t.w_out)
         for layer in range(len(activations) - 1, 0, -1):
             h = activations[layer]
             g_a = torch.addcmul(g_h, g_h * h, h, value=-1.0)
             acc.hidden_inputs[layer - 1].append(activations[layer - 1])
             acc.hidden_grads[layer - 1].append(g_a)
-            g_h = torch.mm(g_a, wts.hidden[layer - 1][0].t())
+            g_h = torch.mm(g_a, wts_t.hidden[layer - 1][0])
         h = activations[0]
         g_a1 = torch.addcmul(g_h, g_h * h, h, value=-1.0)
         acc.first_inputs.append(xf)
         acc.first_grads.append(g_a1)
-        g_xf = torch.mm(g_a1, wts.w_xd_t.t())
-        g_fmu_out = torch.addcmul(g_xf[:, n_x:], gy, wts.g_fmu)
-        if len(rhs_record) == 2:
-            dfdx, dfdu = rhs_record
-            row = g_fmu_out.unsqueeze(1)
-            g_x_rhs = torch.bmm(row, dfdx).squeeze(1)
-            g_u = torch.bmm(row, dfdu).squeeze(1)
+        g_xf = torch.mm(g_a1, wts_t.w_xd_t)
+        g_fmu_out = torch.addcmul(g_xf[:, n_x:], gy, wts_t.g_fmu)
+        if len(rhs_record) == 1:
+            g_xu = torch.bmm(g_fmu_out.unsqueeze(1), rhs_record[0]).squeeze(1)
+            g_x_rhs, g_u = g_xu[:, :n_x], g_xu[:, n_x:]
         else:
             x_leaf, u_leaf, xdot_graph = rhs_record
             g_x_rhs, g_u = torch.autograd.grad(xdot_graph, (x_leaf, u_leaf), g_fmu_out)
@@ -144,6 +148,7 @@ class SolverEngine:
         n_steps = len(records)
         h = self.h
         acc = _Accumulator(n_hidden)
+        wts_t = wts.transposed()
         g_u_grid = grad_states.new_zeros((n_steps + 1,) + tuple(self._u_shape))
         g_z_grid = grad_states.new_zeros((n_steps + 1,) + tuple(self._z_shape))
         g_u_half = g_u_grid.new_zeros((n_steps,) + tuple(self._u_shape)) if self.method == "rk4" else None
@@ -154,13 +159,14 @@ class SolverEngine:
             if mask is not None:
                 lam = lam * mask
             if self.method == "rk4":
-                gx4, gu4, gz4 = self._stage_backward(wts, lam * (h / 6.0), stage_records[3], acc)
+                lam_third = lam * (h / 3.0)
+                gx4, gu4, gz4 = self._stage_backward(wts_t, lam * (h / 6.0), stage_records[3], acc)
                 gx3, gu3, gz3 = self._stage_backward(
-                    wts, torch.add(lam * (h / 3.0), gx4, alpha=h), stage_records[2], acc)
+                    wts_t, torch.add(lam_third, gx4, alpha=h), stage_records[2], acc)
                 gx2, gu2, gz2 = self._stage_backward(
-                    wts, torch.add(lam * (h / 3.0), gx3, alpha=0.5 * h), stage_records[1], acc)
+                    wts_t, torch.add(lam_third, gx3, alpha=0.5 * h), stage_records[1], acc)
                 gx1, gu1, gz1 = self._stage_backward(
-                    wts, torch.add(lam * (h / 6.0), gx2, alpha=0.5 * h), stage_records[0], acc)
+                    wts_t, torch.add(lam * (h / 6.0), gx2, alpha=0.5 * h), stage_records[0], acc)
                 g_u_grid[k + 1] += gu4
                 g_z_grid[k + 1] += gz4
                 g_u_grid[k] += gu1
@@ -169,7 +175,7 @@ class SolverEngine:
                 g_z_half[k] = gz2 + gz3
                 lam = lam + ((gx1 + gx2) + (gx3 + gx4)) + grad_states[k]
             else:
-                gx, gu, gz = self._stage_backward(wts, lam * h, stage_records[0], acc)
+                gx, gu, gz = self._stage_backward(wts_t, lam * h, stage_records[0], acc)
                 g_u_grid[k] += gu
                 g_z_grid[k] += gz
                 lam = lam + gx + grad_states[k]

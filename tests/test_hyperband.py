@@ -1,0 +1,81 @@
+"""Hyperband: bracket arithmetic (the paper's R = 81, eta = 3), selection, search plan and sampling."""
+
+import math
+
+import pytest
+
+from hybridfmu.data.settings import section_settings
+from hybridfmu.training.hyperband import (hyperband_brackets, max_bracket, rank_results, select_survivors,
+                                          total_configurations)
+from hybridfmu.training.plan import plan_entry, search_plan
+from hybridfmu.training.search_space import PAPER_SEARCH_SPACE, config_hash, sample_configuration
+
+
+def test_paper_brackets_r81_eta3():
+    brackets = hyperband_brackets(81, 3)
+    assert max_bracket(81, 3) == 4
+    assert [b.s for b in brackets] == [4, 3, 2, 1, 0]
+    rungs = {b.s: [(r.n_configs, r.resource_units) for r in b.rungs] for b in brackets}
+    assert rungs[4] == [(81, 1), (27, 3), (9, 9), (3, 27), (1, 81)]
+    assert rungs[3] == [(34, 3), (11, 9), (3, 27), (1, 81)]
+    assert rungs[2] == [(15, 9), (5, 27), (1, 81)]
+    assert rungs[1] == [(8, 27), (2, 81)]
+    assert rungs[0] == [(5, 81)]
+    assert total_configurations(81, 3) == 143
+    # every bracket spends about the same budget (successive halving with resumption)
+    for bracket in brackets:
+        assert bracket.rungs[-1].resource_units == 81
+
+
+def test_small_search_and_non_integer_ratio():
+    assert [(b.n_configs, [r.n_configs for r in b.rungs]) for b in hyperband_brackets(9, 3)] == [
+        (9, [9, 3, 1]), (5, [5, 1]), (3, [3])]
+    brackets = hyperband_brackets(10, 3)
+    assert max_bracket(10, 3) == 2 and brackets[0].rungs[0].resource_units == pytest.approx(10 / 9)
+    assert hyperband_brackets(1, 3)[0].n_configs == 1
+    with pytest.raises(ValueError, match="eta"):
+        hyperband_brackets(9, 1)
+
+
+def test_selection_ranks_by_objective_and_never_promotes_failures():
+    results = [{"config": 0, "status": "ok", "objective": 0.5},
+               {"config": 1, "status": "failed", "objective": None},
+               {"config": 2, "status": "ok", "objective": 0.1},
+               {"config": 3, "status": "diverged", "objective": None},
+               {"config": 4, "status": "ok", "objective": 0.5},
+               {"config": 5, "status": "ok", "objective": math.inf}]
+    assert [r["config"] for r in rank_results(results)] == [2, 0, 4, 1, 3, 5]
+    assert select_survivors(results, 2) == [2, 0]
+    assert select_survivors(results, 10) == [2, 0, 4]
+    assert select_survivors(results, 0) == []
+
+
+def test_sampling_is_seeded_and_within_the_space():
+    a = sample_configuration(PAPER_SEARCH_SPACE, seed=7, bracket=4, index=3)
+    assert a == sample_configuration(PAPER_SEARCH_SPACE, seed=7, bracket=4, index=3)
+    assert a != sample_configuration(PAPER_SEARCH_SPACE, seed=7, bracket=4, index=4)
+    assert a != sample_configuration(PAPER_SEARCH_SPACE, seed=8, bracket=4, index=3)
+    draws = [sample_configuration(PAPER_SEARCH_SPACE, 1, 0, i) for i in range(300)]
+    lrs = [d["lr"] for d in draws]
+    assert 1e-6 <= min(lrs) and max(lrs) <= 1e-4
+    assert sum(lr < 1e-5 for lr in lrs) == pytest.approx(150, abs=40)  # log-uniform: half below the geometric mean
+    assert {d["beta2"] for d in draws} == {0.9999, 0.999, 0.99} and {d["loss"] for d in draws} == {"MAE", "MSE"}
+    assert {d["width"] for d in draws} == {8, 16, 32} and {d["depth"] for d in draws} == {2, 3, 4}
+    assert all(0.01 <= d["window_s"] <= 0.1 and 0 <= d["gate_opening"] <= 0.5 for d in draws)
+    assert config_hash(a) == config_hash(dict(reversed(list(a.items()))))
+    with pytest.raises(ValueError, match="search_space.lr"):
+        sample_configuration({"lr": {"distribution": "normal"}}, 0, 0, 0)
+
+
+def test_paper_plan_from_default_sections():
+    hpo, training = section_settings({}, "hpo"), section_settings({}, "training")
+    assert hpo["R"] == 81 and hpo["eta"] == 3 and hpo["max_resource_s"] == 100.0
+    plan = search_plan(hpo, training, seed=3, search_id="x")
+    assert plan["n_configurations"] == 143 == sum(len(b["configs"]) for b in plan["brackets"])
+    assert plan["unit_s"] == pytest.approx(100 / 81)
+    entry = plan_entry(plan, bracket=4, rung=2, config=10)
+    assert entry["resource_s"] == pytest.approx(9 * 100 / 81) and entry["last_rung"] == 4
+    assert entry["hyperparameters"]["batch_windows"] == training["batch_windows"]
+    assert search_plan(hpo, training, seed=3, search_id="x") == plan
+    with pytest.raises(ValueError, match="bracket 0 has rungs 0..0"):
+        plan_entry(plan, bracket=0, rung=1, config=0)

@@ -1,0 +1,155 @@
+# Hyperparameter search over neural FMUs (Hyperband, paper Sec. 3.2): the training data are prepared
+# once (rule hpo_prepare), the search is planned and its MLflow parent run created (rule hpo_plan), every
+# (configuration, rung) is one job (rule train_rung) that resumes the previous rung's checkpoint, the
+# survivors of each (bracket, rung) are chosen by a checkpoint rule (select_rung), and the best
+# configuration over all brackets is written to hpo/best.json (rule select_best).
+from hybridfmu.data.settings import section_settings
+from hybridfmu.io import read_json
+from hybridfmu.tracking import experiment_name, tracking_uri
+from hybridfmu.training.hpo import role_maneuver
+from hybridfmu.training.hyperband import hyperband_brackets
+
+HPO = section_settings(config.get("hpo"), "hpo")
+TRAINING = section_settings(config.get("training"), "training")
+MODEL = section_settings(config.get("model"), "model")
+HPO_DIR = f"{RESULTS}/hpo"
+HPO_BRACKETS = {bracket.s: bracket for bracket in hyperband_brackets(HPO["R"], HPO["eta"])}
+TRAIN_MANEUVERS = {"train": role_maneuver(config, "train", TRAINING["train_maneuver"]),
+                   "validation": role_maneuver(config, "validation", TRAINING["validation_maneuver"])}
+
+
+def hpo_fmu_file():
+    """The FMU of the case: built by the workflow, or the user's own."""
+    if config["fmu"]["source"] == "path":
+        return config["fmu"]["path"]
+    return f"{RESULTS}/fmu/{config['fmu']['model_name']}.fmu"
+
+
+def previous_rung_checkpoint(wildcards):
+    """The checkpoint a rung resumes (none for rung 0)."""
+    rung = int(wildcards.rung)
+    if rung == 0:
+        return []
+    return f"{HPO_DIR}/b{wildcards.bracket}/r{rung - 1}/c{wildcards.config}/checkpoint.pt"
+
+
+def rung_configs(bracket, rung):
+    """Configurations trained in a rung: all of the bracket in rung 0, else the previous rung's survivors."""
+    if rung == 0:
+        return list(range(HPO_BRACKETS[bracket].n_configs))
+    selection = checkpoints.select_rung.get(bracket=bracket, rung=rung - 1).output.selection
+    return read_json(selection)["survivors"]
+
+
+def rung_results(wildcards):
+    bracket, rung = int(wildcards.bracket), int(wildcards.rung)
+    return [f"{HPO_DIR}/b{bracket}/r{rung}/c{config_index}/result.json"
+            for config_index in rung_configs(bracket, rung)]
+
+
+rule hpo_prepare:
+    input:
+        fmu=hpo_fmu_file(),
+        train_data=f"{RESULTS}/data/{TRAIN_MANEUVERS['train']}.parquet",
+        validation_data=f"{RESULTS}/data/{TRAIN_MANEUVERS['validation']}.parquet",
+        train_segments=f"{RESULTS}/segments/{TRAIN_MANEUVERS['train']}.json",
+        validation_segments=f"{RESULTS}/segments/{TRAIN_MANEUVERS['validation']}.json",
+    output:
+        train=f"{HPO_DIR}/prepared/train.npz",
+        validation=f"{HPO_DIR}/prepared/validation.npz",
+        statistics=f"{HPO_DIR}/prepared/statistics.json",
+    params:
+        maneuvers=TRAIN_MANEUVERS,
+        baselines={role: f"{RESULTS}/baseline/{name}.parquet" for role, name in TRAIN_MANEUVERS.items()},
+        fmu_parameters=config["fmu"].get("parameters", {}),
+        signals=config.get("signals", {}),
+    log:
+        f"{RESULTS}/logs/hpo_prepare/hpo_prepare.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/hpo_prepare/hpo_prepare.tsv"
+    script:
+        "../scripts/train_prepare.py"
+
+
+rule hpo_plan:
+    output:
+        plan=f"{HPO_DIR}/plan.json",
+    params:
+        case=CASE,
+        seed=config.get("seed", 0),
+        hpo=HPO,
+        training=TRAINING,
+        model=MODEL,
+        tracking_uri=tracking_uri(config.get("mlflow"), config.get("results_dir", "results")),
+        experiment=experiment_name(config.get("mlflow"), CASE),
+    log:
+        f"{RESULTS}/logs/hpo_plan/hpo_plan.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/hpo_plan/hpo_plan.tsv"
+    script:
+        "../scripts/train_plan.py"
+
+
+rule train_rung:
+    input:
+        plan=f"{HPO_DIR}/plan.json",
+        train=f"{HPO_DIR}/prepared/train.npz",
+        validation=f"{HPO_DIR}/prepared/validation.npz",
+        statistics=f"{HPO_DIR}/prepared/statistics.json",
+        fmu=hpo_fmu_file(),
+        previous=previous_rung_checkpoint,
+    output:
+        checkpoint=f"{HPO_DIR}/b{{bracket}}/r{{rung}}/c{{config}}/checkpoint.pt",
+        result=f"{HPO_DIR}/b{{bracket}}/r{{rung}}/c{{config}}/result.json",
+    params:
+        model=MODEL,
+        training=TRAINING,
+        fmu_parameters=config["fmu"].get("parameters", {}),
+    wildcard_constraints:
+        bracket=r"\d+",
+        rung=r"\d+",
+        config=r"\d+",
+    threads: 1
+    log:
+        f"{RESULTS}/logs/train_rung/b{{bracket}}_r{{rung}}_c{{config}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/train_rung/b{{bracket}}_r{{rung}}_c{{config}}.tsv"
+    script:
+        "../scripts/train_rung.py"
+
+
+checkpoint select_rung:
+    input:
+        plan=f"{HPO_DIR}/plan.json",
+        results=rung_results,
+    output:
+        selection=f"{HPO_DIR}/b{{bracket}}/r{{rung}}/selection.json",
+    wildcard_constraints:
+        bracket=r"\d+",
+        rung=r"\d+",
+    log:
+        f"{RESULTS}/logs/select_rung/b{{bracket}}_r{{rung}}.log",
+    script:
+        "../scripts/train_select_rung.py"
+
+
+rule select_best:
+    input:
+        plan=f"{HPO_DIR}/plan.json",
+        selections=[f"{HPO_DIR}/b{bracket.s}/r{rung.index}/selection.json"
+                    for bracket in HPO_BRACKETS.values() for rung in bracket.rungs],
+    output:
+        best=f"{HPO_DIR}/best.json",
+        model=f"{HPO_DIR}/best_model.pt",
+        summary=f"{HPO_DIR}/summary.json",
+    params:
+        case=CASE,
+    log:
+        f"{RESULTS}/logs/select_best/select_best.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/select_best/select_best.tsv"
+    script:
+        "../scripts/train_select_best.py"
+
+
+ALL_TARGETS.extend([f"{HPO_DIR}/best.json", f"{HPO_DIR}/summary.json"])

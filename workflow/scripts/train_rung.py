@@ -1,0 +1,25 @@
+"""Rule train_rung: one configuration trained through one Hyperband rung (resumed from the previous rung)."""
+
+import torch
+
+from hybridfmu.progress import setup_rule_logging
+from hybridfmu.training.trial import run_trial_rung
+
+torch.set_num_threads(1)
+setup_rule_logging(snakemake.log[0])
+run_trial_rung(
+    plan_path=snakemake.input.plan,
+    bracket=int(snakemake.wildcards.bracket),
+    rung=int(snakemake.wildcards.rung),
+    config_index=int(snakemake.wildcards.config),
+    train_arrays_path=snakemake.input.train,
+    validation_arrays_path=snakemake.input.validation,
+    statistics_path=snakemake.input.statistics,
+    fmu_path=snakemake.input.fmu,
+    fmu_parameters=snakemake.params.fmu_parameters,
+    model_config=snakemake.params.model,
+    training_config=snakemake.params.training,
+    previous_checkpoint=snakemake.input.previous or None,
+    checkpoint_path=snakemake.output.checkpoint,
+    result_path=snakemake.output.result,
+)
