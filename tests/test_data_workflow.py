@@ -23,8 +23,10 @@ def test_ingest_and_select_segments_rules(tmp_path):
     case = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
     case["case"] = "datacase"
     case["results_dir"] = str(tmp_path / "results")
-    case["maneuvers"] = {"run1": {"role": "train", "raw": str(raw)}}
+    case["maneuvers"] = {name: {"role": role, "raw": str(raw)}  # a case needs all three roles
+                         for name, role in [("run1", "train"), ("run2", "validation"), ("run3", "test")]}
     case["ingest"] = copy.deepcopy(INGEST)
+    case.pop("bench", None)  # a user's case: its own logs, no emulated bench
     config_path = tmp_path / "case.yaml"
     config_path.write_text(yaml.safe_dump(case))
     target = tmp_path / "results" / "datacase" / "segments" / "run1.json"

@@ -11,8 +11,9 @@ smoothed by a Savitzky-Golay filter over ``smooth_s``):
   applied: the motor is driven or holds a load).
 
 Each threshold is relative to the indicator's own spread, so the same settings work on another
-case's data: ``threshold = max(floor, median + relative * (quantile(spread_quantile) - median))``;
-``relative: null`` disables an indicator. Active runs closer than ``merge_gap_s`` are merged, runs
+case's data: ``threshold = max(floor, low + relative * (high - low))`` with ``low`` and ``high`` the
+indicator's quantiles ``rest_quantile`` (the level at rest) and ``spread_quantile`` (robust to single
+spikes); the floors keep pure sensor noise out. ``relative: null`` disables an indicator. Active runs closer than ``merge_gap_s`` are merged, runs
 shorter than ``min_span_s`` dropped, the rest padded by ``pad_s`` on both sides (clipped to the
 maneuver) and overlaps merged again.
 """
@@ -83,11 +84,15 @@ def indicator_signals(frame: pd.DataFrame, smooth_s: float) -> dict[str, np.ndar
     }
 
 
-def relative_threshold(values: np.ndarray, relative: float, spread_quantile: float, floor: float) -> float:
-    """``max(floor, median + relative * (quantile(spread_quantile) - median))`` of ``values`` (T,)."""
-    median = float(np.median(values))
-    upper = float(np.quantile(values, spread_quantile))
-    return max(float(floor), median + float(relative) * (upper - median))
+def relative_threshold(values: np.ndarray, relative: float, rest_quantile: float, spread_quantile: float,
+                       floor: float) -> float:
+    """``max(floor, low + relative * (high - low))``, low/high = quantiles ``rest_quantile``/``spread_quantile``.
+
+    Args:
+        values: (T,) indicator samples.
+    """
+    low, high = (float(q) for q in np.quantile(values, [rest_quantile, spread_quantile]))
+    return max(float(floor), low + float(relative) * (high - low))
 
 
 def select_segments(frame: pd.DataFrame, segments_config: dict[str, Any] | None) -> SegmentSelection:
@@ -110,8 +115,8 @@ def select_segments(frame: pd.DataFrame, segments_config: dict[str, Any] | None)
         if relative is None:
             thresholds[name] = None
             continue
-        level = relative_threshold(indicators[name], relative, float(settings["spread_quantile"]),
-                                   float(settings[floor_key]))
+        level = relative_threshold(indicators[name], relative, float(settings["rest_quantile"]),
+                                   float(settings["spread_quantile"]), float(settings[floor_key]))
         above = indicators[name] > level
         thresholds[name] = level
         LOG.info("indicator %s: threshold %.4g %s, active %.1f%% of samples", name, level, unit,
@@ -122,7 +127,7 @@ def select_segments(frame: pd.DataFrame, segments_config: dict[str, Any] | None)
     duration_s = float(time_s[-1] - time_s[0])
     kept_s = sum(end - start for start, end in spans)
     thresholds.update({key: settings[key] for key in
-                       ("spread_quantile", "smooth_s", "merge_gap_s", "min_span_s", "pad_s")})
+                       ("rest_quantile", "spread_quantile", "smooth_s", "merge_gap_s", "min_span_s", "pad_s")})
     thresholds.update({key: settings[key] for _, (rel, floor, _) in INDICATORS.items() for key in (rel, floor)})
     return SegmentSelection(spans, thresholds, kept_s / duration_s if duration_s > 0 else 0.0, duration_s, active)
 
