@@ -116,7 +116,8 @@ class NeuralFmu(nn.Module):
 
     def gate_values(self) -> dict[str, dict[str, float]]:
         """{corrected state: {"g_F": ..., "g_A": ...}}."""
-        return {name: {"g_F": float(self.gates.g_F[i]), "g_A": float(self.gates.g_A[i])}
+        g_fmu, g_ann = self.gates.g_F.detach(), self.gates.g_A.detach()
+        return {name: {"g_F": float(g_fmu[i]), "g_A": float(g_ann[i])}
                 for i, name in enumerate(self.spec.corrected_states)}
 
 

@@ -1,0 +1,159 @@
+"""A search end to end on synthetic data with the real IPBMotor FMU: prepare, plan, train rungs (resumed),
+a failed trial, selection, best.json, and the inference API."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from hybridfmu.data.settings import section_settings
+from hybridfmu.fmu import load_fmu, simulate_open_loop
+from hybridfmu.fmu.build import build_fmu
+from hybridfmu.io import read_json, write_json_atomic
+from hybridfmu.training.hpo import plan_search, prepare_training_data, select_best, select_rung
+from hybridfmu.training.inference import load_trained_neural_fmu, simulate_neural_fmu
+from hybridfmu.training.synthetic import ingested_frame, motor_inputs
+from hybridfmu.training.trial import load_checkpoint, run_trial_rung
+
+H = 1e-4
+
+
+@pytest.fixture(scope="module")
+def case(tmp_path_factory):
+    root = tmp_path_factory.mktemp("case")
+    fmu_path = build_fmu("IPBMotor", root / "IPBMotor.fmu")
+    true_motor = load_fmu(fmu_path, parameters={"J": 2.3e-4, "b": 1e-4})
+    paths = {}
+    for role, seed in (("train", 0), ("validation", 1)):
+        n = 2500
+        time_s = np.arange(n) * H
+        u = motor_inputs(n, H, seed, theta0_rad=5.0)
+        states = simulate_open_loop(true_motor, time_s, u, np.array([0.0, 0.0, 5.0, 0.0])).states
+        data = root / f"{role}.parquet"
+        ingested_frame(time_s, u, states).to_parquet(data)
+        segments = root / f"{role}.json"
+        write_json_atomic(segments, {"maneuver": role, "spans_s": [[0.02, 0.12], [0.14, 0.24]], "thresholds": {},
+                                     "fraction_kept": 0.8})
+        paths[role] = (data, segments)
+    arrays = {role: root / "prepared" / f"{role}.npz" for role in paths}
+    statistics = root / "prepared" / "statistics.json"
+    prepare_training_data(fmu_path=fmu_path, fmu_parameters={}, signals_config={},
+                          maneuvers={"train": "train", "validation": "validation"},
+                          data_paths={r: p[0] for r, p in paths.items()},
+                          segments_paths={r: p[1] for r, p in paths.items()}, baseline_paths={},
+                          array_paths=arrays, statistics_path=statistics)
+    hpo = section_settings({"R": 3, "eta": 3, "max_resource_s": 0.03, "search_space": {
+        "lr": {"distribution": "loguniform", "low": 1e-3, "high": 1e-2},
+        "beta1": {"distribution": "fixed", "value": 0.9}, "beta2": {"distribution": "fixed", "value": 0.999},
+        "window_s": {"distribution": "uniform", "low": 0.003, "high": 0.005},
+        "loss": {"distribution": "choice", "values": ["MAE", "MSE"]},
+        "w_speed": {"distribution": "uniform", "low": 0.0, "high": 1.0},
+        "width": {"distribution": "fixed", "value": 8}, "depth": {"distribution": "fixed", "value": 2},
+        "gate_opening": {"distribution": "uniform", "low": 0.0, "high": 0.3},
+        "batch_windows": {"distribution": "fixed", "value": 2}}}, "hpo")
+    model = section_settings({"end_stop": {"state": "theta", "rate_state": "omega"}}, "model")
+    training = section_settings({}, "training")
+    plan_path = root / "hpo" / "plan.json"
+    plan_search(case="synthetic", seed=11, hpo_config=hpo, training_config=training, model_config=model,
+                plan_path=plan_path, tracking_uri=None, experiment=None)
+    return {"root": root, "fmu": fmu_path, "arrays": arrays, "statistics": statistics, "plan": plan_path,
+            "model": model, "training": training}
+
+
+def train(case, bracket, rung, config, plan=None):
+    folder = case["root"] / "hpo" / f"b{bracket}" / f"r{rung}" / f"c{config}"
+    previous = case["root"] / "hpo" / f"b{bracket}" / f"r{rung - 1}" / f"c{config}" / "checkpoint.pt"
+    return run_trial_rung(
+        plan_path=plan or case["plan"], bracket=bracket, rung=rung, config_index=config,
+        train_arrays_path=case["arrays"]["train"], validation_arrays_path=case["arrays"]["validation"],
+        statistics_path=case["statistics"], fmu_path=case["fmu"], fmu_parameters={}, model_config=case["model"],
+        training_config=case["training"], previous_checkpoint=previous if rung > 0 else None,
+        checkpoint_path=folder / "checkpoint.pt", result_path=folder / "result.json", track=False)
+
+
+def test_search_end_to_end(case):
+    plan = read_json(case["plan"])
+    assert [(b["bracket"], len(b["configs"]), [r["n_configs"] for r in b["rungs"]]) for b in plan["brackets"]] == [
+        (1, 3, [3, 1]), (0, 2, [2])]
+    hpo = case["root"] / "hpo"
+    first = [train(case, 1, 0, c) for c in range(3)]
+    assert all(r["status"] == "ok" and r["objective"] > 0 for r in first)
+    target = plan["brackets"][0]["rungs"][0]["resource_s"]
+    for result in first:  # training stops at the first step boundary at or beyond the rung's resource
+        step_s = result["hyperparameters"]["batch_windows"] * round(result["hyperparameters"]["window_s"] / H) * H
+        assert target - 1e-12 <= result["resource_s"] < target + step_s
+    selection = select_rung(plan_path=case["plan"], bracket=1, rung=0,
+                            result_paths=[hpo / f"b1/r0/c{c}/result.json" for c in range(3)],
+                            selection_path=hpo / "b1/r0/selection.json")
+    ranked = sorted(first, key=lambda r: r["objective"])
+    assert selection["survivors"] == [ranked[0]["config"]] and not selection["last_rung"]
+    survivor = selection["survivors"][0]
+    resumed = train(case, 1, 1, survivor)
+    assert resumed["status"] == "ok" and resumed["resource_s"] >= 0.03 - 1e-9
+    assert len(resumed["validations"]) == 2 and resumed["steps"] > ranked[0]["steps"]
+    checkpoint = load_checkpoint(resumed["checkpoint"])
+    assert checkpoint["rung"] == 1 and checkpoint["trainer"]["used_samples"] * H == pytest.approx(resumed["resource_s"])
+    select_rung(plan_path=case["plan"], bracket=1, rung=1, result_paths=[hpo / f"b1/r1/c{survivor}/result.json"],
+                selection_path=hpo / "b1/r1/selection.json")
+
+    # a configuration whose windows fit no segment fails, records why, and the search goes on
+    broken = read_json(case["plan"])
+    broken["brackets"][1]["configs"][1]["hyperparameters"]["window_s"] = 5.0
+    broken_plan = case["root"] / "broken_plan.json"
+    broken_plan.write_text(json.dumps(broken))
+    ok = train(case, 0, 0, 0, plan=broken_plan)
+    failed = train(case, 0, 0, 1, plan=broken_plan)
+    assert failed["status"] == "failed" and "no selected segment holds a window" in failed["reason"]
+    assert failed["objective"] is None and (hpo / "b0/r0/c1/checkpoint.pt").is_file()
+    last = select_rung(plan_path=case["plan"], bracket=0, rung=0,
+                       result_paths=[hpo / f"b0/r0/c{c}/result.json" for c in range(2)],
+                       selection_path=hpo / "b0/r0/selection.json")
+    assert last["n_failed"] == 1 and last["ranking"][-1]["config"] == 1 and last["survivors"] == []
+
+    best = select_best(plan_path=case["plan"], selection_paths=[hpo / "b1/r0/selection.json",
+                                                                 hpo / "b1/r1/selection.json",
+                                                                 hpo / "b0/r0/selection.json"],
+                       best_path=hpo / "best.json", best_model_path=hpo / "best_model.pt",
+                       summary_path=hpo / "summary.json", case="synthetic")
+    winner = min((resumed, ok), key=lambda r: r["objective"])
+    assert best["trial_id"] == winner["trial_id"] and best["objective"] == winner["objective"]
+    summary = read_json(hpo / "summary.json")
+    assert len(summary["trials"]) == 6 and summary["best_trial"] == best["trial_id"]
+    assert {t["status"] for t in summary["trials"]} == {"ok", "failed"}
+
+    model = load_trained_neural_fmu(hpo / "best.json", case["fmu"])
+    assert model.delay_s() == pytest.approx(best["delay_s"]) and model.gate_values() == best["gates"]
+    valid = np.load(case["arrays"]["validation"])
+    states = simulate_neural_fmu(model, valid["time_s"], valid["u"], valid["x_init"][0])
+    assert states.shape == valid["x_init"].shape and np.all(np.isfinite(states))
+    assert np.abs(states[:, 2] - valid["angle"]).max() < 5.0
+    with pytest.raises(ValueError, match="step"):
+        simulate_neural_fmu(model, valid["time_s"] * 2, valid["u"], valid["x_init"][0])
+
+
+def test_resumed_trial_equals_one_run(case, tmp_path):
+    """Rung 0 then rung 1 (two jobs) ends exactly where one job straight to rung 1's resource ends."""
+    plan = read_json(case["plan"])
+    straight = json.loads(json.dumps(plan))
+    straight["brackets"][0]["rungs"][0]["resource_s"] = plan["brackets"][0]["rungs"][1]["resource_s"]
+    straight_plan = tmp_path / "straight.json"
+    straight_plan.write_text(json.dumps(straight))
+    config = 2
+    train(case, 1, 0, config)
+    two_jobs = train(case, 1, 1, config)
+    folder = tmp_path / "straight"
+    one_job = run_trial_rung(
+        plan_path=straight_plan, bracket=1, rung=0, config_index=config,
+        train_arrays_path=case["arrays"]["train"], validation_arrays_path=case["arrays"]["validation"],
+        statistics_path=case["statistics"], fmu_path=case["fmu"], fmu_parameters={}, model_config=case["model"],
+        training_config=case["training"], previous_checkpoint=None, checkpoint_path=folder / "checkpoint.pt",
+        result_path=folder / "result.json", track=False)
+    a, b = load_checkpoint(two_jobs["checkpoint"]), load_checkpoint(one_job["checkpoint"])
+    assert a["trainer"]["history"] == b["trainer"]["history"]
+    for name, value in a["model"].items():
+        assert torch.equal(value, b["model"][name]), name
+    assert {k: v for k, v in two_jobs["validation"].items() if k != "rung"} == {
+        k: v for k, v in one_job["validation"].items() if k != "rung"}
+    assert math.isfinite(one_job["objective"])
