@@ -16,6 +16,8 @@ from abc import ABC, abstractmethod
 from functools import cached_property
 from typing import Any, Callable
 
+import math
+
 import numpy as np
 
 from hybridfmu.diagnosis.layout import MotorLayout
@@ -203,6 +205,22 @@ class Effect(ABC):
         """Time by which the effect shifts the inputs in the corrected simulation (s)."""
         return 0.0
 
+    def scalar_torque(self, coef: np.ndarray, setting: dict[str, float],
+                      options: dict[str, Any]) -> Callable[[float, float, float], float] | None:
+        """A fast scalar version (theta, omega, tau_load) -> torque (N m) of a torque effect, or None."""
+        return None
+
+    def scalar_rows(self, coef: np.ndarray, setting: dict[str, float], options: dict[str, Any],
+                    layout: MotorLayout) -> Callable[[list[float], list[float]], list[tuple[int, float]]] | None:
+        """A fast scalar version (x row, u row) -> [(state index, value), ...] of ``correction`` built
+        from ``layout.constants`` (calibrated model coefficients), or None when they are missing."""
+        return None
+
+    def fast_correction(self, coef: np.ndarray, setting: dict[str, float], options: dict[str, Any],
+                        layout: MotorLayout, model: Any) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
+        """A fast version (x (N, n_x), u (N, n_u)) -> (N, n_x) of ``correction`` using ``model``, or None."""
+        return None
+
     def correction(self, inputs: EffectInputs, coef: np.ndarray, setting: dict[str, float],
                    options: dict[str, Any]) -> np.ndarray:
         """The effect's additive derivative term (M, n_x) with fitted coefficients."""
@@ -261,6 +279,17 @@ class CoulombFriction(MechanicalEffect):
             torques.append(-sign * np.exp(-(inputs.omega / v_s) ** 2))
         return _mechanical_regressors(inputs, torques), None
 
+    def scalar_torque(self, coef, setting, options):
+        eps = float(options["sign_smoothing_rad_s"])
+        t_c = float(coef[0])
+        t_s = float(coef[1]) if len(coef) > 1 else 0.0
+        inv_vs = 1.0 / setting["stribeck_velocity_rad_s"] if setting.get("stribeck_velocity_rad_s", 0.0) > 0 else 0.0
+
+        def torque(theta: float, omega: float, tau_load: float) -> float:
+            x = omega * inv_vs
+            return -(t_c + t_s * math.exp(-x * x)) * math.tanh(omega / eps)
+        return torque
+
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
         out = [_param("coulomb_torque_nm", *linear_estimate(coef, cov, [1.0] + [0.0] * (len(coef) - 1)),
                       "N m", "Coulomb friction torque")]
@@ -284,6 +313,10 @@ class ViscousFriction(MechanicalEffect):
     def terms(self, inputs, setting, options):
         return _mechanical_regressors(inputs, [-inputs.omega]), None
 
+    def scalar_torque(self, coef, setting, options):
+        b_v = float(coef[0])
+        return lambda theta, omega, tau_load: -b_v * omega
+
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
         return [_param("viscous_coefficient_nm_s_rad", *linear_estimate(coef, cov, [1.0]), "N m s/rad",
                        "additional viscous friction coefficient")]
@@ -292,24 +325,52 @@ class ViscousFriction(MechanicalEffect):
 @register
 class LoadDependentFriction(MechanicalEffect):
     name = "load_dependent_friction"
-    description = "friction proportional to the load torque (ball-screw efficiency)"
-    equation = "tau = -mu * |tau_load| * sign(omega)"
+    description = ("friction proportional to the load torque (ball-screw efficiency), optionally different "
+                   "when applying (omega > 0) and releasing (omega < 0)")
+    equation = "tau = -(mu + delta_mu * s) * |tau_load| * s, s = sign(omega)"
 
     def requirement(self, layout):
         if layout.tau_load is None:
             return "no load-torque input"
         return super().requirement(layout)
 
+    def grid(self, options, layout):
+        return [{"asymmetric": 0.0}, {"asymmetric": 1.0}]
+
     def coefficient_names(self, setting):
+        if setting.get("asymmetric", 0.0):
+            return ["load_friction_coefficient", "load_friction_half_difference"]
         return ["load_friction_coefficient"]
 
     def terms(self, inputs, setting, options):
         sign = smooth_sign(inputs.omega, options["sign_smoothing_rad_s"])
-        return _mechanical_regressors(inputs, [-np.abs(inputs.tau_load) * sign]), None
+        torques = [-np.abs(inputs.tau_load) * sign]
+        if setting.get("asymmetric", 0.0):
+            torques.append(-np.abs(inputs.tau_load) * sign * sign)
+        return _mechanical_regressors(inputs, torques), None
+
+    def scalar_torque(self, coef, setting, options):
+        eps = float(options["sign_smoothing_rad_s"])
+        mean = float(coef[0])
+        half = float(coef[1]) if len(coef) > 1 else 0.0
+
+        def torque(theta: float, omega: float, tau_load: float) -> float:
+            s = math.tanh(omega / eps)
+            return -(mean + half * s) * abs(tau_load) * s
+        return torque
 
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
-        return [_param("load_friction_coefficient", *linear_estimate(coef, cov, [1.0]), "-",
-                       "friction torque per N m of load torque")]
+        if len(coef) == 1:
+            return [_param("load_friction_coefficient", *linear_estimate(coef, cov, [1.0]), "-",
+                           "friction torque per N m of load torque")]
+        return [
+            _param("coefficient_apply", *linear_estimate(coef, cov, [1.0, 1.0]), "-",
+                   "friction per N m of load while moving towards positive theta (applying)"),
+            _param("coefficient_release", *linear_estimate(coef, cov, [1.0, -1.0]), "-",
+                   "friction per N m of load while moving towards negative theta (releasing)"),
+            _param("load_friction_coefficient", *linear_estimate(coef, cov, [1.0, 0.0]), "-",
+                   "mean of the two"),
+        ]
 
 
 @register
@@ -334,6 +395,18 @@ class Cogging(MechanicalEffect):
         for h in range(1, int(setting["harmonics"]) + 1):
             torques += [np.sin(h * order * inputs.theta), np.cos(h * order * inputs.theta)]
         return _mechanical_regressors(inputs, torques), None
+
+    def scalar_torque(self, coef, setting, options):
+        order = float(setting["order"])
+        pairs = [(h * order, float(coef[2 * (h - 1)]), float(coef[2 * (h - 1) + 1]))
+                 for h in range(1, int(setting["harmonics"]) + 1)]
+
+        def torque(theta: float, omega: float, tau_load: float) -> float:
+            total = 0.0
+            for n, a, b in pairs:
+                total += a * math.sin(n * theta) + b * math.cos(n * theta)
+            return total
+        return torque
 
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
         out = [_param("order", setting["order"], None, "1/rev", "cogging periods per mechanical revolution")]
@@ -365,6 +438,28 @@ class InertiaMismatch(MechanicalEffect):
         regressors = np.zeros((inputs.n, lay.n_x, 1))
         regressors[:, lay.omega, 0] = inputs.f[:, lay.omega]
         return regressors, None
+
+    def scalar_rows(self, coef, setting, options, layout):
+        c = layout.constants
+        if "speed_a_q" not in c:
+            return None
+        k, lay = float(coef[0]), layout
+        a_q, a_dq, a_w, a_l, a_0 = (c[f"speed_a_{n}"] for n in ("q", "dq", "w", "l", "0"))
+
+        def rows(x: list[float], u: list[float]) -> list[tuple[int, float]]:
+            i_q = x[lay.i_q]
+            return [(lay.omega, k * (a_q * i_q + a_dq * x[lay.i_d] * i_q + a_w * x[lay.omega]
+                                     + a_l * u[lay.tau_load] + a_0))]
+        return rows
+
+    def fast_correction(self, coef, setting, options, layout, model):
+        k, row = float(coef[0]), layout.omega
+
+        def correction(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+            out = np.zeros_like(x)
+            out[:, row] = k * model.derivatives(x, u)[:, row]
+            return out
+        return correction
 
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
         k = float(coef[0])
@@ -401,6 +496,24 @@ class TorqueConstantError(MechanicalEffect):
         regressors[:, lay.omega, 0] = inputs.state_response(delta)[:, lay.omega]
         return regressors, None
 
+    def scalar_rows(self, coef, setting, options, layout):
+        c = layout.constants
+        if "speed_a_q" not in c:
+            return None
+        k, lay, a_q, a_dq = float(coef[0]), layout, c["speed_a_q"], c["speed_a_dq"]
+        return lambda x, u: [(lay.omega, k * (a_q + a_dq * x[lay.i_d]) * x[lay.i_q])]
+
+    def fast_correction(self, coef, setting, options, layout, model):
+        k, row, col = float(coef[0]), layout.omega, layout.i_q
+
+        def correction(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+            without = x.copy()
+            without[:, col] = 0.0
+            out = np.zeros_like(x)
+            out[:, row] = k * (model.derivatives(x, u)[:, row] - model.derivatives(without, u)[:, row])
+            return out
+        return correction
+
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
         return [_param("torque_constant_relative_error", *linear_estimate(coef, cov, [1.0]), "-",
                        "(k_t,true - k_t,model) / k_t,model")]
@@ -432,6 +545,27 @@ class ResistanceError(ElectricalEffect):
             delta[:, idx] = inputs.x[:, idx]
             regressors[:, idx, 0] = inputs.state_response(delta)[:, idx]
         return regressors, None
+
+    def scalar_rows(self, coef, setting, options, layout):
+        c = layout.constants
+        if "diag_d" not in c or "diag_q" not in c:
+            return None
+        k, lay, g_d, g_q = float(coef[0]), layout, c["diag_d"], c["diag_q"]
+        return lambda x, u: [(lay.i_d, k * g_d * x[lay.i_d]), (lay.i_q, k * g_q * x[lay.i_q])]
+
+    def fast_correction(self, coef, setting, options, layout, model):
+        k = float(coef[0])
+        columns = (layout.i_d, layout.i_q)
+
+        def correction(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+            full = model.derivatives(x, u)
+            out = np.zeros_like(x)
+            for col in columns:
+                without = x.copy()
+                without[:, col] = 0.0
+                out[:, col] = k * (full[:, col] - model.derivatives(without, u)[:, col])
+            return out
+        return correction
 
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
         return [_param("resistance_relative_error", *linear_estimate(coef, cov, [1.0]), "-",
@@ -466,6 +600,44 @@ class InverterDeadtime(ElectricalEffect):
         for idx in lay.groups["electrical"]:
             regressors[:, idx, 0] = response[:, idx]
         return regressors, None
+
+    def scalar_rows(self, coef, setting, options, layout):
+        c = layout.constants
+        if "inv_l_d" not in c or "inv_l_q" not in c:
+            return None
+        delta, inv_scale = float(coef[0]), 1.0 / float(setting["current_scale_a"])
+        lay, p, inv_l_d, inv_l_q = layout, float(layout.pole_pairs), c["inv_l_d"], c["inv_l_q"]
+        half_sqrt3 = 0.5 * math.sqrt(3.0)
+
+        def rows(x: list[float], u: list[float]) -> list[tuple[int, float]]:
+            th = p * x[lay.theta]
+            cos_e, sin_e = math.cos(th), math.sin(th)
+            i_d, i_q = x[lay.i_d], x[lay.i_q]
+            i_al = i_d * cos_e - i_q * sin_e
+            i_be = i_d * sin_e + i_q * cos_e
+            d_a = -delta * math.tanh(i_al * inv_scale)
+            d_b = -delta * math.tanh((-0.5 * i_al + half_sqrt3 * i_be) * inv_scale)
+            d_c = -delta * math.tanh((-0.5 * i_al - half_sqrt3 * i_be) * inv_scale)
+            u_dc = u[lay.u_dc]
+            v_al = u_dc * (2.0 / 3.0) * (d_a - 0.5 * d_b - 0.5 * d_c)
+            v_be = u_dc * (d_b - d_c) / math.sqrt(3.0)
+            return [(lay.i_d, (v_al * cos_e + v_be * sin_e) * inv_l_d),
+                    (lay.i_q, (-v_al * sin_e + v_be * cos_e) * inv_l_q)]
+        return rows
+
+    def fast_correction(self, coef, setting, options, layout, model):
+        delta, scale = float(coef[0]), float(setting["current_scale_a"])
+        duty = list(layout.duty)
+        rows = list(layout.groups["electrical"])
+
+        def correction(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+            i_abc = dq_to_abc(x[:, layout.i_d], x[:, layout.i_q], layout.pole_pairs * x[:, layout.theta])
+            shifted = u.copy()
+            shifted[:, duty] -= delta * np.tanh(i_abc / scale)
+            out = np.zeros_like(x)
+            out[:, rows] = (model.derivatives(x, shifted) - model.derivatives(x, u))[:, rows]
+            return out
+        return correction
 
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
         duty_error, se = linear_estimate(coef, cov, [1.0])

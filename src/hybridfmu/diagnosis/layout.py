@@ -23,7 +23,9 @@ class MotorLayout:
     """Indices (into the model's state/input vectors) and constants used by the effects.
 
     ``groups`` maps an equation group to the state indices whose equations it holds.
-    ``inertia_kg_m2`` converts torques (N m) to accelerations (rad/s^2).
+    ``inertia_kg_m2`` converts torques (N m) to accelerations (rad/s^2). ``constants`` holds
+    model coefficients calibrated along the data (see ``calibrate_constants``) that let the
+    corrections run in scalar arithmetic.
     """
 
     state_names: list[str]
@@ -39,6 +41,7 @@ class MotorLayout:
     inertia_kg_m2: float | None = None
     groups: dict[str, list[int]] = field(default_factory=dict)
     dt_s: float = 1e-4
+    constants: dict[str, float] = field(default_factory=dict)
 
     @property
     def n_x(self) -> int:
@@ -108,3 +111,57 @@ def resolve_layout(model: Any, diagnosis_config: dict[str, Any], signals_config:
         pole_pairs=float(pole_pairs) if pole_pairs else None,
         inertia_kg_m2=float(inertia) if inertia else None, groups=groups, dt_s=float(dt_s),
     )
+
+
+def _exact_fit(design: np.ndarray, target: np.ndarray, tolerance: float = 1e-6) -> np.ndarray | None:
+    """Least-squares coefficients if they reproduce ``target`` to ``tolerance`` (relative), else None."""
+    keep = np.all(np.isfinite(design), axis=1) & np.isfinite(target)
+    design, target = design[keep], target[keep]
+    if len(target) < 4 * design.shape[1]:
+        return None
+    coef, *_ = np.linalg.lstsq(design, target, rcond=None)
+    scale = max(float(np.max(np.abs(target))), 1e-12)
+    return coef if float(np.max(np.abs(design @ coef - target))) <= tolerance * scale else None
+
+
+def calibrate_constants(layout: MotorLayout, x: np.ndarray, u: np.ndarray, f: np.ndarray,
+                        dfdx: np.ndarray | None, dfdu: np.ndarray | None) -> dict[str, float]:
+    """Coefficients of the model found along the data, kept only where they reproduce it exactly.
+
+    - ``speed_*``: omega_dot = a_q i_q + a_dq i_d i_q + a_w omega + a_l tau_load + a_0 (the speed
+      equation is affine in these for a PMSM);
+    - ``inv_l_d``, ``inv_l_q``: the current equations' response to a duty change equals
+      u_dc * (Park(Clarke(delta_d - mean delta_d))) / L (amplitude-invariant, theta_e = p theta);
+    - ``diag_d``, ``diag_q``: d(i_dot_d)/d(i_d) and d(i_dot_q)/d(i_q) (= -R/L) if constant.
+    Arguments: ``x`` (M, n_x), ``u`` (M, n_u), ``f`` = model derivatives at (x, u) (M, n_x),
+    Jacobians at (x, u). Returns the constants found (also stored in ``layout.constants``).
+    """
+    from hybridfmu.diagnosis.synthetic import abc_to_dq
+
+    found: dict[str, float] = {}
+    lay = layout
+    step = max(1, len(x) // 20000)
+    xs, us, fs = x[::step], u[::step], f[::step]
+    if lay.i_d is not None and lay.i_q is not None and lay.tau_load is not None:
+        design = np.stack([xs[:, lay.i_q], xs[:, lay.i_d] * xs[:, lay.i_q], xs[:, lay.omega], us[:, lay.tau_load],
+                           np.ones(len(xs))], axis=1)
+        coef = _exact_fit(design, fs[:, lay.omega])
+        if coef is not None:
+            found.update(zip(("speed_a_q", "speed_a_dq", "speed_a_w", "speed_a_l", "speed_a_0"), map(float, coef)))
+    if dfdu is not None and lay.duty is not None and lay.u_dc is not None and lay.pole_pairs and lay.i_d is not None:
+        dus = dfdu[::step]
+        probe = np.zeros((len(xs), 3))
+        probe[:, 0] = 1.0
+        centred = probe - probe.mean(axis=1, keepdims=True)
+        v_d, v_q = abc_to_dq(centred * us[:, [lay.u_dc]], lay.pole_pairs * xs[:, lay.theta])
+        for name, row, volts in (("inv_l_d", lay.i_d, v_d), ("inv_l_q", lay.i_q, v_q)):
+            coef = _exact_fit(volts[:, None], dus[:, row, lay.duty[0]], tolerance=1e-5)
+            if coef is not None:
+                found[name] = float(coef[0])
+    if dfdx is not None and lay.i_d is not None and lay.i_q is not None:
+        for name, idx in (("diag_d", lay.i_d), ("diag_q", lay.i_q)):
+            values = dfdx[::step, idx, idx]
+            if np.all(np.isfinite(values)) and np.ptp(values) <= 1e-5 * max(abs(float(np.median(values))), 1e-12):
+                found[name] = float(np.median(values))
+    layout.constants.update(found)
+    return found
