@@ -89,10 +89,13 @@ class Tracker:
         if artifact_root is None and database is not None:
             artifact_root = database.parent / "mlartifacts"
         self.artifact_root = Path(artifact_root).resolve() if artifact_root is not None else None
-        self.client = MlflowClient(tracking_uri=uri)
-        if database is not None:
-            # Create the store (schema migrations) under an exclusive lock: concurrent first use is safe.
+        if database is None:
+            self.client = MlflowClient(tracking_uri=uri)
+        else:
+            # The store is created (schema migrations) on first use: do it under an exclusive file lock,
+            # so that jobs opening a fresh database at the same time do not race.
             with _file_lock(database.with_name(database.name + ".lock")):
+                self.client = MlflowClient(tracking_uri=uri)
                 retry_locked(self.client.search_experiments, max_results=1)
 
     def call(self, method: str, *args: Any, **kwargs: Any) -> Any:
