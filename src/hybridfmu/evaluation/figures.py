@@ -128,8 +128,9 @@ def _draw_lines(ax: plt.Axes, traj: Trajectories, mask: np.ndarray, options: Plo
         x, y = decimate_minmax(t, values[mask], options.max_points)
         label = style.get("label") if name is None else _loss_label(
             name, _errors(values[mask], traj.data[mask], traj.quantity), traj.quantity)
-        ax.plot(x, y, color=style["color"], lw=options.line_width if name else options.line_width * 1.6,
-                alpha=0.85 if name else 0.6, label=label)
+        # the data as a broad light band underneath, so that it stays visible where a model covers it
+        ax.plot(x, y, color=style["color"], lw=options.line_width if name else options.line_width * 3.0,
+                alpha=0.85 if name else 0.35, label=label, zorder=3 if name else 2)
     unit = QUANTITY_UNITS[traj.quantity][0]
     ax.set_xlabel("time t [s]")
     ax.set_ylabel(f"{QUANTITY_LABELS[traj.quantity]} [{unit}]")

@@ -121,8 +121,12 @@ def run_time_offset(fmu_path: str | Path, data_path: str | Path, window_path: st
         t = time_s[first:last]
         data_speed = x_measured[first:last, speed_i]
 
+        margin = int(np.ceil(max_lag_s / step_s)) + 2
+        lo, hi = max(first - margin, 0), min(last + margin, time_s.size)
+        u_near = u[lo:hi]  # the samples a shifted window can read (ends held as in the whole maneuver)
+
         def simulate(delay_s: float) -> np.ndarray:
-            shifted = shift_inputs(u, delay_s, step_s)[first:last]
+            shifted = shift_inputs(u_near, delay_s, step_s)[first - lo:last - lo]
             return simulate_fmu_open_loop(model, t, shifted, x_measured[first], label=f"{maneuver} time-offset window")[0]
 
         plain = simulate(0.0)

@@ -243,7 +243,9 @@ def write_report(report_path: str | Path, case: str, metrics_paths: list[str], b
     text += ("\n## Time offset seen from the FMU alone\n\n"
              f"Fitting an input delay to the FMU on a short window of '{time_offset['maneuver']}' "
              f"({time_offset['t_start_s']:.4f}–{time_offset['t_end_s']:.4f} s) gives {time_offset['input_delay_s'] * 1e6:.1f} µs "
-             f"(speed MSE {time_offset['speed_mse_without_delay']:.3g} → {time_offset['speed_mse_with_delay']:.3g} (rad/s)²).\n")
+             f"(speed MSE {time_offset['speed_mse_without_delay']:.3g} → {time_offset['speed_mse_with_delay']:.3g} (rad/s)²). "
+             "On one window the delay also absorbs the FMU's other errors there (friction, inertia), so this "
+             "estimate is indicative only; the neural FMU learns its delay together with the correction.\n")
     write_text_atomic(report_path, text)
     if log_to_mlflow:
         from hybridfmu.evaluation.tracking import log_report_artifacts
