@@ -84,6 +84,10 @@ def run_evaluation(best_path: str | Path, fmu_path: str | Path, data_paths: list
     if not (len(maneuvers) == len(data_paths) == len(baseline_paths) == len(trajectory_paths)):
         raise ValueError(f"evaluate: {len(maneuvers)} maneuvers but {len(data_paths)} data, {len(baseline_paths)} "
                          f"baseline and {len(trajectory_paths)} trajectory paths")
+    unknown = sorted(set((zoom_settings or {}).get("intervals", {}) or {}) - set(maneuvers))
+    if unknown:
+        raise ValueError(f"config.evaluation.zoom.intervals: maneuver(s) {unknown} are not evaluated; "
+                         f"expected some of {maneuvers} (the validation and test maneuvers)")
     best = read_json(best_path)
     summary = best_trial_summary(best, best_path)
     with load_fmu(fmu_path) as fmu:
