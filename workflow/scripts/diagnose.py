@@ -1,0 +1,20 @@
+"""Rule diagnose: the diagnosis of the sim-to-real gap of the case (diagnosis.json, report.md, figures)."""
+
+from pathlib import Path
+
+import torch
+
+from hybridfmu.diagnosis.report import diagnose
+from hybridfmu.progress import setup_rule_logging
+
+torch.set_num_threads(1)
+setup_rule_logging(snakemake.log[0])
+maneuvers = list(snakemake.params.maneuvers)
+diagnose(
+    config=dict(snakemake.config),
+    fmu_path=snakemake.input.fmu,
+    data_paths=dict(zip(maneuvers, snakemake.input.data)),
+    segments_paths=dict(zip(maneuvers, snakemake.input.segments)),
+    out_dir=Path(snakemake.output.json).parent,
+    best_json=snakemake.input.best[0] if snakemake.input.best else None,
+)
