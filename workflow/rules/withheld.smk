@@ -1,0 +1,114 @@
+# Withheld-effect check (target `withheld`): for every effect of the bench's catalog (plus configured
+# pairs and a case without any effect) a case whose bench has the effect while the FMU lacks it is
+# generated, emulated, ingested, segmented and diagnosed; the summary compares with the ground truth.
+# Cases are wildcards, so `snakemake -j2 withheld` runs them in parallel.
+from hybridfmu.diagnosis.withheld import case_names as _withheld_case_names
+
+WITHHELD = f"{config.get('results_dir', 'results')}/withheld"
+WITHHELD_CASES = _withheld_case_names(config) if config.get("withheld", {}).get("maneuvers") else []
+WITHHELD_MANEUVERS = list(config.get("withheld", {}).get("maneuvers", {}))
+WITHHELD_DURATION_S = config.get("withheld", {}).get("duration_s", 6.0)
+
+wildcard_constraints:
+    wcase="|".join(WITHHELD_CASES) if WITHHELD_CASES else "no-withheld-case",
+    wmaneuver="|".join(WITHHELD_MANEUVERS) if WITHHELD_MANEUVERS else "no-withheld-maneuver",
+
+
+rule withheld_case:
+    input:
+        fmu=lambda wildcards: fmu_path(),
+    output:
+        case=f"{WITHHELD}/cases/{{wcase}}.yaml",
+    params:
+        withheld=config.get("withheld", {}),
+        duration_s=WITHHELD_DURATION_S,
+    log:
+        f"{WITHHELD}/logs/withheld_case/{{wcase}}.log",
+    script:
+        "../scripts/withheld_case.py"
+
+
+rule withheld_emulate:
+    input:
+        case=f"{WITHHELD}/cases/{{wcase}}.yaml",
+    output:
+        mdf=f"{WITHHELD}/{{wcase}}/raw/{{wmaneuver}}.mf4",
+        truth=f"{WITHHELD}/{{wcase}}/raw/{{wmaneuver}}.truth.json",
+    params:
+        duration_s=WITHHELD_DURATION_S,
+    log:
+        f"{WITHHELD}/logs/withheld_emulate/{{wcase}}_{{wmaneuver}}.log",
+    benchmark:
+        f"{WITHHELD}/benchmarks/withheld_emulate/{{wcase}}_{{wmaneuver}}.tsv"
+    script:
+        "../scripts/withheld_emulate.py"
+
+
+rule withheld_ingest:
+    input:
+        case=f"{WITHHELD}/cases/{{wcase}}.yaml",
+        raw=f"{WITHHELD}/{{wcase}}/raw/{{wmaneuver}}.mf4",
+    output:
+        data=f"{WITHHELD}/{{wcase}}/data/{{wmaneuver}}.parquet",
+    log:
+        f"{WITHHELD}/logs/withheld_ingest/{{wcase}}_{{wmaneuver}}.log",
+    benchmark:
+        f"{WITHHELD}/benchmarks/withheld_ingest/{{wcase}}_{{wmaneuver}}.tsv"
+    script:
+        "../scripts/withheld_ingest.py"
+
+
+rule withheld_segments:
+    input:
+        case=f"{WITHHELD}/cases/{{wcase}}.yaml",
+        data=f"{WITHHELD}/{{wcase}}/data/{{wmaneuver}}.parquet",
+    output:
+        segments=f"{WITHHELD}/{{wcase}}/segments/{{wmaneuver}}.json",
+        plot=f"{WITHHELD}/{{wcase}}/segments/{{wmaneuver}}.png",
+    log:
+        f"{WITHHELD}/logs/withheld_segments/{{wcase}}_{{wmaneuver}}.log",
+    script:
+        "../scripts/withheld_segments.py"
+
+
+rule withheld_diagnose:
+    input:
+        case=f"{WITHHELD}/cases/{{wcase}}.yaml",
+        fmu=lambda wildcards: fmu_path(),
+        data=expand(f"{WITHHELD}/{{{{wcase}}}}/data/{{m}}.parquet", m=WITHHELD_MANEUVERS),
+        segments=expand(f"{WITHHELD}/{{{{wcase}}}}/segments/{{m}}.json", m=WITHHELD_MANEUVERS),
+    output:
+        json=f"{WITHHELD}/{{wcase}}/diagnosis/diagnosis.json",
+        report=f"{WITHHELD}/{{wcase}}/diagnosis/report.md",
+    params:
+        maneuvers=WITHHELD_MANEUVERS,
+    log:
+        f"{WITHHELD}/logs/withheld_diagnose/{{wcase}}.log",
+    benchmark:
+        f"{WITHHELD}/benchmarks/withheld_diagnose/{{wcase}}.tsv"
+    script:
+        "../scripts/withheld_diagnose.py"
+
+
+rule withheld_summary:
+    input:
+        diagnoses=expand(f"{WITHHELD}/{{c}}/diagnosis/diagnosis.json", c=WITHHELD_CASES),
+        truths=expand(f"{WITHHELD}/{{c}}/raw/{{m}}.truth.json", c=WITHHELD_CASES,
+                      m=WITHHELD_MANEUVERS[-1:]),
+    output:
+        csv=f"{WITHHELD}/summary.csv",
+        confusion=f"{WITHHELD}/confusion.png",
+        markdown=f"{WITHHELD}/summary.md",
+    params:
+        cases=WITHHELD_CASES,
+    log:
+        f"{WITHHELD}/logs/withheld_summary/withheld_summary.log",
+    script:
+        "../scripts/withheld_summary.py"
+
+
+rule withheld:
+    input:
+        f"{WITHHELD}/summary.csv",
+        f"{WITHHELD}/confusion.png",
+        f"{WITHHELD}/summary.md",

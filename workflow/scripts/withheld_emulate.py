@@ -1,0 +1,8 @@
+"""Rule withheld_emulate: emulate one truncated maneuver of a withheld-effect case."""
+
+from hybridfmu.diagnosis.withheld import emulate_case
+from hybridfmu.progress import setup_rule_logging
+
+setup_rule_logging(snakemake.log[0])
+emulate_case(snakemake.input.case, snakemake.wildcards.wmaneuver, snakemake.output.mdf, snakemake.output.truth,
+             duration_s=snakemake.params.duration_s)

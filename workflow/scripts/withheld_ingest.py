@@ -1,0 +1,7 @@
+"""Rule withheld_ingest: ingest one raw log of a withheld-effect case."""
+
+from hybridfmu.diagnosis.withheld import ingest_case
+from hybridfmu.progress import setup_rule_logging
+
+setup_rule_logging(snakemake.log[0])
+ingest_case(snakemake.input.case, snakemake.input.raw, snakemake.output.data)

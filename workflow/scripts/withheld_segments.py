@@ -1,0 +1,8 @@
+"""Rule withheld_segments: the informative spans of one maneuver of a withheld-effect case."""
+
+from hybridfmu.diagnosis.withheld import segment_case
+from hybridfmu.progress import setup_rule_logging
+
+setup_rule_logging(snakemake.log[0])
+segment_case(snakemake.input.case, snakemake.input.data, snakemake.output.segments, snakemake.output.plot,
+             snakemake.wildcards.wmaneuver)
