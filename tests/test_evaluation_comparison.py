@@ -18,7 +18,7 @@ def _run(name, n=11, fmu_angle_offset=0.2, neural_angle_offset=0.05):
     neural = np.zeros((n, 4))
     neural[:, 2] = angle + neural_angle_offset           # constant angle error
     neural[:, 3] = speed - 0.5                           # speed error -0.5
-    return ManeuverRun(name, t, angle, speed, STATES, fmu, neural, 2, 3)
+    return ManeuverRun(name, t, angle, speed, fmu[:, 2], fmu[:, 3], neural[:, 2], neural[:, 3])
 
 
 def test_role_metrics_by_hand():
@@ -59,7 +59,12 @@ def test_pooled_over_maneuvers_and_configured_zoom():
 
 def test_shape_mismatch_named():
     t = np.linspace(0, 1, 5)
-    with pytest.raises(ValueError, match="neural_fmu_states has shape"):
-        ManeuverRun("m", t, t, t, STATES, np.zeros((5, 4)), np.zeros((4, 4)), 2, 3)
+    with pytest.raises(ValueError, match=r"speed_neural_rad_s has shape \(4,\), expected \(5,\)"):
+        ManeuverRun("m", t, t, t, t, t, t, t[:4])
+    with pytest.raises(ValueError, match=r"x\.parquet: column\(s\) \['neural_fmu_speed_rad_s'\] missing"):
+        import pandas as pd
+        ManeuverRun.from_frame(pd.DataFrame({c: t for c in ("time_s", "data_angle_rad", "data_speed_rad_s",
+                                                            "fmu_angle_rad", "fmu_speed_rad_s",
+                                                            "neural_fmu_angle_rad")}), "m", "x.parquet")
     with pytest.raises(ValueError, match="no maneuver with role"):
         role_metrics("test", [], {}, {})

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from hybridfmu.evaluation.baseline import run_baseline
-from hybridfmu.evaluation.evaluate import run_evaluation
+from hybridfmu.evaluation.evaluate import run_evaluation, simulate_best
 from hybridfmu.fmu import FmuRhs, load_fmu, simulate_open_loop
 from test_evaluation_baseline import STEP_S, measured_frame, rotating_field_inputs
 
@@ -53,13 +53,18 @@ def maneuvers(ipbmotor_fmu, tmp_path):
 
 def evaluate(tmp_path, fmu_path, best, maneuvers, zoom=None):
     out = tmp_path / f"out_{best.stem}"
+    trajectories, learned = [], []
+    for name in ("val", "tst"):
+        trajectories.append(str(out / "traj" / f"{name}.parquet"))
+        learned.append(str(out / "traj" / f"{name}.learned.json"))
+        simulate_best(best, fmu_path, maneuvers[name][0], maneuvers[name][1], trajectories[-1], learned[-1],
+                      None, {}, name)
     return out, run_evaluation(
-        best_path=best, fmu_path=fmu_path, data_paths=[maneuvers["val"][0], maneuvers["tst"][0]],
-        baseline_paths=[maneuvers["val"][1], maneuvers["tst"][1]], maneuver_roles={"val": "validation", "tst": "test"},
+        best_path=best, trajectory_paths=trajectories, learned_paths=learned,
+        maneuver_roles={"val": "validation", "tst": "test"},
         metrics_paths=[str(out / "metrics" / "validation.json"), str(out / "metrics" / "test.json")],
-        trajectory_paths=[str(out / "traj" / "val.parquet"), str(out / "traj" / "tst.parquet")],
         run_path=out / "run.json", zoom_settings=zoom or {"angle_length_s": 0.02, "speed_length_s": 0.01},
-        signals_config=None, mlflow_config={}, results_dir=tmp_path / "results", case="unit")
+        mlflow_config={}, results_dir=tmp_path / "results", case="unit")
 
 
 def test_closed_gate_neural_fmu_equals_the_fmu(ipbmotor_fmu, maneuvers, tmp_path):
@@ -80,6 +85,19 @@ def test_closed_gate_neural_fmu_equals_the_fmu(ipbmotor_fmu, maneuvers, tmp_path
     np.testing.assert_allclose(frame["neural_fmu_theta"], frame["fmu_theta"], atol=1e-6)
     run = json.loads((out / "run.json").read_text())
     assert run["experiment"] == "unit" and run["tracking_uri"].endswith("results/mlflow.db")
+    learned = json.loads((out / "traj" / "tst.learned.json").read_text())
+    assert learned["trial_id"] == "b0c0" and learned["x0"]["theta"] == pytest.approx(8.0)
+
+
+def test_trajectories_of_another_trial_are_refused(ipbmotor_fmu, maneuvers, tmp_path):
+    out, _ = evaluate(tmp_path, ipbmotor_fmu, write_best(tmp_path, ipbmotor_fmu, 0.0), maneuvers)
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"trial_id": "b1c2", "hyperparameters": {}, "checkpoint": "x.pt"}))
+    with pytest.raises(ValueError, match=r"val\.learned\.json: simulated with trial b0c0.*names b1c2"):
+        run_evaluation(other, [str(out / "traj" / "val.parquet"), str(out / "traj" / "tst.parquet")],
+                       [str(out / "traj" / "val.learned.json"), str(out / "traj" / "tst.learned.json")],
+                       {"val": "validation", "tst": "test"}, [str(tmp_path / "v.json")], tmp_path / "r.json",
+                       {}, {}, tmp_path, "unit")
 
 
 def test_open_gate_changes_the_neural_fmu_only(ipbmotor_fmu, maneuvers, tmp_path):

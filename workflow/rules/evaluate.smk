@@ -1,5 +1,7 @@
-# Evaluation of the best neural FMU against the FMU on the validation and test maneuvers
-# (rule evaluate), the paper's figures (rule plot) and the report (rule report).
+# Evaluation of the best neural FMU against the FMU on the validation and test maneuvers: the open-loop
+# simulation of each whole maneuver (rule simulate_best, one job per maneuver), the errors on whole
+# trajectories and zoomed intervals with the MLflow run (rule evaluate), the paper's figures (rule plot)
+# and the report (rule report).
 
 EVAL_ROLES = [role for role in ("validation", "test")
               if any(item["role"] == role for item in config["maneuvers"].values())]
@@ -31,20 +33,40 @@ def truth_files():
     return files
 
 
-rule evaluate:
+rule simulate_best:
     input:
         best=f"{RESULTS}/hpo/best.json",
         fmu=lambda wildcards: fmu_path(),
-        data=expand(f"{RESULTS}/data/{{maneuver}}.parquet", maneuver=EVAL_MANEUVERS),
-        baseline=expand(f"{RESULTS}/baseline/{{maneuver}}.parquet", maneuver=EVAL_MANEUVERS),
+        data=f"{RESULTS}/data/{{maneuver}}.parquet",
+        baseline=f"{RESULTS}/baseline/{{maneuver}}.parquet",
+    output:
+        trajectory=f"{RESULTS}/evaluation/trajectories/{{maneuver}}.parquet",
+        learned=f"{RESULTS}/evaluation/trajectories/{{maneuver}}.learned.json",
+    params:
+        signals=config.get("signals", {}),
+        fmu_parameters=config["fmu"].get("parameters", {}),
+    wildcard_constraints:
+        maneuver="|".join(EVAL_MANEUVERS) if EVAL_MANEUVERS else "(?!)",
+    threads: 1
+    log:
+        f"{RESULTS}/logs/simulate_best/{{maneuver}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/simulate_best/{{maneuver}}.tsv"
+    script:
+        "../scripts/simulate_best.py"
+
+
+rule evaluate:
+    input:
+        best=f"{RESULTS}/hpo/best.json",
+        trajectories=expand(f"{RESULTS}/evaluation/trajectories/{{maneuver}}.parquet", maneuver=EVAL_MANEUVERS),
+        learned=expand(f"{RESULTS}/evaluation/trajectories/{{maneuver}}.learned.json", maneuver=EVAL_MANEUVERS),
     output:
         metrics=expand(f"{RESULTS}/metrics/{{role}}.json", role=EVAL_ROLES),
-        trajectories=expand(f"{RESULTS}/evaluation/trajectories/{{maneuver}}.parquet", maneuver=EVAL_MANEUVERS),
         run=f"{RESULTS}/evaluation/mlflow_run.json",
     params:
         maneuvers={name: config["maneuvers"][name]["role"] for name in EVAL_MANEUVERS},
         zoom=EVAL_CONFIG.get("zoom", {}),
-        signals=config.get("signals", {}),
         mlflow=config.get("mlflow", {}),
         results_dir=config.get("results_dir", "results"),
         case=CASE,

@@ -13,64 +13,54 @@ import pandas as pd
 from hybridfmu.evaluation.metrics import improvement_factors, interval_mask, trajectory_errors
 from hybridfmu.evaluation.zoom import choose_zoom_intervals
 
-#: Columns of the saved trajectories (besides ``fmu_<state>`` and ``neural_fmu_<state>`` for every state).
+#: Columns of the saved trajectories used here (the files also hold ``fmu_<state>`` and
+#: ``neural_fmu_<state>`` for every FMU state).
 TRAJECTORY_COLUMNS = ("time_s", "data_angle_rad", "data_speed_rad_s", "fmu_angle_rad", "fmu_speed_rad_s",
                       "neural_fmu_angle_rad", "neural_fmu_speed_rad_s")
 
 
 @dataclass
 class ManeuverRun:
-    """Data and both simulations of one maneuver, on the data's grid.
+    """Data and both simulations of one maneuver's angle and speed, on the data's grid (all shape (T,)).
 
     Attributes:
         maneuver: maneuver name.
-        time_s: time grid (T,), s, starting at the maneuver's first sample.
-        angle_data_rad, speed_data_rad_s: measured angle (rad) and speed (rad/s), (T,).
-        state_names: FMU state names, length n_x.
-        fmu_states, neural_fmu_states: open-loop simulations (T, n_x), SI units.
-        angle_index, speed_index: positions of the angle and speed states in ``state_names``.
+        time_s: time grid, s, starting at the maneuver's first sample.
+        angle_data_rad, speed_data_rad_s: measured angle (rad) and speed (rad/s).
+        angle_fmu_rad, speed_fmu_rad_s: the FMU open loop.
+        angle_neural_rad, speed_neural_rad_s: the neural FMU open loop.
     """
 
     maneuver: str
     time_s: np.ndarray
     angle_data_rad: np.ndarray
     speed_data_rad_s: np.ndarray
-    state_names: list[str]
-    fmu_states: np.ndarray
-    neural_fmu_states: np.ndarray
-    angle_index: int
-    speed_index: int
+    angle_fmu_rad: np.ndarray
+    speed_fmu_rad_s: np.ndarray
+    angle_neural_rad: np.ndarray
+    speed_neural_rad_s: np.ndarray
 
     def __post_init__(self) -> None:
-        t = self.time_s.shape[0]
-        for name in ("angle_data_rad", "speed_data_rad_s"):
-            if getattr(self, name).shape != (t,):
-                raise ValueError(f"{self.maneuver}: {name} has shape {getattr(self, name).shape}, expected ({t},)")
-        for name in ("fmu_states", "neural_fmu_states"):
-            if getattr(self, name).shape != (t, len(self.state_names)):
-                raise ValueError(f"{self.maneuver}: {name} has shape {getattr(self, name).shape}, "
-                                 f"expected ({t}, {len(self.state_names)}) for states {self.state_names}")
+        t = np.shape(self.time_s)[0]
+        for name in ("angle_data_rad", "speed_data_rad_s", "angle_fmu_rad", "speed_fmu_rad_s", "angle_neural_rad",
+                     "speed_neural_rad_s"):
+            if np.shape(getattr(self, name)) != (t,):
+                raise ValueError(f"{self.maneuver}: {name} has shape {np.shape(getattr(self, name))}, expected ({t},)")
+
+    @classmethod
+    def from_frame(cls, frame: pd.DataFrame, maneuver: str, source: str = "") -> "ManeuverRun":
+        """From saved trajectories (``TRAJECTORY_COLUMNS``); ``source`` names the file in errors."""
+        missing = [c for c in TRAJECTORY_COLUMNS if c not in frame.columns]
+        if missing:
+            raise ValueError(f"{source or maneuver}: column(s) {missing} missing (expected saved trajectories)")
+        return cls(maneuver, *(frame[c].to_numpy(dtype=float) for c in TRAJECTORY_COLUMNS))
 
     def errors(self, model: str, mask: np.ndarray | None = None) -> dict[str, float]:
         """MAE/MSE of ``model`` ("fmu" or "neural_fmu") against the data, over ``mask`` (T,) or everything."""
-        states = self.fmu_states if model == "fmu" else self.neural_fmu_states
+        angle, speed = ((self.angle_fmu_rad, self.speed_fmu_rad_s) if model == "fmu"
+                        else (self.angle_neural_rad, self.speed_neural_rad_s))
         sel = slice(None) if mask is None else mask
-        return trajectory_errors(states[sel, self.angle_index], states[sel, self.speed_index],
-                                 self.angle_data_rad[sel], self.speed_data_rad_s[sel])
-
-    def frame(self) -> pd.DataFrame:
-        """The trajectories to save (plotting reads them instead of simulating again)."""
-        columns = {
-            "time_s": self.time_s, "data_angle_rad": self.angle_data_rad, "data_speed_rad_s": self.speed_data_rad_s,
-            "fmu_angle_rad": self.fmu_states[:, self.angle_index],
-            "fmu_speed_rad_s": self.fmu_states[:, self.speed_index],
-            "neural_fmu_angle_rad": self.neural_fmu_states[:, self.angle_index],
-            "neural_fmu_speed_rad_s": self.neural_fmu_states[:, self.speed_index],
-        }
-        for i, name in enumerate(self.state_names):
-            columns[f"fmu_{name}"] = self.fmu_states[:, i]
-            columns[f"neural_fmu_{name}"] = self.neural_fmu_states[:, i]
-        return pd.DataFrame(columns)
+        return trajectory_errors(angle[sel], speed[sel], self.angle_data_rad[sel], self.speed_data_rad_s[sel])
 
 
 def compare(reference: dict[str, float], candidate: dict[str, float]) -> dict[str, dict]:
@@ -81,10 +71,9 @@ def compare(reference: dict[str, float], candidate: dict[str, float]) -> dict[st
 def zoom_comparisons(run: ManeuverRun, angle_length_s: float, speed_length_s: float,
                      configured: list[dict] | None) -> list[dict]:
     """Metrics of both models on the maneuver's zoomed intervals (chosen from the FMU's error alone)."""
-    fmu_angle = run.fmu_states[:, run.angle_index]
-    fmu_speed = run.fmu_states[:, run.speed_index]
-    intervals = choose_zoom_intervals(run.time_s, fmu_angle - run.angle_data_rad, fmu_speed - run.speed_data_rad_s,
-                                      angle_length_s, speed_length_s, configured)
+    intervals = choose_zoom_intervals(run.time_s, run.angle_fmu_rad - run.angle_data_rad,
+                                      run.speed_fmu_rad_s - run.speed_data_rad_s, angle_length_s, speed_length_s,
+                                      configured)
     zooms = []
     for interval in intervals:
         mask = interval_mask(run.time_s, interval.t_start_s, interval.t_end_s)
@@ -95,9 +84,9 @@ def zoom_comparisons(run: ManeuverRun, angle_length_s: float, speed_length_s: fl
 
 def pooled_errors(runs: list[ManeuverRun], model: str) -> dict[str, float]:
     """MAE/MSE over all samples of several maneuvers together (each sample weighs the same)."""
-    sims = np.concatenate([(r.fmu_states if model == "fmu" else r.neural_fmu_states) for r in runs])
-    angle_index, speed_index = runs[0].angle_index, runs[0].speed_index
-    return trajectory_errors(sims[:, angle_index], sims[:, speed_index],
+    fmu = model == "fmu"
+    return trajectory_errors(np.concatenate([r.angle_fmu_rad if fmu else r.angle_neural_rad for r in runs]),
+                             np.concatenate([r.speed_fmu_rad_s if fmu else r.speed_neural_rad_s for r in runs]),
                              np.concatenate([r.angle_data_rad for r in runs]),
                              np.concatenate([r.speed_data_rad_s for r in runs]))
 

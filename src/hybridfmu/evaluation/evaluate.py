@@ -1,10 +1,12 @@
-"""Evaluation of the best neural FMU (rule ``evaluate``).
+"""Evaluation of the best neural FMU (rules ``simulate_best`` and ``evaluate``).
 
-The best model of the hyperparameter search and the FMU are simulated open loop over the WHOLE
-validation and test maneuvers, from their first sample (measured initial state, recorded inputs,
-no controller, no windows). The FMU trajectories are the baseline's (same FMU, inputs and initial
-state). Writes per role ``metrics/<role>.json`` (whole trajectories and zoomed intervals), the
-trajectories for plotting, and the evaluation's MLflow run.
+``simulate_best``: the best model of the hyperparameter search is simulated open loop over the WHOLE
+maneuver, from its first sample (measured initial state, recorded inputs, no controller, no
+windows), one job per validation/test maneuver. The FMU trajectory is the baseline's (same FMU,
+parameters, inputs and initial state). Data, FMU and neural FMU are saved together for plotting.
+
+``evaluate``: errors of both models over the whole trajectories and the zoomed intervals, per role
+``metrics/<role>.json``, and the evaluation's MLflow run.
 """
 
 from __future__ import annotations
@@ -22,7 +24,6 @@ from hybridfmu.evaluation.best import best_trial_summary
 from hybridfmu.evaluation.comparison import ManeuverRun, role_metrics
 from hybridfmu.evaluation.tracking import log_evaluation_run, resolve_tracking
 from hybridfmu.io import read_json, write_json_atomic, write_parquet_atomic
-from hybridfmu.progress import Progress
 
 LOG = logging.getLogger(__name__)
 
@@ -42,105 +43,112 @@ def read_baseline(path: str | Path, state_names: list[str], time_s: np.ndarray) 
     return frame[state_names].to_numpy(dtype=float)
 
 
-def simulate_best(model: Any, time_s: np.ndarray, u: np.ndarray, x0: np.ndarray, maneuver: str) -> np.ndarray:
-    """Neural FMU open loop from ``x0``: time_s (T,) s, u (T, n_u), x0 (n_x,) -> states (T, n_x)."""
-    from hybridfmu.training.inference import simulate_neural_fmu
+def learned_quantities(model: Any) -> dict[str, Any]:
+    """The learned input delay ``dt_s`` (s) and the gates ``{state: {"g_F", "g_A"}}`` of a neural FMU."""
+    return {"dt_s": float(model.delay_s()), "gates": model.gate_values()}
 
-    states = np.asarray(simulate_neural_fmu(model, time_s, u, x0), dtype=float)
-    if states.shape != (time_s.size, x0.size):
+
+def simulate_best(best_path: str | Path, fmu_path: str | Path, data_path: str | Path, baseline_path: str | Path,
+                  trajectory_path: str | Path, learned_path: str | Path, signals_config: dict[str, Any] | None,
+                  fmu_parameters: dict[str, float] | None, maneuver: str) -> dict[str, Any]:
+    """Simulate the best neural FMU open loop over the whole maneuver; save it beside data and FMU.
+
+    Writes ``trajectory_path`` (Parquet: ``time_s``, ``data_angle_rad``, ``data_speed_rad_s``,
+    ``fmu_angle_rad``, ``fmu_speed_rad_s``, ``neural_fmu_angle_rad``, ``neural_fmu_speed_rad_s``, and
+    ``fmu_<state>``, ``neural_fmu_<state>`` for every FMU state; SI units) and ``learned_path`` (JSON:
+    ``{"maneuver", "trial_id", "dt_s", "gates", "x0", "wall_time_s"}``). Returns the latter.
+    """
+    from hybridfmu.training.inference import load_trained_neural_fmu, simulate_neural_fmu
+
+    best = read_json(best_path)
+    summary = best_trial_summary(best, best_path)
+    model = load_trained_neural_fmu(best_path, fmu_path, fmu_parameters or None)
+    state_names, input_names = list(model.spec.state_names), list(model.spec.input_names)
+    time_s, u, x_measured = read_maneuver(data_path, state_names, input_names, signals_config)
+    fmu_states = read_baseline(baseline_path, state_names, time_s)
+    angle_i, speed_i = (state_names.index(name) for name in mechanical_states(signals_config))
+    learned = learned_quantities(model)
+    duration_s = float(time_s[-1] - time_s[0])
+    LOG.info("%s: neural FMU (trial %s, dt = %.4g s, gates %s) open loop over %.3f s (%d samples) ...", maneuver,
+             summary["trial_id"], learned["dt_s"], learned["gates"], duration_s, time_s.size)
+    start = time.perf_counter()
+    states = np.asarray(simulate_neural_fmu(model, time_s, u, x_measured[0]), dtype=float)
+    wall_s = time.perf_counter() - start
+    if states.shape != (time_s.size, len(state_names)):
         raise ValueError(f"{maneuver}: neural FMU returned states of shape {states.shape}, "
-                         f"expected ({time_s.size}, {x0.size})")
+                         f"expected ({time_s.size}, {len(state_names)})")
     if not np.all(np.isfinite(states)):
         bad = int(np.argmax(~np.all(np.isfinite(states), axis=1)))
         raise FloatingPointError(f"{maneuver}: neural FMU open-loop simulation diverged at t = {time_s[bad]:.6g} s")
-    return states
+    LOG.info("%s: %.3f s simulated in %.1f s wall time (%.3g s per simulated second)", maneuver, duration_s, wall_s,
+             wall_s / max(duration_s, 1e-12))
+    columns = {"time_s": time_s, "data_angle_rad": x_measured[:, angle_i], "data_speed_rad_s": x_measured[:, speed_i],
+               "fmu_angle_rad": fmu_states[:, angle_i], "fmu_speed_rad_s": fmu_states[:, speed_i],
+               "neural_fmu_angle_rad": states[:, angle_i], "neural_fmu_speed_rad_s": states[:, speed_i]}
+    for i, name in enumerate(state_names):
+        columns[f"fmu_{name}"] = fmu_states[:, i]
+        columns[f"neural_fmu_{name}"] = states[:, i]
+    write_parquet_atomic(trajectory_path, pd.DataFrame(columns))
+    record = {"maneuver": maneuver, "trial_id": summary["trial_id"], **learned,
+              "x0": dict(zip(state_names, x_measured[0].tolist())), "wall_time_s": wall_s}
+    write_json_atomic(learned_path, record)
+    return record
 
 
-def run_evaluation(best_path: str | Path, fmu_path: str | Path, data_paths: list[str], baseline_paths: list[str],
-                   maneuver_roles: dict[str, str], metrics_paths: list[str], trajectory_paths: list[str],
-                   run_path: str | Path, zoom_settings: dict[str, Any], signals_config: dict[str, Any] | None,
-                   mlflow_config: dict[str, Any] | None, results_dir: str | Path, case: str) -> dict[str, dict]:
-    """Evaluate the best neural FMU against the FMU on every validation and test maneuver.
+def run_evaluation(best_path: str | Path, trajectory_paths: list[str], learned_paths: list[str],
+                   maneuver_roles: dict[str, str], metrics_paths: list[str], run_path: str | Path,
+                   zoom_settings: dict[str, Any], mlflow_config: dict[str, Any] | None, results_dir: str | Path,
+                   case: str) -> dict[str, dict]:
+    """Errors of the FMU and the best neural FMU on every validation and test maneuver, and the MLflow run.
 
     Args:
-        best_path: ``hpo/best.json`` of the hyperparameter search.
-        fmu_path: the FMU.
-        data_paths, baseline_paths, trajectory_paths: per maneuver, in the order of ``maneuver_roles``:
-            the ingested data, the FMU baseline trajectory, and where the trajectories go.
+        best_path: ``hpo/best.json`` of the search (the best trial, for the record and the MLflow link).
+        trajectory_paths, learned_paths: per maneuver, in the order of ``maneuver_roles``: the saved
+            trajectories and the learned quantities written by :func:`simulate_best`.
         maneuver_roles: maneuver name -> role ("validation" / "test").
         metrics_paths: ``metrics/<role>.json``, one per role; the role is the file's stem.
         run_path: JSON record of the MLflow run.
         zoom_settings: config ``evaluation.zoom``.
-        signals_config, mlflow_config: config sections ``signals`` and ``mlflow``.
-        results_dir, case: where the default MLflow store lies, and the default experiment name.
+        mlflow_config, results_dir, case: config ``mlflow``; where the default store lies; default experiment.
 
     Returns:
         Metrics per role.
     """
-    from hybridfmu.fmu import load_fmu
-    from hybridfmu.training.inference import load_trained_neural_fmu
-
     maneuvers = list(maneuver_roles)
-    if not (len(maneuvers) == len(data_paths) == len(baseline_paths) == len(trajectory_paths)):
-        raise ValueError(f"evaluate: {len(maneuvers)} maneuvers but {len(data_paths)} data, {len(baseline_paths)} "
-                         f"baseline and {len(trajectory_paths)} trajectory paths")
+    if not (len(maneuvers) == len(trajectory_paths) == len(learned_paths)):
+        raise ValueError(f"evaluate: {len(maneuvers)} maneuvers but {len(trajectory_paths)} trajectory and "
+                         f"{len(learned_paths)} learned-quantity files")
     unknown = sorted(set((zoom_settings or {}).get("intervals", {}) or {}) - set(maneuvers))
     if unknown:
         raise ValueError(f"config.evaluation.zoom.intervals: maneuver(s) {unknown} are not evaluated; "
                          f"expected some of {maneuvers} (the validation and test maneuvers)")
-    best = read_json(best_path)
-    summary = best_trial_summary(best, best_path)
-    with load_fmu(fmu_path) as fmu:
-        state_names, input_names = list(fmu.state_names), list(fmu.input_names)
-    angle_state, speed_state = mechanical_states(signals_config)
-    angle_i, speed_i = state_names.index(angle_state), state_names.index(speed_state)
-    model = load_trained_neural_fmu(best_path, fmu_path)
-    learned = learned_quantities(model)
-    LOG.info("best trial %s: dt = %.4g s, gates %s", summary.get("trial_id"), learned["dt_s"], learned["gates"])
-
+    summary = best_trial_summary(read_json(best_path), best_path)
+    learned = [read_json(path) for path in learned_paths]
+    for path, record in zip(learned_paths, learned):
+        if record.get("trial_id") != summary["trial_id"] or record.get("dt_s") != learned[0].get("dt_s"):
+            raise ValueError(f"{path}: simulated with trial {record.get('trial_id')} (dt {record.get('dt_s')}), but "
+                             f"best.json names {summary['trial_id']}; rerun simulate_best")
     runs_by_role: dict[str, list[ManeuverRun]] = {}
-    total_s = 0.0
-    arrays = []
-    for name, data_path, baseline_path in zip(maneuvers, data_paths, baseline_paths):
-        time_s, u, x_measured = read_maneuver(data_path, state_names, input_names, signals_config)
-        arrays.append((name, data_path, baseline_path, time_s, u, x_measured))
-        total_s += float(time_s[-1] - time_s[0])
-    progress = Progress(total_s, "neural FMU open loop", unit="simulated s", logger=LOG, interval_s=0.0)
-    for (name, data_path, baseline_path, time_s, u, x_measured), out in zip(arrays, trajectory_paths):
-        fmu_states = read_baseline(baseline_path, state_names, time_s)
-        start = time.perf_counter()
-        neural_states = simulate_best(model, time_s, u, x_measured[0], name)
-        LOG.info("%s: %.3f s simulated in %.1f s wall time", name, time_s[-1] - time_s[0], time.perf_counter() - start)
-        progress.update(float(time_s[-1] - time_s[0]))
-        run = ManeuverRun(name, time_s, x_measured[:, angle_i], x_measured[:, speed_i], state_names, fmu_states,
-                          neural_states, angle_i, speed_i)
-        write_parquet_atomic(out, run.frame())
+    for name, path in zip(maneuvers, trajectory_paths):
+        run = ManeuverRun.from_frame(pd.read_parquet(path), name, str(path))
         runs_by_role.setdefault(maneuver_roles[name], []).append(run)
-    progress.finish()
-
+    extra = {"dt_s": learned[0]["dt_s"], "gates": learned[0]["gates"], "best_trial": summary}
     metrics_by_role: dict[str, dict] = {}
-    extra = {**learned, "best_trial": summary}
     for path in metrics_paths:
         role = Path(path).stem
-        metrics_by_role[role] = role_metrics(role, runs_by_role.get(role, []), zoom_settings, extra)
+        metrics_by_role[role] = role_metrics(role, runs_by_role.get(role, []), zoom_settings or {}, extra)
         write_json_atomic(path, metrics_by_role[role])
         improvement = metrics_by_role[role]["improvement"]
         LOG.info("%s: improvement angle MAE x%s, MSE x%s; speed MAE x%s, MSE x%s", role,
                  *(_fmt(improvement[k]) for k in ("angle_mae", "angle_mse", "speed_mae", "speed_mse")))
-
     uri, experiment = resolve_tracking(mlflow_config, results_dir, case)
-    params = {"dt_s": learned["dt_s"], "best_trial_id": summary.get("trial_id"),
-              **{f"hp.{k}": v for k, v in summary.get("hyperparameters", {}).items()}}
-    params.update({f"gate.{state}.{gate}": value for state, gates in (learned["gates"] or {}).items()
-                   for gate, value in gates.items()})
+    params = {"dt_s": extra["dt_s"], "best_trial_id": summary["trial_id"],
+              **{f"hp.{k}": v for k, v in summary["hyperparameters"].items()},
+              **{f"gate.{state}.{gate}": value for state, gates in (extra["gates"] or {}).items()
+                 for gate, value in gates.items()}}
     log_evaluation_run(run_path, uri, experiment, metrics_by_role, metrics_paths, params,
                        summary.get("mlflow_run_id"), case)
     return metrics_by_role
-
-
-def learned_quantities(model: Any) -> dict[str, Any]:
-    """The learned input delay ``dt_s`` (s) and the gates ``{state: {"g_F", "g_A"}}`` of a neural FMU."""
-    return {"dt_s": float(model.delay_s()), "gates": model.gate_values()}
 
 
 def _fmt(value: float | None) -> str:
