@@ -409,7 +409,8 @@ class Cogging(MechanicalEffect):
         return torque
 
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
-        out = [_param("order", setting["order"], None, "1/rev", "cogging periods per mechanical revolution")]
+        order = setting["order"]
+        out = [_param("order", order, None, "1/rev", "fundamental cogging order (periods per mechanical revolution)")]
         for h in range(len(coef) // 2):
             a, b = coef[2 * h], coef[2 * h + 1]
             amp = float(np.hypot(a, b))
@@ -417,10 +418,11 @@ class Cogging(MechanicalEffect):
             if amp > 0:
                 grad[2 * h], grad[2 * h + 1] = a / amp, b / amp
             amp_se = float(np.sqrt(max(grad @ cov @ grad, 0.0)))
-            out.append(_param(f"amplitude_{h + 1}_nm", amp, amp_se, "N m",
-                              f"amplitude of harmonic {h + 1} (torque = amplitude sin(h n theta + phase))"))
-            out.append(_param(f"phase_{h + 1}_rad", float(np.arctan2(b, a)), amp_se / amp if amp > 0 else None,
-                              "rad", f"phase of harmonic {h + 1}"))
+            n = int(round((h + 1) * order))
+            out.append(_param(f"amplitude_{n}_nm", amp, amp_se, "N m",
+                              f"amplitude of the order-{n} component (torque = amplitude sin({n} theta + phase))"))
+            out.append(_param(f"phase_{n}_rad", float(np.arctan2(b, a)), amp_se / amp if amp > 0 else None,
+                              "rad", f"phase of the order-{n} component"))
         return out
 
 
