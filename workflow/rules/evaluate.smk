@@ -10,16 +10,19 @@ EVAL_CONFIG = config.get("evaluation", {})
 FIGURES = f"{RESULTS}/figures"
 
 
-def evaluation_figures():
-    """Figure name -> path: per evaluated maneuver the angle and speed, whole and zoomed
-    (paper Figs. 9-16), the time offset (Fig. 6), training curves and the Hyperband overview."""
-    names = {"time_offset": f"{FIGURES}/time_offset.png",
-             "training_curves": f"{FIGURES}/training_curves.png",
-             "hyperband": f"{FIGURES}/hyperband.png"}
+def evaluation_figure_specs():
+    """(name, path, maneuver or None, kind) of every figure: per evaluated maneuver the angle and speed,
+    whole and zoomed (paper Figs. 9-16); the time offset (Fig. 6), training curves, Hyperband overview."""
+    specs = [(kind, f"{FIGURES}/{kind}.png", None, kind) for kind in ("time_offset", "training_curves", "hyperband")]
     for maneuver in EVAL_MANEUVERS:
         for kind in ("angle", "angle_zoom", "speed", "speed_zoom"):
-            names[f"{maneuver}_{kind}"] = f"{FIGURES}/{maneuver}_{kind}.png"
-    return names
+            specs.append((f"{maneuver}_{kind}", f"{FIGURES}/{maneuver}_{kind}.png", maneuver, kind))
+    return specs
+
+
+def evaluation_figures():
+    """Figure name -> path."""
+    return {name: path for name, path, _, _ in evaluation_figure_specs()}
 
 
 def truth_files():
@@ -81,9 +84,7 @@ rule evaluate:
 def figure_outputs():
     """Named plot outputs, each marked as an item of the Snakemake report with its caption."""
     outputs = {}
-    for name, path in evaluation_figures().items():
-        maneuver = next((m for m in EVAL_MANEUVERS if name.startswith(f"{m}_")), None)
-        kind = name[len(maneuver) + 1:] if maneuver else name
+    for name, path, maneuver, kind in evaluation_figure_specs():
         subcategory = f"{config['maneuvers'][maneuver]['role']}: {maneuver}" if maneuver else "training and data"
         outputs[name] = report(path, caption=f"../report/{kind}.rst", category="Evaluation",
                                subcategory=subcategory, labels={"figure": name})
