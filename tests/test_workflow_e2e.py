@@ -18,6 +18,9 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 TINY = REPO / "config" / "cases" / "tiny.yaml"
 
+# Minutes, not seconds (the whole workflow); still part of the default `pytest` run.
+pytestmark = pytest.mark.slow
+
 
 def snakemake(workdir: Path, configfile: Path, *args: str, timeout_s: float = 600) -> subprocess.CompletedProcess:
     command = [sys.executable, "-m", "snakemake", "-j2", "--snakefile", str(REPO / "Snakefile"),
@@ -90,14 +93,24 @@ def test_every_stage_writes_its_outputs(tiny_run):
     assert {a.path for a in client.list_artifacts(run["run_id"])} >= {"figures", "metrics", "report.md"}
 
 
-def test_nothing_left_to_do_and_forcerun_plot_only_redraws(tiny_run):
-    workdir, results, config, _ = tiny_run
-    assert planned_rules(snakemake(workdir, TINY, "-n").stdout) == set()
+def test_nothing_left_to_do(tiny_run):
+    workdir, _, _, _ = tiny_run
+    output = snakemake(workdir, TINY, "-n")
+    assert planned_rules(output.stdout) == set(), output.stdout[-4000:]
+
+
+def evaluation_targets(results: Path) -> list[str]:
+    """The report and the figures: the evaluation's end of the DAG (training, evaluation and plots upstream)."""
+    return [str(results / "report.md"), *map(str, sorted((results / "figures").glob("*.png")))]
+
+
+def test_forcerun_plot_only_redraws(tiny_run):
+    workdir, results, _, _ = tiny_run
     best = results / "hpo" / "best.json"
     metrics = results / "metrics" / "test.json"
     figure = results / "figures" / "test_angle.png"
     before = {path: path.stat().st_mtime_ns for path in (best, metrics, figure)}
-    output = snakemake(workdir, TINY, "--forcerun", "plot")
+    output = snakemake(workdir, TINY, "--forcerun", "plot", *evaluation_targets(results))
     ran = planned_rules(output.stdout + output.stderr)
     assert ran == {"plot", "report"}, ran
     assert best.stat().st_mtime_ns == before[best] and metrics.stat().st_mtime_ns == before[metrics]
@@ -105,14 +118,18 @@ def test_nothing_left_to_do_and_forcerun_plot_only_redraws(tiny_run):
 
 
 def test_changing_a_plot_option_reruns_only_plotting(tiny_run, tmp_path):
-    workdir, _, config, _ = tiny_run
+    workdir, results, config, _ = tiny_run
     changed = dict(config)
     changed["evaluation"] = {**config.get("evaluation", {}),
                              "plot": {**config.get("evaluation", {}).get("plot", {}), "dpi": 61}}
     configfile = tmp_path / "tiny_dpi.yaml"
     configfile.write_text(yaml.safe_dump(changed, sort_keys=False))  # key order is part of Snakemake params
-    output = snakemake(workdir, configfile, "-n")
+    output = snakemake(workdir, configfile, "-n", *evaluation_targets(results))
     assert planned_rules(output.stdout + output.stderr) == {"plot", "report"}
+    changed["evaluation"]["zoom"] = {**config["evaluation"].get("zoom", {}), "angle_length_s": 0.7}
+    configfile.write_text(yaml.safe_dump(changed, sort_keys=False))
+    output = snakemake(workdir, configfile, "-n", *evaluation_targets(results))
+    assert planned_rules(output.stdout + output.stderr) == {"evaluate", "plot", "report"}
 
 
 def test_snakemake_report(tiny_run):
