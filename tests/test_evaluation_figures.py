@@ -63,13 +63,14 @@ def _write_search(root):
     """Result files of a tiny search: bracket 1 (2 configs, 2 rungs; c1 stops), bracket 0 (1 config, failed)."""
     import json
 
-    def write(bracket, rung, config, resource_s, objective, status="ok"):
+    def write(bracket, rung, config, resource_s, objective, status="ok", hash_="h"):
         folder = root / f"b{bracket}" / f"r{rung}" / f"c{config}"
         folder.mkdir(parents=True)
         curve = [[r, 1.0 / (1 + r) + 0.01 * config] for r in np.linspace(0.1, resource_s, 20)]
         curve[3][1] = None
         folder.joinpath("result.json").write_text(json.dumps({
             "trial_id": f"b{bracket}c{config}", "bracket": bracket, "config": config, "rung": rung,
+            "hash": f"{hash_}{bracket}{config}",
             "resource_s": resource_s, "objective": objective, "status": status, "curve": curve,
             "hyperparameters": {"lr": 1e-5, "width": 8}}))
 
@@ -106,3 +107,16 @@ def test_histories_missing_are_named(tmp_path):
     (folder / "result.json").write_text('{"trial_id": "b0c0"}')
     with pytest.raises(ValueError, match=r"result\.json: field 'bracket' missing"):
         read_histories(tmp_path)
+
+
+def test_results_of_an_earlier_search_are_skipped(tmp_path):
+    import json
+
+    from hybridfmu.evaluation.history import read_histories
+
+    best = _write_search(tmp_path)
+    plan = {"brackets": [{"bracket": 1, "configs": [{"config": 0, "hash": "h10"}, {"config": 1, "hash": "other"}]},
+                         {"bracket": 0, "configs": [{"config": 0, "hash": "h00"}]}]}
+    (tmp_path / "plan.json").write_text(json.dumps(plan))
+    search = read_histories(tmp_path, best)
+    assert [t.trial_id for t in search.trials] == ["b0c0", "b1c0"]
