@@ -44,6 +44,13 @@ def _number(value: Any, digits: int = 3) -> str:
     return str(value)
 
 
+def _gates_text(gates: Any) -> str:
+    if isinstance(gates, dict) and all(isinstance(v, dict) for v in gates.values()):
+        return "; ".join(f"{state}: " + ", ".join(f"{name} = {_number(value, 4)}" for name, value in values.items())
+                         for state, values in gates.items())
+    return str(gates)
+
+
 def improvement_table(metrics_by_role: dict[str, dict]) -> list[str]:
     """Markdown table: for each role and metric, FMU error, neural FMU error, this run's factor and the paper's."""
     lines = ["| data | quantity | measure | FMU | neural FMU | improvement (this run) | improvement (paper) |",
@@ -138,7 +145,7 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
             "config (`config`).", ""]
     out += zoom_table(metrics_by_role) + [""]
     out += ["## Learned input delay and gates", ""] + delay_lines(dt_s, true_dt_s, truth_source)
-    out += [f"- gates: {gates}", ""]
+    out += [f"- gates (ẋ = g_F·ẋ_FMU + g_A·ẋ_ANN): {_gates_text(gates)}", ""]
     out += ["## Best hyperparameters", ""]
     if best_summary:
         out += [", ".join(f"{k}: {_number(v, 4) if isinstance(v, float) else v}" for k, v in best_summary.items()), ""]
