@@ -49,7 +49,7 @@ def test_selection_finds_the_true_effect_among_all(synthetic, name, setting, coe
 def test_two_effects_are_both_found_and_ranked(synthetic):  # noqa: F811
     _, _, layout, inputs = synthetic
     truth = term(inputs, "coulomb_friction", {"stribeck_velocity_rad_s": 3.0}, [0.05, 0.0]) \
-        + term(inputs, "cogging", {"order": 24.0, "harmonics": 2.0}, [0.01, 0.004, 0.0, 0.0])
+        + term(inputs, "cogging", {"order": 24.0, "harmonics": 2.0}, [0.02, 0.008, 0.0, 0.0])
     cache, out = run_selection(inputs, layout, truth)
     names = [t.effect.name for t in out["mechanical"].terms]
     assert set(names) == {"coulomb_friction", "cogging"}
@@ -59,7 +59,7 @@ def test_two_effects_are_both_found_and_ranked(synthetic):  # noqa: F811
     # order 12 with two harmonics contains order 24 as well: the amplitudes name the orders
     params = {p["name"]: p["value"] for p in cogging.effect.physical(
         cogging.coef, np.zeros((len(cogging.coef),) * 2), cogging.setting, {}, layout, OPTIONS, {})}
-    assert params["amplitude_24_nm"] == pytest.approx(np.hypot(0.01, 0.004), rel=0.1)
+    assert params["amplitude_24_nm"] == pytest.approx(np.hypot(0.02, 0.008), rel=0.1)
     assert all(v < 0.002 for k, v in params.items() if k.startswith("amplitude_") and k != "amplitude_24_nm")
 
 

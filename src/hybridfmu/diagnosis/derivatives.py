@@ -98,20 +98,32 @@ def savgol_derivative(signal: np.ndarray, dt_s: float, window: int, order: int =
     return savgol_filter(signal, window, max(order, deriv), deriv=deriv, delta=dt_s, axis=0, mode="interp")
 
 
-def white_noise_std(signal: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
-    """Robust estimate of additive white-noise std from third differences (per column).
+def _mad_std(values: np.ndarray) -> np.ndarray:
+    """Robust std (median absolute deviation) of ``values`` (M, C) along axis 0; zeros when empty."""
+    if values.shape[0] == 0:
+        return np.zeros(values.shape[1])
+    return 1.4826 * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
 
-    For white noise e, var(diff3 e) = 20 var(e); smooth signal content hardly contributes
-    at a high sampling rate. The median absolute deviation makes it robust to transients.
-    ``signal`` (N,) or (N, C); ``mask`` (N,) selects samples to use.
+
+def white_noise_std(signal: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """Robust estimate of the white measurement-noise level (std per sample) of a signal, per column.
+
+    For white noise e of std s, var(diff3(e)) = 20 s^2, while smooth signal content hardly
+    contributes at a high sampling rate; the median absolute deviation makes it robust to
+    transients. A channel that was interpolated onto a shifted grid has less noise per sample than
+    at low frequency, so its level is underrated (reported as a limitation of the noise floor).
+    ``signal`` (N,) or (N, C); ``mask`` (N,) selects the samples (runs of at least 13 samples).
     """
     signal = np.asarray(signal, dtype=float)
-    d3 = np.diff(signal, n=3, axis=0)
+    flat = signal.reshape(signal.shape[0], -1)
     if mask is not None:
-        keep = np.asarray(mask, dtype=bool)[3:] & np.asarray(mask, dtype=bool)[:-3]
-        d3 = d3[keep]
-    if d3.shape[0] == 0:
-        return np.zeros(signal.shape[1:]) if signal.ndim > 1 else np.float64(0.0)
-    centred = d3 - np.median(d3, axis=0)
-    mad = np.median(np.abs(centred), axis=0)
-    return 1.4826 * mad / np.sqrt(20.0)
+        keep = np.asarray(mask, dtype=bool)
+        runs = np.flatnonzero(np.diff(np.concatenate([[0], keep.astype(int), [0]])))
+        pieces = [flat[a:b] for a, b in zip(runs[::2], runs[1::2]) if b - a > 12]
+    else:
+        pieces = [flat]
+    if not pieces:
+        out = np.zeros(flat.shape[1])
+    else:
+        out = _mad_std(np.concatenate([np.diff(p, n=3, axis=0) for p in pieces], axis=0)) / np.sqrt(20.0)
+    return out.reshape(signal.shape[1:]) if signal.ndim > 1 else np.float64(out[0])

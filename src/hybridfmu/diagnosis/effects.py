@@ -710,6 +710,88 @@ class ChannelTimeOffset(ElectricalEffect):
         return float(setting["offset_s"])
 
 
+def _dq_voltages(x: list[float], u: list[float], layout: MotorLayout) -> tuple[float, float, float, float]:
+    """(v_d, v_q, cos, sin) from the duties and the supply voltage of one state/input row."""
+    th = float(layout.pole_pairs) * x[layout.theta]
+    cos_e, sin_e = math.cos(th), math.sin(th)
+    d_a, d_b, d_c = (u[i] for i in layout.duty)
+    u_dc = u[layout.u_dc]
+    v_al = u_dc * (2.0 / 3.0) * (d_a - 0.5 * d_b - 0.5 * d_c)
+    v_be = u_dc * (d_b - d_c) / math.sqrt(3.0)
+    return v_al * cos_e + v_be * sin_e, -v_al * sin_e + v_be * cos_e, cos_e, sin_e
+
+
+@register
+class InductanceError(ElectricalEffect):
+    name = "inductance_error"
+    description = "the inductances (both axes, by the same factor) differ from the model's"
+    equation = ("residual_d = k (-i_dot_d + d(i_dot_d)/d(i_q) i_q), residual_q = k (-i_dot_q + d(i_dot_q)/d(i_d) i_d), "
+                "L_true / L_model = 1 / (1 - k)")
+
+    def coefficient_names(self, setting):
+        return ["inductance_scale_error"]
+
+    def terms(self, inputs, setting, options):
+        lay = inputs.layout
+        regressors = np.zeros((inputs.n, lay.n_x, 1))
+        for row, other in ((lay.i_d, lay.i_q), (lay.i_q, lay.i_d)):
+            delta = np.zeros_like(inputs.x)
+            delta[:, other] = inputs.x[:, other]
+            regressors[:, row, 0] = -inputs.f[:, row] + inputs.state_response(delta)[:, row]
+        return regressors, None
+
+    def scalar_rows(self, coef, setting, options, layout):
+        c = layout.constants
+        needed = ("inv_l_d", "diag_d", "inv_l_q", "diag_q", "emf_q")
+        if not all(k in c for k in needed) or layout.duty is None or layout.u_dc is None:
+            return None
+        k, lay = float(coef[0]), layout
+
+        def rows(x: list[float], u: list[float]) -> list[tuple[int, float]]:
+            v_d, v_q, _, _ = _dq_voltages(x, u, lay)
+            f_d = c["inv_l_d"] * v_d + c["diag_d"] * x[lay.i_d]
+            f_q = c["inv_l_q"] * v_q + c["diag_q"] * x[lay.i_q] + c["emf_q"] * x[lay.omega]
+            return [(lay.i_d, -k * f_d), (lay.i_q, -k * f_q)]
+        return rows
+
+    def physical(self, coef, cov, setting, setting_se, layout, options, context):
+        k = float(coef[0])
+        se = float(np.sqrt(max(cov[0, 0], 0.0)))
+        return [_param("inductance_relative_error", k / (1.0 - k), se / (1.0 - k) ** 2, "-",
+                       "(L_true - L_model) / L_model, both axes")]
+
+
+@register
+class BackEmfError(ElectricalEffect):
+    name = "back_emf_error"
+    description = "the flux linkage psi (back-EMF constant) differs from the model's, in the q-current equation"
+    equation = "residual_q = k * (d(i_dot_q)/d(omega) omega - d(i_dot_q)/d(i_d) i_d), k = (psi_true - psi) / psi"
+
+    def coefficient_names(self, setting):
+        return ["flux_linkage_relative_error"]
+
+    def terms(self, inputs, setting, options):
+        lay = inputs.layout
+        by_speed = np.zeros_like(inputs.x)
+        by_speed[:, lay.omega] = inputs.x[:, lay.omega]
+        by_current = np.zeros_like(inputs.x)
+        by_current[:, lay.i_d] = inputs.x[:, lay.i_d]
+        regressors = np.zeros((inputs.n, lay.n_x, 1))
+        regressors[:, lay.i_q, 0] = (inputs.state_response(by_speed)[:, lay.i_q]
+                                     - inputs.state_response(by_current)[:, lay.i_q])
+        return regressors, None
+
+    def scalar_rows(self, coef, setting, options, layout):
+        if "emf_q" not in layout.constants:
+            return None
+        k, lay, emf = float(coef[0]), layout, layout.constants["emf_q"]
+        return lambda x, u: [(lay.i_q, k * emf * x[lay.omega])]
+
+    def physical(self, coef, cov, setting, setting_se, layout, options, context):
+        return [_param("flux_linkage_relative_error", *linear_estimate(coef, cov, [1.0]), "-",
+                       "(psi_true - psi_model) / psi_model as seen in the back-EMF")]
+
+
 def effect_options(diagnosis_config: dict[str, Any]) -> dict[str, Any]:
     """The effects' options: ``DEFAULT_OPTIONS`` updated by ``diagnosis.effects`` of the case config."""
     options = dict(DEFAULT_OPTIONS)

@@ -130,11 +130,12 @@ def calibrate_constants(layout: MotorLayout, x: np.ndarray, u: np.ndarray, f: np
 
     - ``speed_*``: omega_dot = a_q i_q + a_dq i_d i_q + a_w omega + a_l tau_load + a_0 (the speed
       equation is affine in these for a PMSM);
-    - ``inv_l_d``, ``inv_l_q``: the current equations' response to a duty change equals
-      u_dc * (Park(Clarke(delta_d - mean delta_d))) / L (amplitude-invariant, theta_e = p theta);
-    - ``diag_d``, ``diag_q``: d(i_dot_d)/d(i_d) and d(i_dot_q)/d(i_q) (= -R/L) if constant.
+    - current equations: i_dot_d = inv_l_d v_d + diag_d i_d + cross_d omega i_q and
+      i_dot_q = inv_l_q v_q + diag_q i_q + cross_q omega i_d + emf_q omega, with v_dq =
+      Park(Clarke(u_dc (d - mean d))) (amplitude-invariant, theta_e = p theta): 1/L, -R/L, the
+      cross coupling p L_q/L_d and -p L_d/L_q, and the back-EMF constant -p psi/L_q.
     Arguments: ``x`` (M, n_x), ``u`` (M, n_u), ``f`` = model derivatives at (x, u) (M, n_x),
-    Jacobians at (x, u). Returns the constants found (also stored in ``layout.constants``).
+    Jacobians at (x, u) (unused by the fits, kept for models without inputs of these kinds). Returns the constants found (also stored in ``layout.constants``).
     """
     from hybridfmu.diagnosis.synthetic import abc_to_dq
 
@@ -148,20 +149,16 @@ def calibrate_constants(layout: MotorLayout, x: np.ndarray, u: np.ndarray, f: np
         coef = _exact_fit(design, fs[:, lay.omega])
         if coef is not None:
             found.update(zip(("speed_a_q", "speed_a_dq", "speed_a_w", "speed_a_l", "speed_a_0"), map(float, coef)))
-    if dfdu is not None and lay.duty is not None and lay.u_dc is not None and lay.pole_pairs and lay.i_d is not None:
-        dus = dfdu[::step]
-        probe = np.zeros((len(xs), 3))
-        probe[:, 0] = 1.0
-        centred = probe - probe.mean(axis=1, keepdims=True)
-        v_d, v_q = abc_to_dq(centred * us[:, [lay.u_dc]], lay.pole_pairs * xs[:, lay.theta])
-        for name, row, volts in (("inv_l_d", lay.i_d, v_d), ("inv_l_q", lay.i_q, v_q)):
-            coef = _exact_fit(volts[:, None], dus[:, row, lay.duty[0]], tolerance=1e-5)
-            if coef is not None:
-                found[name] = float(coef[0])
-    if dfdx is not None and lay.i_d is not None and lay.i_q is not None:
-        for name, idx in (("diag_d", lay.i_d), ("diag_q", lay.i_q)):
-            values = dfdx[::step, idx, idx]
-            if np.all(np.isfinite(values)) and np.ptp(values) <= 1e-5 * max(abs(float(np.median(values))), 1e-12):
-                found[name] = float(np.median(values))
+    if lay.duty is not None and lay.u_dc is not None and lay.pole_pairs and lay.i_d is not None and lay.i_q is not None:
+        duty = us[:, list(lay.duty)]
+        v_d, v_q = abc_to_dq((duty - duty.mean(axis=1, keepdims=True)) * us[:, [lay.u_dc]],
+                             lay.pole_pairs * xs[:, lay.theta])
+        i_d, i_q, omega = xs[:, lay.i_d], xs[:, lay.i_q], xs[:, lay.omega]
+        coef = _exact_fit(np.stack([v_d, i_d, omega * i_q], axis=1), fs[:, lay.i_d], tolerance=1e-5)
+        if coef is not None:
+            found.update(zip(("inv_l_d", "diag_d", "cross_d"), map(float, coef)))
+        coef = _exact_fit(np.stack([v_q, i_q, omega * i_d, omega], axis=1), fs[:, lay.i_q], tolerance=1e-5)
+        if coef is not None:
+            found.update(zip(("inv_l_q", "diag_q", "cross_q", "emf_q"), map(float, coef)))
     layout.constants.update(found)
     return found

@@ -8,7 +8,11 @@ stepwise forward selection: at each step every remaining candidate is fitted tog
 those already chosen (linear least squares in its coefficients, grid search plus bounded
 refinement in its nonlinear parameter) and the one with the lowest BIC enters if it lowers
 the BIC by ``min_bic_drop``, removes at least ``min_relative_improvement`` of the remaining
-residual sum of squares, and the remaining residual is still above the noise floor.
+residual sum of squares, explains a mean square of at least ``min_explained_to_noise`` times the
+noise floor's variance and at least ``min_share_of_initial`` of the group's initial residual
+energy (an effect much weaker than the measurement noise, or than the gap it is part of, is of no
+practical consequence even when a long record makes it statistically significant), and the
+remaining residual is still above the noise floor.
 Standard errors come from the regression and from a bootstrap over segments; the
 chosen set is refitted on every fitting maneuver alone to show its stability.
 """
@@ -58,6 +62,8 @@ class SelectionSettings:
 
     min_bic_drop: float = 10.0
     min_relative_improvement: float = 0.03
+    min_explained_to_noise: float = 0.5
+    min_share_of_initial: float = 0.01
     noise_margin: float = 0.10
     max_effects_per_group: int = 3
     bootstrap_samples: int = 200
@@ -306,6 +312,12 @@ def select_group(cache: DesignCache, group: str, rows: list[int], effects: list[
         elif best["relative_improvement"] < settings.min_relative_improvement:
             reason = (f"relative improvement {best['relative_improvement']:.3f} below "
                       f"{settings.min_relative_improvement}")
+        elif rss_cur - best["rss"] < settings.min_share_of_initial * rss_none:
+            reason = (f"explains {100 * (rss_cur - best['rss']) / rss_none:.2f} % of the initial residual, below "
+                      f"{100 * settings.min_share_of_initial:g} %")
+        elif (rss_cur - best["rss"]) / n < settings.min_explained_to_noise * noise_var:
+            reason = (f"explains a mean square of {(rss_cur - best['rss']) / n:.4g}, below "
+                      f"{settings.min_explained_to_noise} x the noise variance {noise_var:.4g}")
         elif at_noise:
             reason = (f"remaining residual at the noise floor (mean square {rss_cur / n:.4g} vs noise "
                       f"{noise_var:.4g})")
