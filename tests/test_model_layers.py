@@ -19,7 +19,7 @@ def make_spec(**overrides):
     kwargs = dict(state_names=MotorRhs.state_names, input_names=MotorRhs.input_names, corrected_states=["omega"],
                   ann_states=MotorRhs.state_names, ann_inputs=MotorRhs.input_names,
                   ann_derivatives=MotorRhs.state_names, sample_period_s=H, width=8, depth=2, gate_opening=0.3,
-                  delay_min_s=-5e-4, delay_max_s=5e-4)
+                  delay_min_s=-5e-4, delay_max_s=5e-4, ann_output_init="random")
     kwargs.update(overrides)
     return NeuralFmuSpec(**kwargs)
 
@@ -188,6 +188,18 @@ def test_adjoint_uses_rhs_jacobians_when_offered():
         grads.append(torch.cat([p.grad.flatten() for p in model.parameters()]))
     assert CountingMotor.calls == 4 * 20
     assert torch.allclose(grads[0], grads[1], rtol=1e-10)
+
+
+def test_zero_output_init_starts_at_the_fmu():
+    stats = dict(STATS, xdot_mean=[0.0, 0.0, 0.0, 50.0])
+    model = NeuralFmu(MotorRhs(), make_spec(ann_output_init="zero", gate_opening=0.2), stats)
+    x = torch.randn(5, 4, dtype=torch.float64) * torch.tensor([5.0, 30.0, 10.0, 100.0])
+    u = inputs(5, 1)[:, 0]
+    expected = MotorRhs()(x, u)
+    expected[:, 3] += 0.2 * 50.0  # g_A times the post-processing shift (the mean FMU acceleration)
+    assert torch.allclose(model.derivative(x, u), expected, rtol=1e-14, atol=1e-9)
+    with pytest.raises(ValueError, match="ann_output_init"):
+        make_spec(ann_output_init="ones")
 
 
 def test_spec_names_are_checked():

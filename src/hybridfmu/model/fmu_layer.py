@@ -62,6 +62,17 @@ def jacobian_function(rhs: Rhs) -> JacobianFn | None:
     return None
 
 
+def numpy_function(rhs: Rhs):
+    """The batched NumPy evaluation ``(x (N, n_x), u (N, n_u)) -> (N, n_x)`` of an FMU-backed ``rhs``
+    (the bridge's ``derivatives``), or None for other right-hand sides."""
+    if isinstance(rhs, FmuLayer):
+        rhs = rhs.rhs
+    model = getattr(rhs, "model", None)
+    if model is not None and callable(getattr(model, "derivatives", None)):
+        return model.derivatives
+    return None
+
+
 def value_function(rhs: Rhs) -> Rhs:
     """A gradient-free evaluation of ``rhs`` (the bridge's batched ``derivatives`` when available)."""
     if isinstance(rhs, FmuLayer):

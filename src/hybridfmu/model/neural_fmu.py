@@ -52,6 +52,10 @@ class NeuralFmu(nn.Module):
         out_mean, out_std = self._ann_output_statistics(statistics, len(corrected))
         self.post = ScaleShift.from_statistics(out_mean, out_std)
         self.ann = TanhMLP(n_ann_in, len(corrected), spec.width, spec.depth)
+        if spec.ann_output_init == "zero":
+            with torch.no_grad():
+                self.ann.output.weight.zero_()
+                self.ann.output.bias.zero_()
         self.gates = Gates(n_x, corrected, spec.gate_opening)
 
     def _ann_input_statistics(self, statistics, n_ann_in):

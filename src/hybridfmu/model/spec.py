@@ -29,6 +29,9 @@ class NeuralFmuSpec:
         sample_period_s: solver step = sampling period of the data (s).
         width, depth: tanh MLP layout.
         gate_opening: initial ANN gate g_A.
+        ann_output_init: "zero" starts the MLP's output layer at zero (the untrained neural FMU is the FMU
+            plus g_A times the post-processing shift; the ANN's share grows with training), "random" keeps
+            torch's default initialisation.
         delay_min_s, delay_max_s, delay_init_s, delay_scale_s: input-delay bounds, start and raw scale (s).
         sample_position: how sampled inputs are placed within their interval (see ``InputDelay``).
         solver: fixed-step method on the sample grid ("rk4" or "euler").
@@ -45,6 +48,7 @@ class NeuralFmuSpec:
     width: int = 8
     depth: int = 2
     gate_opening: float = 0.0
+    ann_output_init: str = "zero"
     delay_min_s: float = 0.0
     delay_max_s: float = 0.0
     delay_init_s: float = 0.0
@@ -66,6 +70,8 @@ class NeuralFmuSpec:
             raise ValueError("model.corrected_states: name at least one state")
         if not (self.ann_states or self.ann_inputs or self.ann_derivatives):
             raise ValueError("model: the ANN needs at least one input signal (ann_states/ann_inputs/ann_derivatives)")
+        if self.ann_output_init not in ("zero", "random"):
+            raise ValueError(f"model.ann_output_init: expected 'zero' or 'random', got {self.ann_output_init!r}")
         if self.solver not in ("rk4", "euler"):
             raise ValueError(f"model.solver: expected 'rk4' or 'euler', got {self.solver!r}")
         if self.end_stop is not None:

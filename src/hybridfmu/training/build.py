@@ -44,6 +44,7 @@ def model_spec(model_config: dict[str, Any], fmu_model: Any, sample_period_s: fl
         ann_derivatives=_names(ann["derivatives"], states, "ann_inputs.derivatives"),
         sample_period_s=float(sample_period_s), width=int(width), depth=int(depth), gate_opening=float(gate_opening),
         delay_min_s=float(delay["min_s"]), delay_max_s=float(delay["max_s"]), delay_init_s=float(delay["init_s"]),
+        ann_output_init=model_config["ann_output_init"],
         delay_scale_s=float(delay["scale_s"]), sample_position=delay["sample_position"],
         solver=model_config["solver"], end_stop=end_stop)
 

@@ -112,10 +112,17 @@ class Trainer:
         """One optimizer step on a fresh batch; returns {"loss", "grad_norm", "skipped"}."""
         batch = self.sampler.gather(self.sampler.sample_starts(self.rng, self.hyper.batch_windows))
         self.optimizer.zero_grad(set_to_none=True)
-        states = rollout(self.model, batch.u_seq, batch.start_index, batch.x0, batch.n_steps)
-        loss = weighted_loss(states[:, 1:, self.i_angle] - batch.angle[:, 1:],
-                             states[:, 1:, self.i_speed] - batch.speed[:, 1:], self.hyper.loss, self.hyper.w_speed,
-                             self.scales["angle_std"], self.scales["speed_std"])
+        try:
+            states = rollout(self.model, batch.u_seq, batch.start_index, batch.x0, batch.n_steps)
+        except FloatingPointError as err:  # the simulation diverged within a window
+            LOG.warning("step %d: %s", self.steps + 1, err)
+            states = None
+        if states is None:
+            loss = torch.tensor(math.nan, dtype=torch.float64)
+        else:
+            loss = weighted_loss(states[:, 1:, self.i_angle] - batch.angle[:, 1:],
+                                 states[:, 1:, self.i_speed] - batch.speed[:, 1:], self.hyper.loss,
+                                 self.hyper.w_speed, self.scales["angle_std"], self.scales["speed_std"])
         loss_value = float(loss.detach())
         grad_norm = math.nan
         if math.isfinite(loss_value):
