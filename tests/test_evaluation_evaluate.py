@@ -20,9 +20,10 @@ def write_best(tmp_path, fmu_path, gate_opening: float):
     from hybridfmu.training.build import build_neural_fmu, model_spec
     from hybridfmu.training.trial import CHECKPOINT_FORMAT
 
+    # random output layer: with an open gate the untrained ANN changes the dynamics
     model_config = section_settings({"end_stop": {"state": "theta", "rate_state": "omega",
-                                                  "min_parameter": "theta_min", "max_parameter": "theta_max"}},
-                                    "model")
+                                                  "min_parameter": "theta_min", "max_parameter": "theta_max"},
+                                     "ann_output_init": "random"}, "model")
     with load_fmu(fmu_path) as fmu:
         spec = model_spec(model_config, fmu, STEP_S, 8, 2, gate_opening)
         model = build_neural_fmu(FmuRhs(fmu), spec, None, seed=5)
