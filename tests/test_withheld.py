@@ -93,6 +93,18 @@ def test_case_configs_withhold_exactly_the_effect(tiny_config, ipbmotor_fmu):
     assert withheld.case_config(config, "none", ipbmotor_fmu)["bench"]["effects"] == {}
 
 
+def test_confusion_matrix_counts_detections_misses_and_spurious_names():
+    rows = [{"true_effects": "cogging;channel_time_offset", "found_effects": "channel_time_offset"},
+            {"true_effects": "none", "found_effects": "none"},
+            {"true_effects": "cogging", "found_effects": "cogging;viscous_friction"}]
+    labels, matrix = withheld.confusion_matrix(rows)
+    assert labels == ["channel_time_offset", "cogging", "viscous_friction", "none"]
+    at = {(labels[i], labels[j]): int(matrix[i, j]) for i in range(len(labels)) for j in range(len(labels))
+          if matrix[i, j]}
+    assert at == {("channel_time_offset", "channel_time_offset"): 1, ("cogging", "none"): 1,
+                  ("cogging", "cogging"): 1, ("none", "viscous_friction"): 1, ("none", "none"): 1}
+
+
 def test_bad_withheld_sections_are_named(tiny_config, ipbmotor_fmu):
     config = copy.deepcopy(tiny_config)
     config["withheld"]["effects"] = ["no_such_effect"]

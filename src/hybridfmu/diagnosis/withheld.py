@@ -274,18 +274,29 @@ SUMMARY_COLUMNS = ["case", "true_effects", "true_params", "found_effects", "corr
                    "mechanical_ratio_to_noise", "electrical_ratio_to_noise"]
 
 
-def confusion_matrix(rows: list[dict[str, Any]]) -> tuple[list[str], list[str], np.ndarray]:
-    """Counts of (true effect, found effect) over the cases; "none" where a case has none."""
-    true_labels = sorted({t for r in rows for t in r["true_effects"].split(";")} - {"none"}) + ["none"]
-    found_labels = sorted({f for r in rows for f in r["found_effects"].split(";")} | set(true_labels) - {"none"}) \
-        + ["none"]
-    found_labels = list(dict.fromkeys(found_labels))
-    matrix = np.zeros((len(true_labels), len(found_labels)), dtype=int)
+def confusion_matrix(rows: list[dict[str, Any]]) -> tuple[list[str], np.ndarray]:
+    """Detection matrix over the cases, rows = withheld effect, columns = named effect (same labels, "none" last).
+
+    Per case: a withheld effect that was named counts on the diagonal, one that was missed in the
+    "none" column; a named effect that was not withheld counts in the "none" row; a case without
+    effects that names nothing counts at ("none", "none").
+    """
+    effects = sorted({e for r in rows for key in ("true_effects", "found_effects")
+                      for e in r[key].split(";")} - {"none"})
+    labels = effects + ["none"]
+    matrix = np.zeros((len(labels), len(labels)), dtype=int)
     for r in rows:
-        for t in r["true_effects"].split(";"):
-            for f in r["found_effects"].split(";"):
-                matrix[true_labels.index(t), found_labels.index(f)] += 1
-    return true_labels, found_labels, matrix
+        true = [e for e in r["true_effects"].split(";") if e != "none"]
+        found = [e for e in r["found_effects"].split(";") if e != "none"]
+        for effect in true:
+            column = effect if effect in found else "none"
+            matrix[labels.index(effect), labels.index(column)] += 1
+        for effect in found:
+            if effect not in true:
+                matrix[labels.index("none"), labels.index(effect)] += 1
+        if not true and not found:
+            matrix[labels.index("none"), labels.index("none")] += 1
+    return labels, matrix
 
 
 def confusion_figure(rows: list[dict[str, Any]], path: Path, dpi: int = 120) -> Path:
@@ -297,19 +308,19 @@ def confusion_figure(rows: list[dict[str, Any]], path: Path, dpi: int = 120) -> 
 
     from hybridfmu.io import atomic_path
 
-    true_labels, found_labels, matrix = confusion_matrix(rows)
-    fig, ax = plt.subplots(figsize=(1.0 + 0.9 * len(found_labels), 1.2 + 0.6 * len(true_labels)))
+    labels, matrix = confusion_matrix(rows)
+    fig, ax = plt.subplots(figsize=(2.5 + 0.8 * len(labels), 1.8 + 0.6 * len(labels)))
     ax.imshow(matrix, cmap="Blues", vmin=0, vmax=max(int(matrix.max()), 1))
     for i in range(matrix.shape[0]):
         for j in range(matrix.shape[1]):
             if matrix[i, j]:
                 ax.text(j, i, str(matrix[i, j]), ha="center", va="center",
                         color="white" if matrix[i, j] > matrix.max() / 2 else "black")
-    ax.set_xticks(range(len(found_labels)), found_labels, rotation=40, ha="right", fontsize=8)
-    ax.set_yticks(range(len(true_labels)), true_labels, fontsize=8)
-    ax.set_xlabel("effect named by the diagnosis")
-    ax.set_ylabel("effect withheld from the FMU (bench truth)")
-    ax.set_title("Withheld-effect check: withheld vs named (counts over cases)", fontsize=10)
+    ax.set_xticks(range(len(labels)), labels, rotation=40, ha="right", fontsize=8)
+    ax.set_yticks(range(len(labels)), labels, fontsize=8)
+    ax.set_xlabel("effect named by the diagnosis (none = missed)")
+    ax.set_ylabel("effect withheld from the FMU (none = named although not withheld)")
+    ax.set_title("Withheld-effect check: detections over all cases", fontsize=10)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format="png")
