@@ -126,7 +126,7 @@ def test_snakemake_plans_one_job_per_case_and_maneuver(tiny_config, ipbmotor_fmu
                            for m, v in config["maneuvers"].items()}
     config_path = tmp_path / "tiny.yaml"
     config_path.write_text(yaml.safe_dump(config))
-    result = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--quiet", "rules", "withheld",
+    result = subprocess.run([sys.executable, "-m", "snakemake", "-n", "withheld",
                              "--configfile", str(config_path), "--directory", str(ROOT)],
                             capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert result.returncode == 0, result.stderr[-2000:]
