@@ -110,7 +110,8 @@ def test_forcerun_plot_only_redraws(tiny_run):
     metrics = results / "metrics" / "test.json"
     figure = results / "figures" / "test_angle.png"
     before = {path: path.stat().st_mtime_ns for path in (best, metrics, figure)}
-    output = snakemake(workdir, TINY, "--forcerun", "plot", *evaluation_targets(results))
+    # targets before --forcerun, which takes several values
+    output = snakemake(workdir, TINY, *evaluation_targets(results), "--forcerun", "plot")
     ran = planned_rules(output.stdout + output.stderr)
     assert ran == {"plot", "report"}, ran
     assert best.stat().st_mtime_ns == before[best] and metrics.stat().st_mtime_ns == before[metrics]
