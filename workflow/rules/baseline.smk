@@ -6,6 +6,9 @@ def time_offset_maneuver():
     """Maneuver of the time-offset figure: the configured one, else the first train maneuver."""
     chosen = config.get("evaluation", {}).get("time_offset", {}).get("maneuver", "")
     if chosen:
+        if chosen not in config["maneuvers"]:
+            raise ValueError(f"config.evaluation.time_offset.maneuver: {chosen!r} is not a maneuver of the case; "
+                             f"expected one of {MANEUVERS}")
         return chosen
     train = [name for name, item in config["maneuvers"].items() if item["role"] == "train"]
     return train[0] if train else MANEUVERS[0]
