@@ -152,10 +152,11 @@ def test_resumed_trial_equals_one_run(case, tmp_path):
         result_path=folder / "result.json", track=False)
     a, b = load_checkpoint(two_jobs["checkpoint"]), load_checkpoint(one_job["checkpoint"])
     assert a["trainer"]["history"] == b["trainer"]["history"]
-    for name, value in a["model"].items():
-        assert torch.equal(value, b["model"][name]), name
-    assert {k: v for k, v in two_jobs["validation"].items() if k != "rung"} == {
-        k: v for k, v in one_job["validation"].items() if k != "rung"}
+    for name, value in a["trainer"]["model"].items():
+        assert torch.equal(value, b["trainer"]["model"][name]), name
+    last_a, last_b = dict(a["validations"][-1]), dict(b["validations"][-1])
+    last_a.pop("rung"), last_b.pop("rung")
+    assert last_a == last_b
     assert math.isfinite(one_job["objective"])
 
 
@@ -180,3 +181,18 @@ def test_gradient_free_rollout_matches_the_recorded_one(case):
         fast = rollout(model, u, 10, x0, 700)
     recorded = rollout(model, u.clone().requires_grad_(True), 10, x0, 700)
     assert torch.allclose(fast, recorded.detach(), rtol=1e-10, atol=1e-9)
+
+
+def test_intermediate_validations_report_the_best_state(case, tmp_path):
+    training = dict(case["training"], validation_every_s=0.004)
+    result = run_trial_rung(
+        plan_path=case["plan"], bracket=0, rung=0, config_index=1,
+        train_arrays_path=case["arrays"]["train"], validation_arrays_path=case["arrays"]["validation"],
+        statistics_path=case["statistics"], fmu_path=case["fmu"], fmu_parameters={}, model_config=case["model"],
+        training_config=training, previous_checkpoint=None, checkpoint_path=tmp_path / "checkpoint.pt",
+        result_path=tmp_path / "result.json", track=False)
+    objectives = [v["objective"] for v in result["validations"]]
+    assert len(objectives) >= 3 and result["objective"] == min(objectives)
+    checkpoint = load_checkpoint(tmp_path / "checkpoint.pt")
+    assert checkpoint["best"]["objective"] == min(objectives)
+    assert checkpoint["best"]["resource_s"] <= checkpoint["trainer"]["used_samples"] * H + 1e-12

@@ -67,12 +67,26 @@ def _curve(history: list[list[float]], points: int) -> list[list[float]]:
     return curve
 
 
+def validation_points(start_s: float, target_s: float, every_s: float | None) -> list[float]:
+    """Resources (s of data) at which a rung from ``start_s`` to ``target_s`` validates: evenly spaced, at most
+    ``every_s`` apart, the last at ``target_s`` (only there if ``every_s`` is None)."""
+    if not every_s or target_s <= start_s:
+        return [target_s]
+    count = max(1, int(math.ceil((target_s - start_s) / every_s - 1e-9)))
+    return [start_s + (target_s - start_s) * (k + 1) / count for k in range(count)]
+
+
 def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_index: int,
                    train_arrays_path: str | Path, validation_arrays_path: str | Path, statistics_path: str | Path,
                    fmu_path: str | Path, fmu_parameters: dict[str, float] | None, model_config: dict[str, Any],
                    training_config: dict[str, Any], previous_checkpoint: str | Path | None,
                    checkpoint_path: str | Path, result_path: str | Path, track: bool = True) -> dict[str, Any]:
     """Train configuration ``config_index`` of ``bracket`` up to the resource of ``rung`` and validate it.
+
+    Validation (open loop over the validation segments) runs at the rung's end and, with
+    ``training.validation_every_s``, also in between; the trial reports the best validated state so far
+    (checkpoint ``model``, result ``objective``), while training continues from the last state (checkpoint
+    ``trainer``), so a resumed rung equals an uninterrupted run.
 
     Args:
         plan_path: the search plan (``hpo/plan.json``; also names the MLflow parent run).
@@ -106,12 +120,16 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
     status, reason = "ok", ""
     trainer = None
     start_resource_s = 0.0
+    best: dict[str, Any] = {}
+    best_model = None
     if previous_checkpoint:
         previous = load_checkpoint(previous_checkpoint)
         if previous["config"] != config_index or previous["bracket"] != bracket or previous["rung"] != rung - 1:
             raise ValueError(f"{previous_checkpoint}: checkpoint of b{previous['bracket']} r{previous['rung']} "
                              f"c{previous['config']}, expected b{bracket} r{rung - 1} c{config_index}")
         validations = list(previous["validations"])
+        best = dict(previous.get("best") or {})
+        best_model = previous["model"]
         mlflow_run_id = previous.get("mlflow_run_id")
         if previous["status"] != "ok":
             status, reason = previous["status"], f"previous rung: {previous['reason']}"
@@ -125,12 +143,20 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
         if status == "ok":
             progress = Progress(max(entry["resource_s"] - trainer.resource_used_s, 0.0), f"trial {trial_id} rung {rung}",
                                 unit="s of data", logger=LOG, interval_s=10.0)
-            trainer.train_until(entry["resource_s"], progress)
+            for target_s in validation_points(start_resource_s, entry["resource_s"],
+                                              training_config.get("validation_every_s")):
+                trainer.train_until(target_s, progress)
+                metrics = validate(model, valid, hyper.loss, hyper.w_speed, plan["objective"], statistics)
+                metrics.update(resource_s=trainer.resource_used_s, rung=rung)
+                validations.append(metrics)
+                LOG.info("trial %s: validation at %.4g s of data: objective %.4g, angle MAE %.4g rad, speed MAE "
+                         "%.4g rad/s", trial_id, trainer.resource_used_s, metrics["objective"], metrics["angle_mae"],
+                         metrics["speed_mae"])
+                if metrics["finite"] and metrics["objective"] < best.get("objective", math.inf):
+                    best = dict(metrics)
+                    best_model = {key: value.clone() for key, value in model.state_dict().items()}
             progress.finish()
-            metrics = validate(model, valid, hyper.loss, hyper.w_speed, plan["objective"], statistics)
-            metrics.update(resource_s=trainer.resource_used_s, rung=rung)
-            validations.append(metrics)
-            if not metrics["finite"]:
+            if not best:
                 status, reason = "diverged", "open-loop validation diverged (non-finite states)"
     except TrialDiverged as err:
         status, reason = "diverged", str(err)
@@ -139,11 +165,13 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
         LOG.error("trial %s rung %d failed:\n%s", trial_id, rung, traceback.format_exc())
     if status != "ok":
         LOG.warning("trial %s rung %d ends: %s (%s)", trial_id, rung, status, reason)
-    last = validations[-1] if validations and status == "ok" else {}
+    reported = best if status == "ok" else {}
+    if best_model is not None:  # the reported model: the best validated state so far
+        model.load_state_dict(best_model)
     result = {
         "trial_id": trial_id, "bracket": bracket, "rung": rung, "config": config_index, "hash": entry["hash"],
-        "status": status, "reason": reason, "objective": _finite_or_none(last.get("objective", math.inf)),
-        "validation": {key: _finite_or_none(value) for key, value in last.items()},
+        "status": status, "reason": reason, "objective": _finite_or_none(reported.get("objective", math.inf)),
+        "validation": {key: _finite_or_none(value) for key, value in reported.items()},
         "resource_s": trainer.resource_used_s if trainer else 0.0, "target_resource_s": entry["resource_s"],
         "steps": trainer.steps if trainer else 0, "skipped_steps": trainer.skipped_steps if trainer else 0,
         "delay_s": model.delay_s(), "gates": model.gate_values(), "hyperparameters": entry["hyperparameters"],
@@ -156,7 +184,7 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
         "format": CHECKPOINT_FORMAT, "status": status, "reason": reason, "bracket": bracket, "rung": rung,
         "config": config_index, "hash": entry["hash"], "spec": spec.to_dict(), "statistics": statistics,
         "hyperparameters": entry["hyperparameters"], "trainer": trainer.state_dict() if trainer else None,
-        "model": model.state_dict(), "validations": validations, "fmu": result["fmu"],
+        "model": model.state_dict(), "best": best, "validations": validations, "fmu": result["fmu"],
     }
     if track and plan.get("tracking"):
         from hybridfmu.tracking.search import log_trial_rung
