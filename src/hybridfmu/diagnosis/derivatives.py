@@ -126,4 +126,26 @@ def white_noise_std(signal: np.ndarray, mask: np.ndarray | None = None) -> np.nd
         out = np.zeros(flat.shape[1])
     else:
         out = _mad_std(np.concatenate([np.diff(p, n=3, axis=0) for p in pieces], axis=0)) / np.sqrt(20.0)
+        for j in range(flat.shape[1]):
+            step = quantisation_step(np.concatenate([np.diff(p[:, j]) for p in pieces]))
+            if step > 0:
+                out[j] = max(out[j], step / np.sqrt(12.0))
     return out.reshape(signal.shape[1:]) if signal.ndim > 1 else np.float64(out[0])
+
+
+def quantisation_step(differences: np.ndarray, share: float = 0.95) -> float:
+    """The quantisation step of a signal from its sample differences (0 if it is not quantised).
+
+    A signal counts as quantised when at least ``share`` of its nonzero differences are integer
+    multiples (to 1 %) of the smallest one; its quantisation error is then at least step/sqrt(12)
+    whatever the third differences say (a slowly moving quantised signal has mostly zero differences).
+    """
+    magnitudes = np.abs(differences[np.isfinite(differences)])
+    nonzero = magnitudes[magnitudes > 1e-12 * max(float(np.max(magnitudes, initial=0.0)), 1e-300)]
+    if len(nonzero) < 20:
+        return 0.0
+    step = float(np.percentile(nonzero, 1))
+    ratio = nonzero / step
+    if np.mean(np.abs(ratio - np.round(ratio)) < 0.01) < share:
+        return 0.0
+    return step

@@ -205,6 +205,10 @@ class Effect(ABC):
         """Time by which the effect shifts the inputs in the corrected simulation (s)."""
         return 0.0
 
+    def relative_error(self, coef: np.ndarray) -> float | None:
+        """For a parameter error: (true - model) / model implied by ``coef``; None for other effects."""
+        return None
+
     def scalar_torque(self, coef: np.ndarray, setting: dict[str, float],
                       options: dict[str, Any]) -> Callable[[float, float, float], float] | None:
         """A fast scalar version (theta, omega, tau_load) -> torque (N m) of a torque effect, or None."""
@@ -463,6 +467,9 @@ class InertiaMismatch(MechanicalEffect):
             return out
         return correction
 
+    def relative_error(self, coef):
+        return 1.0 / (1.0 + float(coef[0])) - 1.0
+
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
         k = float(coef[0])
         se_k = float(np.sqrt(max(cov[0, 0], 0.0)))
@@ -516,6 +523,9 @@ class TorqueConstantError(MechanicalEffect):
             return out
         return correction
 
+    def relative_error(self, coef):
+        return float(coef[0])
+
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
         return [_param("torque_constant_relative_error", *linear_estimate(coef, cov, [1.0]), "-",
                        "(k_t,true - k_t,model) / k_t,model")]
@@ -568,6 +578,9 @@ class ResistanceError(ElectricalEffect):
                 out[:, col] = k * (full[:, col] - model.derivatives(without, u)[:, col])
             return out
         return correction
+
+    def relative_error(self, coef):
+        return float(coef[0])
 
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
         return [_param("resistance_relative_error", *linear_estimate(coef, cov, [1.0]), "-",
@@ -754,6 +767,9 @@ class InductanceError(ElectricalEffect):
             return [(lay.i_d, -k * f_d), (lay.i_q, -k * f_q)]
         return rows
 
+    def relative_error(self, coef):
+        return float(coef[0]) / (1.0 - float(coef[0]))
+
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
         k = float(coef[0])
         se = float(np.sqrt(max(cov[0, 0], 0.0)))
@@ -786,6 +802,9 @@ class BackEmfError(ElectricalEffect):
             return None
         k, lay, emf = float(coef[0]), layout, layout.constants["emf_q"]
         return lambda x, u: [(lay.i_q, k * emf * x[lay.omega])]
+
+    def relative_error(self, coef):
+        return float(coef[0])
 
     def physical(self, coef, cov, setting, setting_se, layout, options, context):
         return [_param("flux_linkage_relative_error", *linear_estimate(coef, cov, [1.0]), "-",

@@ -63,7 +63,8 @@ class SelectionSettings:
     min_bic_drop: float = 10.0
     min_relative_improvement: float = 0.03
     min_explained_to_noise: float = 0.5
-    min_share_of_initial: float = 0.01
+    min_share_of_initial: float = 0.001
+    parameter_tolerance: float = 0.005
     noise_margin: float = 0.10
     max_effects_per_group: int = 3
     bootstrap_samples: int = 200
@@ -301,11 +302,21 @@ def select_group(cache: DesignCache, group: str, rows: list[int], effects: list[
             term, rss, _ = best_setting(cache, active, effect, rows, names, options, layout,
                                         settings.refine_iterations)
             k = sum(count_parameters(t, grid_sizes[t.effect.name]) for t in active + [term])
+            fit = fit_terms(cache, active + [term], rows, names)
+            error = effect.relative_error(fit.coefs[-1]) if fit.coefs and len(fit.coefs[-1]) else None
             rows_info.append({"effect": effect.name, "setting": term.setting, "rss": rss,
                               "relative_improvement": (rss_cur - rss) / rss_cur if rss_cur > 0 else 0.0,
-                              "bic": bic(rss, n, k), "term": term})
+                              "bic": bic(rss, n, k), "relative_parameter_error": error,
+                              "within_tolerance": error is not None and abs(error) < settings.parameter_tolerance,
+                              "term": term})
         rows_info.sort(key=lambda r: r["bic"])
-        best = rows_info[0]
+        eligible = [r for r in rows_info if not r["within_tolerance"]]
+        if not eligible:
+            steps.append(SelectionStep(candidates=[{k: v for k, v in r.items() if k != "term"} for r in rows_info],
+                                       chosen=None, reason="the remaining candidates are parameter errors within the "
+                                                           f"tolerance of {settings.parameter_tolerance:g}"))
+            break
+        best = eligible[0]
         at_noise = rss_cur / n <= noise_var * (1.0 + settings.noise_margin)
         if best["bic"] > bic_cur - settings.min_bic_drop:
             reason = f"BIC drop {bic_cur - best['bic']:.1f} below {settings.min_bic_drop}"
