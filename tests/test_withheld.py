@@ -74,6 +74,33 @@ def test_small_withheld_check(tiny_config, ipbmotor_fmu, tmp_path):
     assert (tmp_path / "confusion.png").stat().st_size > 1000
     assert withheld.targets(rows) == {"single_top1_correct": True, "pairs_both_found": True,
                                       "none_names_nothing": True, "gap_shrinks_3x_where_correct": True}
+    check_report_and_tracking(diagnoses[0], tmp_path)
+
+
+def check_report_and_tracking(diagnosis_json: Path, tmp_path: Path) -> None:
+    """The diagnosis folder holds the record, the report and its figures; the run is logged to MLflow."""
+    from mlflow.tracking import MlflowClient
+
+    from hybridfmu.diagnosis.report import log_to_mlflow
+    from hybridfmu.io import read_json
+
+    out = diagnosis_json.parent
+    record = read_json(diagnosis_json)
+    report = (out / "report.md").read_text()
+    for heading in ("## Where", "## Which", "## How far", "### 1. `coulomb_friction`"):
+        assert heading in report
+    figures = sorted(out.glob("*.png"))
+    assert {p.name for p in figures} >= {"equation_error.png", "regions.png", "waterfall.png", "effects.png"}
+    assert record["where"]["equations"]["carrier"] == "mechanical"
+    assert record["which"]["chosen"][0]["stability"]["coulomb_torque_nm"]["relative_spread"] < 0.2
+    config = {"case": "single_coulomb_friction", "results_dir": str(tmp_path), "mlflow": {}}
+    run_id = log_to_mlflow(record, {"json": diagnosis_json, "report": out / "report.md", "figures": figures}, config)
+    client = MlflowClient(f"sqlite:///{tmp_path.resolve()}/mlflow.db")
+    run = client.get_run(run_id)
+    assert run.data.tags["hybridfmu.role"] == "diagnosis"
+    assert run.data.metrics["gap/gap_before_rad"] == pytest.approx(record["how_far"]["gap_before_rad"])
+    assert run.data.params["found_effects"] == "coulomb_friction"
+    assert "diagnosis/report.md" in {a.path for a in client.list_artifacts(run_id, "diagnosis")}
 
 
 def test_case_configs_withhold_exactly_the_effect(tiny_config, ipbmotor_fmu):

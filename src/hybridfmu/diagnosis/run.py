@@ -247,16 +247,25 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
 def neural_comparison(best_json: Path, fmu_path: Path, fmu_parameters: dict[str, float],
                       prepared: dict[str, PreparedManeuver], fit_names: list[str], terms: list[Term], layout,
                       options: dict[str, Any]) -> dict[str, Any]:
-    """How much of the neural FMU's learned speed correction each chosen effect explains (R^2).
-
-    The learned correction is ``xdot_hybrid[omega] - xdot_F[omega]`` along the measured trajectory
-    (both with the learned input delay), at the fitting centres of the fitting maneuvers.
-    """
-    import torch
-
+    """Load the neural FMU named by ``best_json`` and compare its learned correction with the chosen effects."""
     from hybridfmu.training.inference import load_trained_neural_fmu
 
     model = load_trained_neural_fmu(best_json, fmu_path, fmu_parameters or None)
+    return learned_correction_r2(model, prepared, fit_names, terms, layout, options)
+
+
+def learned_correction_r2(model: Any, prepared: dict[str, PreparedManeuver], fit_names: list[str],
+                          terms: list[Term], layout, options: dict[str, Any]) -> dict[str, Any]:
+    """How much of a hybrid model's learned speed correction each chosen effect explains (R^2).
+
+    ``model`` is a neural FMU (``derivative(x, u_delayed)``, ``fmu(x, u)`` as torch tensors,
+    ``delay_s()``, ``gate_values()``). The learned correction is ``xdot_hybrid[omega] - xdot_F[omega]``
+    (g_F xdot_F + g_A xdot_A - xdot_F) along the measured trajectory at the fitting centres, both
+    with the learned input delay. R^2 "fitted" uses the diagnosis's coefficients, "refit" the best
+    linear fit of the effect's terms (plus a constant) to the learned correction.
+    """
+    import torch
+
     delay_s = float(model.delay_s())
     learned, effect_terms = [], {t.effect.name: [] for t in terms}
     regressors = {t.effect.name: [] for t in terms}
@@ -266,7 +275,7 @@ def neural_comparison(best_json: Path, fmu_path: Path, fmu_parameters: dict[str,
         x = p.error.x[idx]
         u = shift_inputs(p.measured.u, delay_s, p.error.dt_s)[:-1][idx]
         with torch.no_grad():
-            xt, ut = torch.from_numpy(x), torch.from_numpy(u)
+            xt, ut = torch.from_numpy(np.ascontiguousarray(x)), torch.from_numpy(np.ascontiguousarray(u))
             hybrid = model.derivative(xt, ut).numpy()
             plain = model.fmu(xt, ut).numpy()
         learned.append(hybrid[:, layout.omega] - plain[:, layout.omega])
@@ -290,19 +299,20 @@ def neural_comparison(best_json: Path, fmu_path: Path, fmu_parameters: dict[str,
         term = np.concatenate(effect_terms[t.effect.name])
         design = np.concatenate(regressors[t.effect.name])
         joint.append(design)
-        r2_fit = 1.0 - float(np.sum((c - term) ** 2)) / total if total > 0 else 0.0
+        r2_fit = 1.0 - float(np.sum((c - term) ** 2)) / total if total > 0 else None
         r2_refit = None
-        if design.shape[1]:
-            coef, *_ = np.linalg.lstsq(np.column_stack([design, np.ones(len(c))]), c, rcond=None)
-            resid = c - np.column_stack([design, np.ones(len(c))]) @ coef
-            r2_refit = 1.0 - float(resid @ resid) / total if total > 0 else 0.0
+        if design.shape[1] and total > 0:
+            full = np.column_stack([design, np.ones(len(c))])
+            coef, *_ = np.linalg.lstsq(full, c, rcond=None)
+            resid = c - full @ coef
+            r2_refit = 1.0 - float(resid @ resid) / total
         rows.append({"effect": t.effect.name, "r2_fitted": r2_fit, "r2_refit": r2_refit})
     r2_joint = None
-    if joint:
+    if joint and total > 0:
         design = np.column_stack(joint + [np.ones((len(c), 1))])
         coef, *_ = np.linalg.lstsq(design, c, rcond=None)
         resid = c - design @ coef
-        r2_joint = 1.0 - float(resid @ resid) / total if total > 0 else 0.0
+        r2_joint = 1.0 - float(resid @ resid) / total
     scale = layout.inertia_kg_m2 or 1.0
     return {"learned_delay_s": delay_s, "gates": model.gate_values(),
             "learned_correction_rms": float(np.sqrt(np.mean(c ** 2))) * scale,
