@@ -99,9 +99,11 @@ def test_nothing_left_to_do(tiny_run):
     assert planned_rules(output.stdout) == set(), output.stdout[-4000:]
 
 
-def evaluation_targets(results: Path) -> list[str]:
-    """The report and the figures: the evaluation's end of the DAG (training, evaluation and plots upstream)."""
-    return [str(results / "report.md"), *map(str, sorted((results / "figures").glob("*.png")))]
+def evaluation_targets(workdir: Path, results: Path) -> list[str]:
+    """The report and the figures, relative to the working directory as the rules name them: the
+    evaluation's end of the DAG (training, evaluation and plots upstream)."""
+    paths = [results / "report.md", *sorted((results / "figures").glob("*.png"))]
+    return [str(path.relative_to(workdir)) for path in paths]
 
 
 def test_forcerun_plot_only_redraws(tiny_run):
@@ -111,7 +113,7 @@ def test_forcerun_plot_only_redraws(tiny_run):
     figure = results / "figures" / "test_angle.png"
     before = {path: path.stat().st_mtime_ns for path in (best, metrics, figure)}
     # targets before --forcerun, which takes several values
-    output = snakemake(workdir, TINY, *evaluation_targets(results), "--forcerun", "plot")
+    output = snakemake(workdir, TINY, *evaluation_targets(workdir, results), "--forcerun", "plot")
     ran = planned_rules(output.stdout + output.stderr)
     assert ran == {"plot", "report"}, ran
     assert best.stat().st_mtime_ns == before[best] and metrics.stat().st_mtime_ns == before[metrics]
@@ -125,11 +127,11 @@ def test_changing_a_plot_option_reruns_only_plotting(tiny_run, tmp_path):
                              "plot": {**config.get("evaluation", {}).get("plot", {}), "dpi": 61}}
     configfile = tmp_path / "tiny_dpi.yaml"
     configfile.write_text(yaml.safe_dump(changed, sort_keys=False))  # key order is part of Snakemake params
-    output = snakemake(workdir, configfile, "-n", *evaluation_targets(results))
+    output = snakemake(workdir, configfile, "-n", *evaluation_targets(workdir, results))
     assert planned_rules(output.stdout + output.stderr) == {"plot", "report"}
     changed["evaluation"]["zoom"] = {**config["evaluation"].get("zoom", {}), "angle_length_s": 0.7}
     configfile.write_text(yaml.safe_dump(changed, sort_keys=False))
-    output = snakemake(workdir, configfile, "-n", *evaluation_targets(results))
+    output = snakemake(workdir, configfile, "-n", *evaluation_targets(workdir, results))
     assert planned_rules(output.stdout + output.stderr) == {"evaluate", "plot", "report"}
 
 
