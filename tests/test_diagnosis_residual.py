@@ -14,7 +14,7 @@ from hybridfmu.diagnosis.synthetic import PmsmReference, abc_to_dq, dq_to_abc
 DT = 1e-4
 
 
-def exact_trajectory(model: PmsmReference, n: int = 4000, substeps: int = 20, seed: int = 0):
+def exact_trajectory(model: PmsmReference, n: int = 3000, substeps: int = 6, seed: int = 0):
     """The model's own trajectory under random held duties (fine RK4 inside every sample)."""
     rng = np.random.default_rng(seed)
     time_s = np.arange(n) * DT
