@@ -27,7 +27,7 @@ WORKER = textwrap.dedent('''
             history += [[0.01 * (k + 1), 1.0 / (k + 1), float(k % 50 == 7), 1.0] for k in range(start, start + 150)]
             validations.append({"objective": 0.5 / (rung + 1), "resource_s": history[-1][0]})
             result = {"trial_id": f"b{worker}c{trial}", "bracket": worker, "rung": rung, "config": trial,
-                      "hash": "abc", "status": "ok", "reason": "", "hyperparameters": {"lr": 1e-3, "width": 8},
+                      "hash": "abc", "status": "ok", "reason": "", "objective": 0.5 / (rung + 1), "hyperparameters": {"lr": 1e-3, "width": 8},
                       "fmu": {"path": "IPBMotor.fmu", "sha256": "0" * 64}, "resource_s": history[-1][0],
                       "validation": {"objective": 0.5 / (rung + 1), "angle_mae": 0.1, "angle_mse": 0.01,
                                      "speed_mae": 1.0, "speed_mse": 2.0, "loss": 0.3},
@@ -121,6 +121,7 @@ def test_two_training_processes_log_everything(tmp_path):
         assert len(losses) == 300 and sorted(m.step for m in losses) == [10 * (k + 1) for k in range(300)]
         assert [m.step for m in sorted(client.get_metric_history(run_id, "val_objective"), key=lambda m: m.step)] == [
             1500, 3000]
+        assert run.data.metrics["best_val_objective"] == 0.25
         artifacts = {a.path for a in client.list_artifacts(run_id, "rung1")}
         assert {"rung1/model", "rung1/training_curve.png"} <= artifacts
         model_files = {a.path for a in client.list_artifacts(run_id, "rung1/model")}

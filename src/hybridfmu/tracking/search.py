@@ -37,9 +37,9 @@ def log_trial_rung(tracking: dict[str, str], search_id: str, result: dict[str, A
                    model: Any, spec: Any, run_id: str | None = None, since_resource_s: float = 0.0) -> str:
     """Log one rung of a configuration to its child run (found by tags, created at its first rung).
 
-    Metrics (step = resource in ms of training data): ``train_loss`` per optimizer step, and at the rung's
-    end ``val_objective``, ``val_loss``, ``val_angle_mae``, ``val_angle_mse``, ``val_speed_mae``,
-    ``val_speed_mse``, ``delay_s``, ``skipped_steps``. Artifacts under ``rung<r>/``: ``model/state_dict.pt``,
+    Metrics (step = resource in ms of training data): ``train_loss`` per optimizer step; at every validation
+    ``val_objective``, ``val_loss``, ``val_angle_mae``, ``val_angle_mse``, ``val_speed_mae``, ``val_speed_mse``;
+    at the rung's end ``best_val_objective``, ``delay_s``, ``skipped_steps`` and the gates. Artifacts under ``rung<r>/``: ``model/state_dict.pt``,
     ``model/model_info.json`` (architecture, FMU path and hash) and ``training_curve.png``.
     ``history`` holds every step so far ([resource_s, loss, skipped, gradient norm]); steps up to
     ``since_resource_s`` (logged by earlier rungs) are not logged again.
@@ -64,9 +64,15 @@ def log_trial_rung(tracking: dict[str, str], search_id: str, result: dict[str, A
     metrics = [("train_loss", loss, int(round(1000 * resource_s))) for resource_s, loss, *_ in history
                if math.isfinite(loss) and resource_s > since_resource_s]
     step = int(round(1000 * result["resource_s"]))
-    for key, value in result["validation"].items():
-        if key in ("objective", "loss", "angle_mae", "angle_mse", "speed_mae", "speed_mse") and value is not None:
-            metrics.append((f"val_{key}", value, step))
+    for validation in result["validations"]:
+        resource_s = validation.get("resource_s")
+        if resource_s is None or resource_s <= since_resource_s:
+            continue
+        for key in ("objective", "loss", "angle_mae", "angle_mse", "speed_mae", "speed_mse"):
+            if validation.get(key) is not None:
+                metrics.append((f"val_{key}", validation[key], int(round(1000 * resource_s))))
+    if result["objective"] is not None:
+        metrics.append(("best_val_objective", result["objective"], step))
     metrics.append(("delay_s", result["delay_s"], step))
     metrics.append(("skipped_steps", float(result["skipped_steps"]), step))
     for state, gates in result["gates"].items():

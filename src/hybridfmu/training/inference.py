@@ -29,6 +29,10 @@ def load_trained_neural_fmu(best_json_path: str | Path, fmu_path: str | Path,
     if "checkpoint" not in best:
         raise ValueError(f"{best_json_path}: field 'checkpoint' missing (expected the best.json of a search)")
     checkpoint_path = Path(best["checkpoint"])
+    if not checkpoint_path.is_absolute() and not checkpoint_path.exists():
+        # paths are relative to the workflow's folder; the copy also lies beside best.json
+        beside = Path(best_json_path).parent / checkpoint_path.name
+        checkpoint_path = beside if beside.exists() else checkpoint_path
     checkpoint = load_checkpoint(checkpoint_path)
     spec = NeuralFmuSpec.from_dict(checkpoint["spec"])
     fmu_model = load_fmu(fmu_path, parameters=fmu_parameters or None)
