@@ -263,3 +263,26 @@ def test_raw_paths_must_be_the_bench_outputs():
     config["maneuvers"]["extra"] = {"role": "train", "raw": "results/ipb/raw/extra.mf4"}
     with pytest.raises(ValueError, match=r"config\.bench\.maneuvers: no maneuver 'extra'"):
         check_raw_paths(config, "results/ipb")
+
+
+def test_time_scale_compresses_the_maneuvers_but_keeps_the_checks():
+    config = load_case_config(ROOT / "config" / "cases" / "tiny.yaml")
+    scale = config["bench"]["time_scale"]
+    settings = parse_bench_settings(config)
+    for name, designed in config["bench"]["maneuvers"].items():
+        designed_s = sum(seg["duration_s"] for seg in designed["segments"])
+        scaled_s = sum(seg["duration_s"] for seg in settings.maneuvers[name]["segments"])
+        assert 12.0 <= designed_s <= 25.0 and 2.0 <= scaled_s <= 4.0
+        assert scaled_s == pytest.approx(scale * designed_s)
+        assert [seg.get("to_bar") for seg in settings.maneuvers[name]["segments"]] == \
+            [seg.get("to_bar") for seg in designed["segments"]]
+    check_planned_spread(settings)  # the 10 % rule holds for the compressed maneuvers too
+    too_short = copy.deepcopy(config)
+    too_short["bench"]["maneuvers"]["train"]["segments"][1]["duration_s"] = 0.1  # design below 12 s
+    with pytest.raises(ValueError, match=r"config\.bench\.maneuvers\.train\.segments: total duration"):
+        parse_bench_settings(too_short)
+    for bad in (0.0, 1.5, True):
+        wrong = copy.deepcopy(config)
+        wrong["bench"]["time_scale"] = bad
+        with pytest.raises(ValueError, match=r"config\.bench\.time_scale"):
+            parse_bench_settings(wrong)

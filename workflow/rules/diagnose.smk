@@ -1,8 +1,9 @@
 # Diagnosis of the sim-to-real gap (rule diagnose): where the gap lies (equation error per state,
 # operating regions, time), which candidate effect causes it (sparse selection with parameters and
 # uncertainty) and how far it shrinks on the test maneuver once the effects are added to the FMU.
-# The trained neural FMU is compared with when {RESULTS}/hpo/best.json exists; it is not required.
-from pathlib import Path as _DiagnosePath
+# A case that trains a neural FMU (a `training` or `hpo` section) has the search's best model
+# {RESULTS}/hpo/best.json as an input, so the diagnosis always compares with it and runs once after
+# the search; a case without one is diagnosed without the comparison.
 
 DIAGNOSIS = f"{RESULTS}/diagnosis"
 DIAGNOSIS_HAS_TEST = any(item["role"] == "test" for item in config["maneuvers"].values())
@@ -10,10 +11,9 @@ DIAGNOSIS_FIGURES = ["equation_error", "regions", "candidates", "effects"] + (
     ["waterfall", "open_loop_test", "error_growth"] if DIAGNOSIS_HAS_TEST else [])
 
 
-def diagnosis_best_json(wildcards):
-    """The best neural FMU of the search, if one was trained (then the diagnosis compares with it)."""
-    best = f"{RESULTS}/hpo/best.json"
-    return [best] if _DiagnosePath(best).exists() else []
+DIAGNOSIS_TRAINS_NEURAL_FMU = "training" in config or "hpo" in config
+# decided from the config alone (never from existing files), so the DAG is the same on every invocation
+DIAGNOSIS_BEST_JSON = [f"{RESULTS}/hpo/best.json"] if DIAGNOSIS_TRAINS_NEURAL_FMU else []
 
 
 rule diagnose:
@@ -21,7 +21,7 @@ rule diagnose:
         fmu=lambda wildcards: fmu_path(),
         data=expand(f"{RESULTS}/data/{{maneuver}}.parquet", maneuver=MANEUVERS),
         segments=expand(f"{RESULTS}/segments/{{maneuver}}.json", maneuver=MANEUVERS),
-        best=diagnosis_best_json,
+        best=DIAGNOSIS_BEST_JSON,
     output:
         json=f"{DIAGNOSIS}/diagnosis.json",
         report=f"{DIAGNOSIS}/report.md",

@@ -306,6 +306,7 @@ def ground_truth(run: BenchRun, settings: BenchSettings, planned: Mapping[str, A
         "initial_state": {"i_d": 0.0, "i_q": 0.0, "theta": settings.rest_angle_rad, "omega": 0.0},
         "pwm_frequency_hz": settings.pwm_frequency_hz,
         "substeps": settings.substeps,
+        "time_scale": settings.time_scale,
         "sensors": {
             "encoder_counts_per_rev": settings.sensors.encoder_counts_per_rev,
             "encoder_step_rad": 2.0 * math.pi / settings.sensors.encoder_counts_per_rev,

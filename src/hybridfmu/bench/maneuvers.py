@@ -136,6 +136,20 @@ def validate_maneuver(maneuver: Mapping[str, Any], where: str, theta_limits_rad:
             raise ValueError(f"{where}.{key}: expected > 0, got {maneuver[key]}")
 
 
+def scale_maneuver(maneuver: Mapping[str, Any], time_scale: float) -> dict[str, Any]:
+    """A copy of a (validated) maneuver with every segment's ``duration_s`` multiplied by ``time_scale``.
+
+    Shortened test maneuvers (``bench.time_scale`` < 1): the design is checked at full length
+    (:data:`DURATION_RANGE_S`), the bench runs it compressed in time. Pressures, angles, limits
+    and sine frequencies stay as designed (a sine segment then has fewer periods).
+    """
+    if time_scale == 1.0:
+        return dict(maneuver)
+    segments = [{**segment, "duration_s": float(segment["duration_s"]) * time_scale}
+                for segment in maneuver["segments"]]
+    return {**maneuver, "segments": segments}
+
+
 def build_references(maneuver: Mapping[str, Any], period_s: float, rest_angle_rad: float,
                      ecu_curve: PressureVolumeCurve, acceleration_limit_rad_s2: float,
                      profile_gain_1_s: float = 150.0, duration_s: float | None = None) -> References:

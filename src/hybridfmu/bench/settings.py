@@ -13,7 +13,7 @@ from typing import Any, Mapping
 from .controller import ControllerSettings
 from .effects import Effect, build_effects
 from .hydraulics import PressureVolumeCurve, displacement_m3_per_rad
-from .maneuvers import validate_maneuver
+from .maneuvers import scale_maneuver, validate_maneuver
 from .parameters import nominal_parameters, true_parameters
 from .supply import Supply
 
@@ -84,6 +84,7 @@ class BenchSettings:
     ecu_map: EcuMapSettings
     effects: list[Effect]
     maneuvers: dict[str, dict[str, Any]]
+    time_scale: float = 1.0
 
     @property
     def period_s(self) -> float:
@@ -145,7 +146,7 @@ def parse_bench_settings(config: Mapping[str, Any]) -> BenchSettings:
     bench = config["bench"]
     where = "config.bench"
     known = {"seed", "pwm_frequency_hz", "substeps", "rest_angle_rad", "true_parameter_offsets", "hydraulics",
-             "supply", "sensors", "controller", "effects", "maneuvers"}
+             "supply", "sensors", "controller", "effects", "maneuvers", "time_scale"}
     unknown = sorted(set(bench) - known)
     if unknown:
         raise ValueError(f"{where}: unknown key(s) {unknown}, expected some of {sorted(known)}")
@@ -184,6 +185,11 @@ def parse_bench_settings(config: Mapping[str, Any]) -> BenchSettings:
             raise ValueError(f"{where}.maneuvers.{name}: expected a mapping with speed_limit_rad_s, "
                              "current_limit_a and segments")
         validate_maneuver(maneuver, f"{where}.maneuvers.{name}", (nominal["theta_min"], nominal["theta_max"]))
+    time_scale = bench.get("time_scale", 1.0)
+    if isinstance(time_scale, bool) or not isinstance(time_scale, (int, float)) or not 0.0 < time_scale <= 1.0:
+        raise ValueError(f"{where}.time_scale: expected a number in (0, 1] (1 = the designed 12..25 s maneuvers, "
+                         f"less = shortened test maneuvers), got {time_scale!r}")
+    maneuvers = {name: scale_maneuver(maneuver, float(time_scale)) for name, maneuver in maneuvers.items()}
     seed = bench.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"{where}.seed: expected an integer >= 0, got {seed!r}")
@@ -194,6 +200,7 @@ def parse_bench_settings(config: Mapping[str, Any]) -> BenchSettings:
         hydraulics=_dataclass_from(HydraulicsSettings, bench.get("hydraulics"), f"{where}.hydraulics"),
         supply=_dataclass_from(Supply, bench.get("supply"), f"{where}.supply"),
         sensors=sensors, controller=controller, ecu_map=ecu_map, effects=effects, maneuvers=maneuvers,
+        time_scale=float(time_scale),
     )
 
 
