@@ -94,6 +94,26 @@ class EffectCorrection:
                 out += term.effect.correction(inputs, term.coef, term.setting, self.options)
         return out
 
+    def batch(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The same sum for many rows at once, vectorised over the rows: (N, n_x), (N, n_u) -> (N, n_x).
+
+        Every term is evaluated by its array form (``fast_correction`` with the helper model, else
+        ``correction`` in simulation mode) instead of the per-row scalar forms that ``__call__``
+        uses for the one-row calls of the simulation loop.
+        """
+        x = np.asarray(x, dtype=float).reshape(-1, self.layout.n_x)
+        u = np.asarray(u, dtype=float).reshape(-1, self.layout.n_u)
+        out = np.zeros_like(x)
+        inputs = EffectInputs(self.layout, x, u, model=self.helper_model)
+        for term in self.terms:
+            fast = term.effect.fast_correction(term.coef, term.setting, self.options, self.layout,
+                                               self.helper_model) if self.helper_model is not None else None
+            if fast is not None:
+                out += fast(x, u)
+            else:
+                out += term.effect.correction(inputs, term.coef, term.setting, self.options)
+        return out
+
 
 def input_shift_s(terms: list[Term]) -> float:
     """Total time (s) by which the chosen terms shift the inputs."""
@@ -155,6 +175,60 @@ def simulate(model: Any, simulate_fn: Callable, time_s: np.ndarray, u: np.ndarra
         return np.full((len(time_s), len(x0)), np.nan)
 
 
+def simulate_windows(model: Any, simulate_fn: Callable, time_s: np.ndarray, u: np.ndarray, x0: np.ndarray,
+                     first: np.ndarray, n_steps: int, correction: Callable | None) -> np.ndarray:
+    """Open-loop simulations of many windows side by side: (W, n_steps + 1, n_x) states.
+
+    Window w starts at sample ``first[w]`` from ``x0[w]`` (n_x,) and runs ``n_steps`` samples
+    of the grid ``time_s`` (T,) with the inputs ``u`` (T, n_u) held per sample. All windows
+    take the same fixed-step RK4 as ``simulate_fn`` (one step per sample, the correction added
+    at every stage) as one batch of vectorised model evaluations. A window in which an event
+    indicator of the model changes sign (end stop reached, or a mode switch), or whose states
+    stop being finite, is simulated again on its own with ``simulate_fn``, which locates and
+    handles the events.
+    """
+    first = np.asarray(first, dtype=int)
+    n_w, n_x = len(first), len(x0[0]) if len(first) else 0
+    out = np.empty((n_w, n_steps + 1, n_x))
+    if n_w == 0:
+        return out
+    x = np.array(x0, dtype=float)
+    out[:, 0] = x
+    n_z = int(getattr(model, "n_event_indicators", 0))
+    clean = np.ones(n_w, dtype=bool)
+    z0 = np.asarray(model.event_indicators(x, u[first]), dtype=float) > 0.0 if n_z else None
+
+    batch = getattr(correction, "batch", correction)  # a plain callable takes (N, n_x), (N, n_u) rows
+
+    def rhs(states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+        f = np.asarray(model.derivatives(states, inputs), dtype=float)
+        return f + np.asarray(batch(states, inputs), dtype=float) if batch is not None else f
+
+    with np.errstate(all="ignore"):
+        for j in range(n_steps):
+            k = first + j
+            u_k = u[k]
+            h = (time_s[k + 1] - time_s[k])[:, None]
+            k1 = rhs(x, u_k)
+            k2 = rhs(x + 0.5 * h * k1, u_k)
+            k3 = rhs(x + 0.5 * h * k2, u_k)
+            k4 = rhs(x + h * k3, u_k)
+            x = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            finite = np.all(np.isfinite(x), axis=1)
+            clean &= finite
+            x[~finite] = x0[~finite]  # keeps the batch finite; the window is redone on its own
+            if n_z:  # sign changes along the step or with the next sample's inputs
+                clean &= np.all((np.asarray(model.event_indicators(x, u_k), dtype=float) > 0.0) == z0, axis=1)
+                clean &= np.all((np.asarray(model.event_indicators(x, u[k + 1]), dtype=float) > 0.0) == z0, axis=1)
+            out[:, j + 1] = x
+    for w in np.flatnonzero(~clean):
+        piece = slice(int(first[w]), int(first[w]) + n_steps + 1)
+        out[w] = simulate(model, simulate_fn, time_s[piece], u[piece], np.asarray(x0[w]), correction)
+    LOGGER.debug("%d of %d windows simulated side by side, %d on their own", int(clean.sum()), n_w,
+                 int((~clean).sum()))
+    return out
+
+
 def open_loop_errors(model: Any, simulate_fn: Callable, time_s: np.ndarray, x_meas: np.ndarray, u: np.ndarray,
                      layout: MotorLayout, correction: Callable | None, window_s: float, smoothing_s: float,
                      windows_mask: np.ndarray | None = None) -> tuple[OpenLoopErrors, np.ndarray]:
@@ -176,12 +250,13 @@ def open_loop_errors(model: Any, simulate_fn: Callable, time_s: np.ndarray, x_me
     angle_err = whole[:, layout.theta] - x_meas[:, layout.theta]
     speed_err = whole[:, layout.omega] - starts[:, layout.omega]
     n_win = max(int(round(window_s / dt_s)), 2)
+    first = np.array([start for start in range(0, len(time_s) - n_win, n_win)
+                      if windows_mask is None or windows_mask[start]], dtype=int)
+    windows = simulate_windows(model, simulate_fn, time_s, u, starts[first], first, n_win, correction)
     angle_abs, speed_abs = [], []
-    for start in range(0, len(time_s) - n_win, n_win):
-        if windows_mask is not None and not windows_mask[start]:
-            continue
+    for w, start in enumerate(first):
         piece = slice(start, start + n_win + 1)
-        states = simulate(model, simulate_fn, time_s[piece], u[piece], starts[start], correction)
+        states = windows[w]
         angle_abs.append(np.mean(np.abs(states[:, layout.theta] - x_meas[piece, layout.theta])))
         speed_abs.append(np.mean(np.abs(states[:, layout.omega] - starts[piece, layout.omega])))
 
