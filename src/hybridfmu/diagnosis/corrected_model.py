@@ -66,6 +66,8 @@ class EffectCorrection:
         self._load = layout.tau_load
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        if not self._fast and not self._general and np.size(x) == self.layout.n_x:
+            return self._one_row(x, u)
         x = np.asarray(x, dtype=float).reshape(-1, self.layout.n_x)
         u = np.asarray(u, dtype=float).reshape(-1, self.layout.n_u)
         out = np.zeros_like(x)
@@ -93,6 +95,21 @@ class EffectCorrection:
             for term in self._general:
                 out += term.effect.correction(inputs, term.coef, term.setting, self.options)
         return out
+
+    def _one_row(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """``__call__`` for one state row (the simulation loop's calls), in plain floats: (1, n_x)."""
+        lay = self.layout
+        x_row = np.ravel(x).tolist()
+        u_row = np.ravel(u).tolist()
+        out = [0.0] * lay.n_x
+        if self._torques:
+            theta, omega = x_row[lay.theta], x_row[lay.omega]
+            load = u_row[self._load] if self._load is not None else 0.0
+            out[lay.omega] = sum(f(theta, omega, load) for f in self._torques) * self._inv_inertia
+        for func in self._rows:
+            for index, value in func(x_row, u_row):
+                out[index] += value
+        return np.array([out])
 
     def batch(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """The same sum for many rows at once, vectorised over the rows: (N, n_x), (N, n_u) -> (N, n_x).
