@@ -199,10 +199,10 @@ def simulate_windows(model: Any, simulate_fn: Callable, time_s: np.ndarray, u: n
     Window w starts at sample ``first[w]`` from ``x0[w]`` (n_x,) and runs ``n_steps`` samples
     of the grid ``time_s`` (T,) with the inputs ``u`` (T, n_u) held per sample. All windows
     take the same fixed-step RK4 as ``simulate_fn`` (one step per sample, the correction added
-    at every stage) as one batch of vectorised model evaluations. A window in which an event
-    indicator of the model changes sign (end stop reached, or a mode switch), or whose states
-    stop being finite, is simulated again on its own with ``simulate_fn``, which locates and
-    handles the events.
+    at every stage) as one batch of vectorised model evaluations. Only windows whose event
+    indicators stay positive throughout (free motion between the end stops, no mode switch) and
+    whose states stay finite keep the batch result; every other window (starting at or reaching
+    an end stop, ...) is simulated again on its own with ``simulate_fn``, which handles the events.
     """
     first = np.asarray(first, dtype=int)
     n_w, n_x = len(first), len(x0[0]) if len(first) else 0
@@ -214,6 +214,8 @@ def simulate_windows(model: Any, simulate_fn: Callable, time_s: np.ndarray, u: n
     n_z = int(getattr(model, "n_event_indicators", 0))
     clean = np.ones(n_w, dtype=bool)
     z0 = np.asarray(model.event_indicators(x, u[first]), dtype=float) > 0.0 if n_z else None
+    if n_z:  # a window starting on an indicator's boundary or beyond (e.g. at an end stop) needs the
+        clean &= np.all(z0, axis=1)  # simulator's initial event iteration (discrete mode)
 
     batch = getattr(correction, "batch", correction)  # a plain callable takes (N, n_x), (N, n_u) rows
 
