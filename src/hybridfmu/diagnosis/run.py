@@ -367,18 +367,48 @@ def _mean_errors(per: dict[str, dict[str, float]]) -> dict[str, float]:
     return {k: float(np.mean([v[k] for v in per.values()])) for k in keys if k != "n_windows"}
 
 
+def neural_windows(model: Any, u: np.ndarray, x0: np.ndarray, first: np.ndarray, n_steps: int) -> np.ndarray:
+    """Open-loop windows of a neural FMU side by side: (W, n_steps + 1, n_x) states.
+
+    Window w starts at sample ``first[w]`` from ``x0[w]`` and sees only its own inputs
+    ``u[first[w] : first[w] + n_steps + 1]`` (n_u columns), held at its ends for the input delay,
+    exactly as ``simulate_neural_fmu`` on that piece; all windows are one batched rollout.
+    """
+    import torch
+
+    from hybridfmu.training.inference import delay_padding
+    from hybridfmu.training.solver import rollout
+
+    first = np.asarray(first, dtype=int)
+    spec = model.spec
+    pad = delay_padding(spec.sample_period_s, spec.delay_min_s, spec.delay_max_s)
+    index = np.clip(np.arange(-pad, n_steps + 1 + pad), 0, n_steps)
+    u_seq = torch.from_numpy(np.ascontiguousarray(np.asarray(u, dtype=np.float64)[first[:, None] + index[None, :]]))
+    x_start = torch.from_numpy(np.ascontiguousarray(np.asarray(x0, dtype=np.float64)))
+    with torch.no_grad():
+        return rollout(model, u_seq, pad, x_start, n_steps).numpy()
+
+
+def simulate_neural_fmu(model: Any, time_s: np.ndarray, u: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """Whole-maneuver open loop of a neural FMU (``hybridfmu.training.inference.simulate_neural_fmu``)."""
+    from hybridfmu.training.inference import simulate_neural_fmu as simulate_whole
+
+    return simulate_whole(model, time_s, u, x0)
+
+
 def _neural_errors(model: Any, p: PreparedManeuver, layout, settings) -> tuple[dict[str, float], np.ndarray]:
     from hybridfmu.diagnosis.corrected_model import measured_initial_states
-    from hybridfmu.training.inference import simulate_neural_fmu
 
     meas = p.measured
     starts = measured_initial_states(meas.x, layout, p.error.dt_s, settings["smoothing_s"])
     whole = simulate_neural_fmu(model, meas.time_s, meas.u, starts[0])
     n_win = max(int(round(settings["open_loop"]["window_s"] / p.error.dt_s)), 2)
+    first = np.arange(0, len(meas.time_s) - n_win, n_win)
+    windows = neural_windows(model, meas.u, starts[first], first, n_win)
     angle_abs, speed_abs = [], []
-    for start in range(0, len(meas.time_s) - n_win, n_win):
+    for w, start in enumerate(first):
         piece = slice(start, start + n_win + 1)
-        states = simulate_neural_fmu(model, meas.time_s[piece], meas.u[piece], starts[start])
+        states = windows[w]
         angle_abs.append(np.mean(np.abs(states[:, layout.theta] - meas.x[piece, layout.theta])))
         speed_abs.append(np.mean(np.abs(states[:, layout.omega] - starts[piece, layout.omega])))
     angle_err = whole[:, layout.theta] - meas.x[:, layout.theta]
