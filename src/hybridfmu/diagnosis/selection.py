@@ -160,9 +160,10 @@ class LinearFit:
     residual: np.ndarray
 
 
-def fit_terms(cache: DesignCache, terms: list[Term], rows: list[int], names: list[str],
-              row_mask: np.ndarray | None = None) -> LinearFit:
-    """Fit the coefficients of ``terms`` (settings fixed) to the equation error."""
+def stacked_design(cache: DesignCache, terms: list[Term], rows: list[int],
+                   names: list[str]) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """The equation error less the terms' fixed offsets (M,), their design columns side by side
+    (M, sum of sizes), and the number of columns of each term."""
     y = cache.target(rows, names)
     designs, sizes = [], []
     for term in terms:
@@ -171,6 +172,13 @@ def fit_terms(cache: DesignCache, terms: list[Term], rows: list[int], names: lis
         designs.append(design)
         sizes.append(design.shape[1])
     design = np.concatenate(designs, axis=1) if designs else np.zeros((len(y), 0))
+    return y, design, sizes
+
+
+def fit_terms(cache: DesignCache, terms: list[Term], rows: list[int], names: list[str],
+              row_mask: np.ndarray | None = None) -> LinearFit:
+    """Fit the coefficients of ``terms`` (settings fixed) to the equation error."""
+    y, design, sizes = stacked_design(cache, terms, rows, names)
     if row_mask is not None:
         y, design = y[row_mask], design[row_mask]
     n = len(y)
@@ -399,14 +407,7 @@ def bootstrap_coefficients(cache: DesignCache, terms: list[Term], rows: list[int
 
 
 def _fit_weighted(cache: DesignCache, terms: list[Term], rows, names, counts: np.ndarray) -> list[np.ndarray]:
-    y = cache.target(rows, names)
-    designs, sizes = [], []
-    for term in terms:
-        design, offset = cache.design(term.effect, term.setting, rows, names)
-        y = y - offset
-        designs.append(design)
-        sizes.append(design.shape[1])
-    design = np.concatenate(designs, axis=1)
+    y, design, sizes = stacked_design(cache, terms, rows, names)
     weights = np.sqrt(counts.astype(float))
     if design.shape[1] == 0:
         return [np.zeros(0) for _ in terms]
