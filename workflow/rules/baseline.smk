@@ -16,7 +16,7 @@ def time_offset_maneuver():
 
 rule simulate_baseline:
     input:
-        fmu=lambda wildcards: fmu_path(),
+        fmu=fmu_path(),
         data=f"{RESULTS}/data/{{maneuver}}.parquet",
     output:
         trajectory=f"{RESULTS}/baseline/{{maneuver}}.parquet",
@@ -36,7 +36,7 @@ rule simulate_baseline:
 
 rule time_offset:
     input:
-        fmu=lambda wildcards: fmu_path(),
+        fmu=fmu_path(),
         data=f"{RESULTS}/data/{time_offset_maneuver()}.parquet",
     output:
         window=f"{RESULTS}/evaluation/time_offset.parquet",

@@ -18,7 +18,7 @@ DIAGNOSIS_BEST_JSON = [f"{RESULTS}/hpo/best.json"] if DIAGNOSIS_TRAINS_NEURAL_FM
 
 rule diagnose:
     input:
-        fmu=lambda wildcards: fmu_path(),
+        fmu=fmu_path(),
         data=expand(f"{RESULTS}/data/{{maneuver}}.parquet", maneuver=MANEUVERS),
         segments=expand(f"{RESULTS}/segments/{{maneuver}}.json", maneuver=MANEUVERS),
         best=DIAGNOSIS_BEST_JSON,

@@ -39,7 +39,7 @@ def truth_files():
 rule simulate_best:
     input:
         best=f"{RESULTS}/hpo/best.json",
-        fmu=lambda wildcards: fmu_path(),
+        fmu=fmu_path(),
         data=f"{RESULTS}/data/{{maneuver}}.parquet",
         baseline=f"{RESULTS}/baseline/{{maneuver}}.parquet",
     output:

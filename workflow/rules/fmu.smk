@@ -6,17 +6,6 @@ from hybridfmu.config import ConfigError as _FmuConfigError
 from hybridfmu.fmu.build import source_files as _fmu_source_files
 
 
-def fmu_path():
-    """Path (str) of the case's FMU: {RESULTS}/fmu/<model_name>.fmu when built, else config fmu.path.
-
-    Rule files included before this one (alphabetical order) call it lazily, e.g.
-    ``input: fmu=lambda wildcards: fmu_path()``.
-    """
-    if config["fmu"]["source"] == "build":
-        return f"{RESULTS}/fmu/{config['fmu']['model_name']}.fmu"
-    return config["fmu"]["path"]
-
-
 if config["fmu"]["source"] == "build":
 
     rule build_fmu:

@@ -18,13 +18,6 @@ TRAIN_MANEUVERS = {"train": role_maneuver(config, "train", TRAINING["train_maneu
                    "validation": role_maneuver(config, "validation", TRAINING["validation_maneuver"])}
 
 
-def hpo_fmu_file():
-    """The FMU of the case: built by the workflow, or the user's own."""
-    if config["fmu"]["source"] == "path":
-        return config["fmu"]["path"]
-    return f"{RESULTS}/fmu/{config['fmu']['model_name']}.fmu"
-
-
 def previous_rung_checkpoint(wildcards):
     """The checkpoint a rung resumes (none for rung 0)."""
     rung = int(wildcards.rung)
@@ -49,7 +42,7 @@ def rung_results(wildcards):
 
 rule hpo_prepare:
     input:
-        fmu=hpo_fmu_file(),
+        fmu=fmu_path(),
         train_data=f"{RESULTS}/data/{TRAIN_MANEUVERS['train']}.parquet",
         validation_data=f"{RESULTS}/data/{TRAIN_MANEUVERS['validation']}.parquet",
         train_segments=f"{RESULTS}/segments/{TRAIN_MANEUVERS['train']}.json",
@@ -96,7 +89,7 @@ rule train_rung:
         train=f"{HPO_DIR}/prepared/train.npz",
         validation=f"{HPO_DIR}/prepared/validation.npz",
         statistics=f"{HPO_DIR}/prepared/statistics.json",
-        fmu=hpo_fmu_file(),
+        fmu=fmu_path(),
         previous=previous_rung_checkpoint,
     output:
         checkpoint=f"{HPO_DIR}/b{{bracket}}/r{{rung}}/c{{config}}/checkpoint.pt",

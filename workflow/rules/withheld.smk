@@ -16,7 +16,7 @@ wildcard_constraints:
 
 rule withheld_case:
     input:
-        fmu=lambda wildcards: fmu_path(),
+        fmu=fmu_path(),
     output:
         case=f"{WITHHELD}/cases/{{wcase}}.yaml",
     params:
@@ -74,7 +74,7 @@ rule withheld_segments:
 rule withheld_diagnose:
     input:
         case=f"{WITHHELD}/cases/{{wcase}}.yaml",
-        fmu=lambda wildcards: fmu_path(),
+        fmu=fmu_path(),
         data=expand(f"{WITHHELD}/{{{{wcase}}}}/data/{{m}}.parquet", m=WITHHELD_MANEUVERS),
         segments=expand(f"{WITHHELD}/{{{{wcase}}}}/segments/{{m}}.json", m=WITHHELD_MANEUVERS),
     output:
