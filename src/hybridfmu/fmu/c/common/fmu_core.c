@@ -193,9 +193,25 @@ static void set_start_values(InstanceState *state) {
     }
 }
 
+/* Each parameter finite and acceptable to the model, then the relations between them.
+   Return 0 if all hold, else 1 and a message naming the parameter(s). */
+static int parameters_invalid(const ModelData *data, char *message, size_t size) {
+    for (size_t i = 0; i < model_n_variables; ++i) {
+        const VarInfo *v = &model_variables[i];
+        if (v->kind != VAR_PARAMETER) continue;
+        double value = data->real[v->index];
+        if (!isfinite(value)) {
+            snprintf(message, size, "parameter \"%s\" = %g is not a finite number", v->name, value);
+            return 1;
+        }
+        if (model_check_value(v, value, message, size)) return 1;
+    }
+    return model_check_parameter_relations(data, message, size);
+}
+
 static fmi2Status check_all_parameters(ModelInstance *instance, const char *function) {
     char message[FMU_MESSAGE_LEN];
-    if (model_check_parameters(&instance->state.data, message, sizeof message)) {
+    if (parameters_invalid(&instance->state.data, message, sizeof message)) {
         fmu_log(instance, fmi2Error, LOG_STATUS_ERROR, "%s: %s", function, message);
         return fmi2Error;
     }

@@ -115,8 +115,9 @@ extern const double model_state_nominal[FMU_ARRAY_LEN(MODEL_N_STATES)];
    else 1 and a message naming the variable and what is expected. */
 int model_check_value(const VarInfo *variable, double value, char *message, size_t size);
 
-/* Check all parameters together (e.g. theta_min < theta_max). Same convention. */
-int model_check_parameters(const ModelData *data, char *message, size_t size);
+/* Check relations between parameters (e.g. theta_min < theta_max), after every parameter has
+   passed model_check_value. Same convention. */
+int model_check_parameter_relations(const ModelData *data, char *message, size_t size);
 
 /* Compute the state derivatives and the outputs from states, inputs, parameters and
    discrete states, and store them in data. */

@@ -124,17 +124,7 @@ int model_check_value(const VarInfo *variable, double value, char *message, size
     return 1;
 }
 
-int model_check_parameters(const ModelData *data, char *message, size_t size) {
-    for (size_t i = 0; i < model_n_variables; ++i) {
-        const VarInfo *v = &model_variables[i];
-        if (v->kind != VAR_PARAMETER) continue;
-        double value = data->real[v->index];
-        if (!isfinite(value)) {
-            snprintf(message, size, "parameter \"%s\" = %g is not a finite number", v->name, value);
-            return 1;
-        }
-        if (model_check_value(v, value, message, size)) return 1;
-    }
+int model_check_parameter_relations(const ModelData *data, char *message, size_t size) {
     if (!(data->real[THETA_MIN] < data->real[THETA_MAX])) {
         snprintf(message, size,
                  "parameters \"theta_min\" = %g and \"theta_max\" = %g are invalid: theta_min must be < theta_max",
