@@ -43,7 +43,7 @@ def any_fmu(request, ipbmotor_fmu, oscillator_fmu) -> tuple[str, Path]:
 
 def test_available_models_and_sources():
     models = available_models()
-    assert set(models) == {"IPBMotor", "Oscillator"}
+    assert set(models) == {"IPBMotor", "Oscillator", "CascadedTanks"}
     files = source_files("IPBMotor")
     assert any(f.endswith("IPBMotor.c") for f in files)
     assert any(f.endswith("fmu_core.c") for f in files)

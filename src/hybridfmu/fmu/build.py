@@ -197,8 +197,26 @@ def build_fmu(model_name: str, out_path: str | Path, compiler: str | None = None
         FmuBuildError: unknown model, unsupported platform or compilation failure.
     """
     _check_platform(model_name)
-    source = model_source(model_name)
-    out_path = Path(out_path)
+    return _package(model_source(model_name), Path(out_path), compiler)
+
+
+def build_fmu_from_description(description: str | Path, out_path: str | Path, compiler: str | None = None) -> Path:
+    """Build an FMU from a model folder anywhere: its ``modelDescription.xml`` and the C files beside it.
+
+    The model is written on the same core as the built-in ones (``c/common/fmu_core.h``): a user's own
+    C model builds exactly like the demo's. Same output and guarantees as :func:`build_fmu`.
+
+    Raises:
+        FmuBuildError: malformed model description, unsupported platform or compilation failure.
+    """
+    source = _read_model_source(Path(description).resolve())
+    _check_platform(source.model_name)
+    return _package(source, Path(out_path), compiler)
+
+
+def _package(source: ModelSource, out_path: Path, compiler: str | None) -> Path:
+    """Compile ``source`` in a temporary folder and write the FMU archive atomically to ``out_path``."""
+    model_name = source.model_name
     with tempfile.TemporaryDirectory(prefix=f"hybridfmu-build-{model_name}-") as build_dir:
         library = Path(build_dir) / f"{model_name}.so"
         compile_shared_library(source, library, compiler=compiler)
