@@ -1,35 +1,40 @@
-"""Ingestion of raw logs: MDF4 round trip, CSV and Parquet readers, and every kind of bad input."""
+"""Ingestion of raw logs by the case's declared signals: MDF4, CSV and Parquet, units, slices, bad inputs."""
 
 from __future__ import annotations
 
 import copy
+import logging
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 
+from hybridfmu.config import validate_case_config
 from hybridfmu.data.errors import DataError
 from hybridfmu.data.ingest import ingest_log, ingest_to_parquet
 
+REPO = Path(__file__).resolve().parents[1]
 RATE_HZ = 10_000.0
 DURATION_S = 0.5
 COUNTS_PER_REV = 4096
-BAR_TO_NM = 2.5e-7 * 1e5  # N m per bar for tau_load_nm_per_pa = 2.5e-7
+POLE_PAIRS = 4
+NM_PER_BAR = 0.0125
 
-CHANNELS = {
-    "duty_a": {"name": "MotCtl_DutyA", "unit": "%"},
-    "duty_b": {"name": "MotCtl_DutyB", "unit": "%"},
-    "duty_c": {"name": "MotCtl_DutyC", "unit": "%"},
-    "u_dc": {"name": "Sply_UDc", "unit": "V"},
-    "pressure": {"name": "Hyd_Pressure", "unit": "bar"},
-    "angle": {"name": "MotPos_Angle", "unit": "deg"},
-    "speed": {"name": "MotPos_Speed", "unit": "rpm"},
-    "i_a": {"name": "MotCur_IPhA", "unit": "A"},
-    "i_b": {"name": "MotCur_IPhB", "unit": "A"},
-    "i_c": {"name": "MotCur_IPhC", "unit": "A"},
-}
-INGEST = {"rate_hz": RATE_HZ, "max_gap_s": 0.01, "tau_load_nm_per_pa": 2.5e-7, "channels": CHANNELS}
+
+def case_config(**sections) -> dict:
+    """The demo case's data sections (IPBMotor's interface from its C sources), validated, with overrides."""
+    demo = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    config = {key: copy.deepcopy(demo[key]) for key in ("case", "fmu", "maneuvers", "signals", "transforms",
+                                                         "roles", "ingest")}
+    config["maneuvers"] = {"run": {"role": "train", "raw": "run.mf4"}}
+    config.update(copy.deepcopy(sections))
+    return validate_case_config(config)
+
+
+CONFIG = case_config()
 
 
 # Analytic truth in SI units: the logs sample these functions (ECU units) at their own rates.
@@ -53,8 +58,20 @@ def u_dc_v(t):
     return 12.0 + 0.2 * np.sin(2 * math.pi * 50.0 * t)
 
 
-def current_a(t, phase):
-    return 30.0 * np.sin(2 * math.pi * 40.0 * t + phase)
+def dq_a(t):
+    """Rotor-frame currents (i_d, i_q) in A that the phase currents of the logs carry."""
+    return 2.0 + 0.5 * np.sin(2 * math.pi * 3.0 * t), 25.0 * np.cos(2 * math.pi * 2.0 * t)
+
+
+def phase_currents_a(t):
+    """Phase currents (3, n) from dq_a by the inverse Clarke-Park transform with the true angle."""
+    i_d, i_q = dq_a(t)
+    angle = POLE_PAIRS * theta_rad(t)
+    alpha = i_d * np.cos(angle) - i_q * np.sin(angle)
+    beta = i_d * np.sin(angle) + i_q * np.cos(angle)
+    a = alpha
+    b = -0.5 * alpha + math.sqrt(3) / 2 * beta
+    return np.stack([a, b, -a - b])
 
 
 def raw_signals(duration_s=DURATION_S):
@@ -62,15 +79,16 @@ def raw_signals(duration_s=DURATION_S):
     fast = np.arange(0.0, duration_s, 1e-4) + 0.0002
     slow = np.arange(0.0, duration_s, 1e-3) + 0.0005
     counts = np.round(theta_rad(fast) / (2 * math.pi) * COUNTS_PER_REV)
+    currents = phase_currents_a(fast)
     return {
         "MotCtl_DutyA": (fast, 100 * duty(fast, 0.0), "%"),
         "MotCtl_DutyB": (fast, 100 * duty(fast, -2.0944), "%"),
         "MotCtl_DutyC": (fast, 100 * duty(fast, 2.0944), "%"),
         "MotPos_Angle": (fast, counts * 360.0 / COUNTS_PER_REV, "deg"),
         "MotPos_Speed": (fast, omega_rad_s(fast) * 60 / (2 * math.pi), "rpm"),
-        "MotCur_IPhA": (fast, current_a(fast, 0.0), "A"),
-        "MotCur_IPhB": (fast, current_a(fast, -2.0944), "A"),
-        "MotCur_IPhC": (fast, current_a(fast, 2.0944), "A"),
+        "MotCur_IPhA": (fast, currents[0], "A"),
+        "MotCur_IPhB": (fast, currents[1], "A"),
+        "MotCur_IPhC": (fast, currents[2], "A"),
         "Hyd_Pressure": (slow, pressure_pa(slow) / 1e5, "bar"),
         "Sply_UDc": (slow, u_dc_v(slow), "V"),
         "Other_Channel": (slow, np.zeros_like(slow), "-"),
@@ -82,7 +100,7 @@ def write_mdf(path, signals):
     from asammdf import MDF, Signal
 
     mdf = MDF(version="4.10")
-    groups: dict[tuple, list] = {}
+    groups: dict[bytes, list] = {}
     for name, (time_s, values, unit) in signals.items():
         key = np.asarray(time_s, dtype=np.float64).tobytes()  # channels with identical time stamps share a group
         groups.setdefault(key, []).append(Signal(np.asarray(values), np.asarray(time_s), name=name, unit=unit))
@@ -93,7 +111,7 @@ def write_mdf(path, signals):
     return path
 
 
-def write_table(path, signals, units_row=True, time_factor=1.0, time_unit="s"):
+def write_table(path, signals, units_row=True, time_factor=1.0, time_unit="s", time_column=True):
     """CSV/Parquet of all channels on the 10 kHz time base (CSV: name row and unit row)."""
     fast = {name: sig for name, sig in signals.items() if len(sig[0]) == len(signals["MotCtl_DutyA"][0])}
     time_s = signals["MotCtl_DutyA"][0]
@@ -102,6 +120,8 @@ def write_table(path, signals, units_row=True, time_factor=1.0, time_unit="s"):
     for name in ("Sply_UDc", "Hyd_Pressure"):
         frame[name] = np.interp(time_s, slow_t, signals[name][1])
     units = [time_unit] + [fast[name][2] for name in fast] + ["V", "bar"]
+    if not time_column:
+        frame, units = frame.drop(columns=["time"]), units[1:]
     if path.suffix == ".csv":
         with path.open("w") as handle:
             handle.write(",".join(frame.columns) + "\n")
@@ -119,94 +139,108 @@ def mdf_path(tmp_path_factory):
     return write_mdf(tmp_path_factory.mktemp("raw") / "maneuver.mf4", raw_signals())
 
 
-def test_mdf_round_trip_multi_rate(mdf_path, tmp_path):
-    out = ingest_to_parquet(mdf_path, tmp_path / "data" / "maneuver.parquet", INGEST)
+def test_mdf_round_trip_in_model_units(mdf_path, tmp_path):
+    out = ingest_to_parquet(mdf_path, tmp_path / "data" / "maneuver.parquet", CONFIG, "run")
     frame = pd.read_parquet(out)
-    assert list(frame.columns) == ["time_s", "duty_a", "duty_b", "duty_c", "u_dc_v", "tau_load_nm", "theta_rad",
-                                   "omega_rad_s", "i_a_a", "i_b_a", "i_c_a", "pressure_pa"]
+    assert list(frame.columns) == ["time_s", "duty_a", "duty_b", "duty_c", "u_dc", "pressure", "angle", "speed",
+                                   "i_a", "i_b", "i_c", "load_torque", "current_d", "current_q"]
     assert all(frame[column].dtype == np.float64 for column in frame.columns)
     time_s = frame["time_s"].to_numpy()
     assert time_s[0] == 0.0
     np.testing.assert_allclose(np.diff(time_s), 1.0 / RATE_HZ, rtol=1e-9)
     # common start is the latest first sample (the 1 kHz channels start at 0.5 ms)
     t_abs = time_s + 0.0005
-    assert t_abs[-1] <= 0.0005 + 0.499 + 1e-9 and len(frame) == 4991
-    # duties are held (zero-order hold onto the same 10 kHz instants: exact up to float rounding)
+    assert len(frame) == 4991
+    # duties: % -> 1 (the FMU's unit), held onto the grid (exact up to float rounding)
     held = np.searchsorted(raw_signals()["MotCtl_DutyA"][0], t_abs + 1e-12, side="right") - 1
     np.testing.assert_allclose(frame["duty_a"], duty(raw_signals()["MotCtl_DutyA"][0][held], 0.0), atol=1e-9)
-    # continuous signals: linear interpolation error and encoder quantisation only
-    quantum_rad = 2 * math.pi / COUNTS_PER_REV
-    np.testing.assert_allclose(frame["theta_rad"], theta_rad(t_abs), atol=quantum_rad)
-    np.testing.assert_allclose(frame["omega_rad_s"], omega_rad_s(t_abs), atol=0.05)
-    np.testing.assert_allclose(frame["pressure_pa"], pressure_pa(t_abs), atol=0.02e5)
-    np.testing.assert_allclose(frame["tau_load_nm"], 2.5e-7 * pressure_pa(t_abs), atol=0.02 * BAR_TO_NM)
-    np.testing.assert_allclose(frame["u_dc_v"], u_dc_v(t_abs), atol=0.01)
-    np.testing.assert_allclose(frame["i_b_a"], current_a(t_abs, -2.0944), atol=0.2)
+    # deg -> rad, rpm -> rad/s, bar -> Pa (to_unit), linear interpolation and encoder quantisation only
+    np.testing.assert_allclose(frame["angle"], theta_rad(t_abs), atol=2 * math.pi / COUNTS_PER_REV)
+    np.testing.assert_allclose(frame["speed"], omega_rad_s(t_abs), atol=0.05)
+    np.testing.assert_allclose(frame["pressure"], pressure_pa(t_abs), atol=0.02e5)
+    np.testing.assert_allclose(frame["u_dc"], u_dc_v(t_abs), atol=0.01)
+    # transforms in natural units: bar * 0.0125 N*m/bar; Park with the measured angle in deg
+    np.testing.assert_allclose(frame["load_torque"], NM_PER_BAR * pressure_pa(t_abs) / 1e5, atol=0.02 * NM_PER_BAR)
+    i_d, i_q = dq_a(t_abs)
+    np.testing.assert_allclose(frame["current_d"], i_d, atol=0.5)
+    np.testing.assert_allclose(frame["current_q"], i_q, atol=0.5)
 
 
-def test_speed_derived_from_angle_and_third_current(mdf_path):
-    config = copy.deepcopy(INGEST)
-    del config["channels"]["speed"], config["channels"]["i_c"]
-    config["speed_from_angle"] = {"window_s": 0.004, "polyorder": 2}
-    frame = ingest_log(mdf_path, config)
-    t_abs = frame["time_s"].to_numpy() + 0.0005
-    inner = slice(50, -50)  # the filter's edge windows
-    np.testing.assert_allclose(frame["omega_rad_s"].to_numpy()[inner], omega_rad_s(t_abs)[inner], atol=1.5)
-    np.testing.assert_allclose(frame["i_c_a"], current_a(t_abs, 2.0944), atol=0.5)
-
-
-def test_tau_load_per_bar_and_load_channel(mdf_path):
-    config = copy.deepcopy(INGEST)
-    config["tau_load_nm_per_pa"] = None
-    config["tau_load_nm_per_bar"] = 2.5e-2
-    per_bar = ingest_log(mdf_path, config)
-    per_pa = ingest_log(mdf_path, INGEST)
-    np.testing.assert_allclose(per_bar["tau_load_nm"], per_pa["tau_load_nm"], rtol=1e-12)
-    both = copy.deepcopy(INGEST)
-    both["tau_load_nm_per_bar"] = 2.5e-2
-    with pytest.raises(DataError, match="not both"):
-        ingest_log(mdf_path, both)
-
-
-def test_csv_with_unit_row(tmp_path):
-    path = write_table(tmp_path / "log.csv", raw_signals())
-    config = copy.deepcopy(INGEST)
-    for spec in config["channels"].values():
-        spec.pop("unit")  # units come from the file's unit row
+def test_csv_with_unit_row_and_affine_unit(tmp_path):
+    signals = raw_signals()
+    signals["Temp"] = (signals["MotCtl_DutyA"][0], np.full(len(signals["MotCtl_DutyA"][0]), 25.0), "degC")
+    path = write_table(tmp_path / "log.csv", signals)
+    config = case_config()
+    config["signals"]["temperature"] = {"channel": "Temp", "unit": "degC", "to_unit": "K"}
     frame = ingest_log(path, config)
     t_abs = frame["time_s"].to_numpy() + 0.0002
     assert len(frame) == 5000
-    np.testing.assert_allclose(frame["theta_rad"], theta_rad(t_abs), atol=2 * math.pi / COUNTS_PER_REV)
-    np.testing.assert_allclose(frame["omega_rad_s"], omega_rad_s(t_abs), atol=0.05)
+    np.testing.assert_allclose(frame["temperature"], 298.15, atol=1e-9)  # affine degC -> K
+    np.testing.assert_allclose(frame["angle"], theta_rad(t_abs), atol=2 * math.pi / COUNTS_PER_REV)
+    np.testing.assert_allclose(frame["speed"], omega_rad_s(t_abs), atol=0.05)
 
 
-def test_csv_without_units_uses_channel_map_and_time_column(tmp_path):
-    path = write_table(tmp_path / "log.csv", raw_signals(), units_row=False)
-    frame = ingest_log(path, INGEST)
-    assert frame["duty_a"].between(0.19, 0.81).all()
+def test_csv_without_units_and_time_in_ms(tmp_path):
+    plain = ingest_log(write_table(tmp_path / "log.csv", raw_signals(), units_row=False), CONFIG)
+    assert plain["duty_a"].between(0.19, 0.81).all()
     in_ms = write_table(tmp_path / "log_ms.csv", raw_signals(), units_row=False, time_factor=1e3)
-    config = copy.deepcopy(INGEST)
-    config["channels"]["time"] = {"name": "time", "unit": "ms"}
-    pd.testing.assert_frame_equal(ingest_log(in_ms, config), frame, rtol=1e-9, atol=1e-9)
+    config = case_config(ingest={"time": {"channel": "time", "unit": "ms"}})
+    pd.testing.assert_frame_equal(ingest_log(in_ms, config), plain, rtol=1e-9, atol=1e-9)
+
+
+def test_sample_period_without_time_column(tmp_path):
+    path = write_table(tmp_path / "log.csv", raw_signals(), time_column=False)
+    frame = ingest_log(path, case_config(ingest={"sample_period_s": 1e-4}))
+    assert len(frame) == 5000 and frame["time_s"].iloc[-1] == pytest.approx(0.4999)
+    t_abs = frame["time_s"].to_numpy() + 0.0002  # sample 0 was taken at 0.2 ms
+    np.testing.assert_allclose(frame["speed"], omega_rad_s(t_abs), atol=0.05)
+    with pytest.raises(DataError, match=r"time column 'time' not found.*sample_period_s"):
+        ingest_log(path, CONFIG)
 
 
 def test_parquet_with_units_in_column_names(tmp_path):
     path = write_table(tmp_path / "log.parquet", raw_signals())
-    config = copy.deepcopy(INGEST)
-    config["channels"]["duty_a"].pop("unit")
-    frame = ingest_log(path, config)
+    frame = ingest_log(path, CONFIG)
     t_abs = frame["time_s"].to_numpy() + 0.0002
     np.testing.assert_allclose(frame["duty_a"], duty(t_abs, 0.0), atol=1e-9)
-    np.testing.assert_allclose(frame["pressure_pa"], pressure_pa(t_abs), atol=0.02e5)
+    np.testing.assert_allclose(frame["pressure"], pressure_pa(t_abs), atol=0.02e5)
+
+
+def test_per_maneuver_channel_override(tmp_path):
+    signals = raw_signals()
+    time_s, values, unit = signals["MotPos_Angle"]
+    signals["MotPos_Angle_Rig2"] = (time_s, values + 90.0, unit)  # a second record beside the first
+    raw = write_mdf(tmp_path / "two.mf4", signals)
+    config = case_config(maneuvers={"rig1": {"role": "train", "raw": str(raw)},
+                                    "rig2": {"role": "test", "raw": str(raw),
+                                             "channels": {"angle": "MotPos_Angle_Rig2"}}})
+    rig1, rig2 = ingest_log(raw, config, "rig1"), ingest_log(raw, config, "rig2")
+    np.testing.assert_allclose(rig2["angle"] - rig1["angle"], math.pi / 2, atol=1e-9)
+    np.testing.assert_array_equal(rig2["speed"], rig1["speed"])
+    config["maneuvers"]["rig2"]["channels"] = {"winkel": "MotPos_Angle_Rig2"}
+    with pytest.raises(DataError, match=r"config\.maneuvers\.rig2\.channels\.winkel: not a logged signal"):
+        ingest_log(raw, config, "rig2")
+    with pytest.raises(DataError, match=r"config\.maneuvers: no maneuver 'rig3'"):
+        ingest_log(raw, config, "rig3")
+
+
+def test_maneuver_slice_starts_at_zero(mdf_path):
+    config = case_config(maneuvers={"middle": {"role": "train", "raw": str(mdf_path), "t_start_s": 0.1,
+                                               "t_end_s": 0.3}})
+    whole = ingest_log(mdf_path, CONFIG)
+    part = ingest_log(mdf_path, config, "middle")
+    assert part["time_s"].iloc[0] == 0.0
+    assert part["time_s"].iloc[-1] == pytest.approx(0.2)
+    t_abs = part["time_s"].to_numpy() + 0.1002  # relative to the log's first sample (0.2 ms)
+    np.testing.assert_allclose(part["speed"], omega_rad_s(t_abs), atol=0.05)
+    np.testing.assert_allclose(part["pressure"], pressure_pa(t_abs), atol=0.02e5)
+    assert len(part) < len(whole)
+    config["maneuvers"]["middle"]["t_end_s"] = 0.05
+    with pytest.raises(DataError, match=r"config\.maneuvers\.middle: t_end_s = 0.05 is not after t_start_s"):
+        ingest_log(mdf_path, config, "middle")
 
 
 # ---- bad inputs: a clear DataError naming file and channel, and no output file ----------------------------
-
-def _bad(name, change):
-    signals = raw_signals()
-    change(signals)
-    return name, signals
-
 
 def _set(channel, index, value):
     def change(signals):
@@ -236,6 +270,10 @@ def _gap(time_s):
     return time_s
 
 
+def _unit(channel, unit):
+    return lambda s: s.__setitem__(channel, (*s[channel][:2], unit))
+
+
 BAD_MDF = {
     "missing channel": (lambda s: s.pop("MotPos_Speed"), r"MotPos_Speed not found; the file has: .*MotPos_Angle"),
     "duplicated time": (_time("MotCtl_DutyB", _duplicate), r"MotCtl_DutyB \(duty_b\): time stamps not strictly "
@@ -245,12 +283,12 @@ BAD_MDF = {
     "nan run": (lambda s: s["MotCur_IPhA"][1].__setitem__(slice(300, 320), np.nan),
                 r"MotCur_IPhA \(i_a\): 20 consecutive NaN/inf samples"),
     "inf sample": (_set("Hyd_Pressure", 10, np.inf), r"Hyd_Pressure \(pressure\): 1 consecutive NaN/inf"),
-    "long gap": (_time("Hyd_Pressure", _gap), r"Hyd_Pressure \(pressure\): gap of 0.051 s after 0.1995 s exceeds .*max_gap_s = 0.01"),
-    "unknown unit": (lambda s: s.__setitem__("MotPos_Speed", (*s["MotPos_Speed"][:2], "furlong/fortnight")),
-                     r"MotPos_Speed \(speed\): cannot convert unit 'furlong/fortnight' to rad/s"),
-    "unit disagrees with map": (lambda s: s.__setitem__("MotPos_Angle", (*s["MotPos_Angle"][:2], "rad")),
-                                r"MotPos_Angle \(angle\): the file says unit 'rad' but .*channels.angle.unit "
-                                r"says 'deg'"),
+    "long gap": (_time("Hyd_Pressure", _gap), r"Hyd_Pressure \(pressure\): gap of 0.051 s after 0.1995 s exceeds "
+                                              r".*max_gap_s = 0.01"),
+    "unit of another dimension": (_unit("MotPos_Speed", "N"), r"MotPos_Speed \(speed\): the file says unit 'N' but "
+                                                              r"config.signals.speed.unit says 'rpm'"),
+    "unit disagrees with config": (_unit("MotPos_Angle", "rad"), r"MotPos_Angle \(angle\): the file says unit "
+                                                                 r"'rad' but config.signals.angle.unit says 'deg'"),
 }
 
 
@@ -261,32 +299,46 @@ def test_bad_mdf_input_raises_and_writes_nothing(case, tmp_path):
     change(signals)
     raw = write_mdf(tmp_path / "bad.mf4", signals)
     out = tmp_path / "data" / "bad.parquet"
-    config = copy.deepcopy(INGEST)
-    config["channels"]["speed"].pop("unit")  # the file's units decide where the map gives none
     with pytest.raises(DataError, match=message) as info:
-        ingest_to_parquet(raw, out, config)
+        ingest_to_parquet(raw, out, CONFIG)
     assert str(raw) in str(info.value)
     assert not out.exists()
-    assert not list((tmp_path / "data").glob("*")) if (tmp_path / "data").exists() else True
+    assert not (tmp_path / "data").exists() or not list((tmp_path / "data").glob("*"))
 
 
-def test_channel_map_unit_stands_in_for_an_unknown_file_unit(tmp_path):
+def test_file_units_that_agree_or_are_unknown(tmp_path, caplog):
     signals = raw_signals()
-    signals["MotPos_Speed"] = (*signals["MotPos_Speed"][:2], "UpM")
-    raw = write_mdf(tmp_path / "odd_unit.mf4", signals)
-    frame = ingest_log(raw, INGEST)  # the map says rpm
+    signals["MotPos_Angle"] = (*signals["MotPos_Angle"][:2], "degree")  # = deg
+    signals["MotCur_IPhA"] = (*signals["MotCur_IPhA"][:2], "ampere")    # = A
+    signals["MotPos_Speed"] = (*signals["MotPos_Speed"][:2], "UpM")     # unknown: the config's rpm is used
+    raw = write_mdf(tmp_path / "odd_units.mf4", signals)
+    with caplog.at_level(logging.WARNING):
+        frame = ingest_log(raw, CONFIG)
+    assert "unit 'UpM' from the file is unknown; using 'rpm' from config.signals.speed.unit" in caplog.text
     t_abs = frame["time_s"].to_numpy() + 0.0005
-    np.testing.assert_allclose(frame["omega_rad_s"], omega_rad_s(t_abs), atol=0.05)
+    np.testing.assert_allclose(frame["speed"], omega_rad_s(t_abs), atol=0.05)
+    np.testing.assert_allclose(frame["angle"], theta_rad(t_abs), atol=2 * math.pi / COUNTS_PER_REV)
+
+
+def test_gain_offset_and_wrap_in_the_raw_unit(tmp_path):
+    signals = raw_signals()
+    time_s, values, _ = signals["MotPos_Angle"]
+    signals["MotPos_Angle"] = (time_s, np.mod(values, 360.0) / 2.0, "deg")  # single-turn, half scale
+    raw = write_mdf(tmp_path / "wrapped.mf4", signals)
+    config = case_config()
+    config["signals"]["angle"].update(gain=2.0, offset=0.0, wrap_period=180.0)
+    frame = ingest_log(raw, config)
+    t_abs = frame["time_s"].to_numpy() + 0.0005
+    np.testing.assert_allclose(frame["angle"], theta_rad(t_abs), atol=2 * math.pi / COUNTS_PER_REV)
 
 
 def test_nan_runs_up_to_the_limit_are_dropped(tmp_path):
     signals = raw_signals()
     signals["MotCur_IPhA"][1][300:303] = np.nan
     raw = write_mdf(tmp_path / "nan.mf4", signals)
-    config = dict(INGEST, max_nonfinite_samples=3)
-    frame = ingest_log(raw, config)
+    frame = ingest_log(raw, case_config(ingest={"max_nonfinite_samples": 3}))
     t_abs = frame["time_s"].to_numpy() + 0.0005
-    np.testing.assert_allclose(frame["i_a_a"], current_a(t_abs, 0.0), atol=1.0)
+    np.testing.assert_allclose(frame["i_a"], phase_currents_a(t_abs)[0], atol=1.0)
 
 
 @pytest.mark.parametrize("case", ["empty", "header only", "truncated", "garbage", "no channels"])
@@ -312,7 +364,7 @@ def test_empty_truncated_corrupt_mdf(case, mdf_path, tmp_path):
         expected = "file is empty"
     out = tmp_path / "out.parquet"
     with pytest.raises(DataError, match=expected) as info:
-        ingest_to_parquet(raw, out, INGEST)
+        ingest_to_parquet(raw, out, CONFIG)
     assert str(raw) in str(info.value)
     assert not out.exists()
 
@@ -342,7 +394,7 @@ def test_bad_csv_inputs(tmp_path):
         raw.write_text(text)
         out = tmp_path / f"{name}.parquet"
         with pytest.raises(DataError, match=message) as info:
-            ingest_to_parquet(raw, out, {**INGEST, "channels": {k: {"name": v["name"]} for k, v in CHANNELS.items()}})
+            ingest_to_parquet(raw, out, CONFIG)
         assert str(raw) in str(info.value), name
         assert not out.exists()
 
@@ -352,26 +404,12 @@ def test_corrupt_or_empty_parquet_and_unknown_format(tmp_path):
     broken = tmp_path / "broken.parquet"
     broken.write_bytes(good.read_bytes()[:-200])
     with pytest.raises(DataError, match="broken.parquet: cannot read the Parquet file"):
-        ingest_log(broken, INGEST)
+        ingest_log(broken, CONFIG)
     empty = tmp_path / "empty.parquet"
     pd.read_parquet(good).iloc[:0].to_parquet(empty, index=False)
     with pytest.raises(DataError, match="empty.parquet: the file is empty"):
-        ingest_log(empty, INGEST)
+        ingest_log(empty, CONFIG)
     other = tmp_path / "log.xlsx"
     other.write_bytes(b"PK")
     with pytest.raises(DataError, match=r"unknown log format '.xlsx'"):
-        ingest_log(other, INGEST)
-
-
-def test_channel_map_errors(mdf_path):
-    no_load = copy.deepcopy(INGEST)
-    del no_load["channels"]["pressure"]
-    with pytest.raises(DataError, match="needs `tau_load`"):
-        ingest_log(mdf_path, no_load)
-    no_factor = dict(INGEST, tau_load_nm_per_pa=None)
-    with pytest.raises(DataError, match="tau_load_nm_per_pa .* is required"):
-        ingest_log(mdf_path, no_factor)
-    bad_unit = copy.deepcopy(INGEST)
-    bad_unit["channels"]["duty_a"]["unit"] = "V"
-    with pytest.raises(DataError, match=r"channels.duty_a.unit: cannot convert unit 'V' to 1 \(ratio\)"):
-        ingest_log(mdf_path, bad_unit)
+        ingest_log(other, CONFIG)

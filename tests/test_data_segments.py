@@ -1,4 +1,4 @@
-"""Automatic segment selection: rest spans excluded, every brake application kept, the Fig. 8 plot."""
+"""Automatic segment selection from the case roles: rest spans excluded, every brake application kept, Fig. 8."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from hybridfmu.case import CaseRoles, Signal
 from hybridfmu.data.errors import DataError
 from hybridfmu.data.segments import (
     read_segments, select_segments, select_segments_to_files, span_mask, spans_from_mask,
@@ -46,11 +47,25 @@ def maneuver_frame(seed=0, scale=1.0, pulses=PULSES_S):
     return pd.DataFrame({
         "time_s": time_s,
         "duty_a": duties[0], "duty_b": duties[1], "duty_c": duties[2],
-        "u_dc_v": 12.0 + rng.normal(0, 0.02, time_s.size),
-        "tau_load_nm": scale * (tau_load + rng.normal(0, 0.0025, time_s.size)),
-        "theta_rad": theta + np.floor(rng.uniform(0, 1, time_s.size) * 2) * 2 * math.pi / 16384,
-        "omega_rad_s": scale * (omega + rng.normal(0, 0.5, time_s.size)),
+        "u_dc": 12.0 + rng.normal(0, 0.02, time_s.size) + 0.1 * np.sin(2 * math.pi * 90.0 * time_s),
+        "load_torque": scale * (tau_load + rng.normal(0, 0.0025, time_s.size)),
+        "angle": scale * (theta + np.floor(rng.uniform(0, 1, time_s.size) * 2) * 2 * math.pi / 16384),
+        "speed": scale * (omega + rng.normal(0, 0.5, time_s.size)),
     })
+
+
+def motor_roles() -> CaseRoles:
+    """Roles of the demo motor (FMU names arbitrary here: the selection only reads the signals)."""
+    units = {"duty_a": "", "duty_b": "", "duty_c": "", "u_dc": "V", "load_torque": "N*m", "angle": "rad",
+             "speed": "rad/s"}
+    signals = {name: Signal(name, unit, unit, name.replace("_", " "), channel=name) for name, unit in units.items()}
+    inputs = {"d_a": "duty_a", "d_b": "duty_b", "d_c": "duty_c", "u_dc": "u_dc", "tau_load": "load_torque"}
+    return CaseRoles(signals=signals, transforms=[], state_names=["theta", "omega", "i_q"],
+                     input_names=list(inputs), inputs=inputs, states={"theta": "angle", "omega": "speed"},
+                     target_weights={"theta": 0.5, "omega": 0.5})
+
+
+ROLES = motor_roles()
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +74,7 @@ def frame():
 
 
 def test_keeps_every_brake_application_and_drops_rest(frame):
-    selection = select_segments(frame, {})
+    selection = select_segments(frame, ROLES, {})
     time_s = frame["time_s"].to_numpy()
     kept = span_mask(time_s, selection.spans_s)
     for start, end in PULSES_S:
@@ -72,33 +87,45 @@ def test_keeps_every_brake_application_and_drops_rest(frame):
     assert not kept[(time_s > 3.5) & (time_s < 4.2)].any()
     assert 0.25 < selection.fraction_kept < 0.6
     assert selection.fraction_kept == pytest.approx(kept.mean(), abs=0.01)
-    for key in ("omega_rad_s", "accel_rad_s2", "load_rate_nm_s", "duty_activity", "merge_gap_s", "pad_s"):
+    for key in ("angle", "speed", "duty_a", "u_dc", "load_torque", "level_load_torque", "relative", "merge_gap_s",
+                "pad_s"):
         assert key in selection.thresholds
 
 
 def test_thresholds_follow_the_data_scale(frame):
     """Relative thresholds: the same data in other units gives the same spans."""
     scaled = maneuver_frame(scale=37.0)
-    reference = select_segments(frame, {"omega_floor_rad_s": 0.0, "accel_floor_rad_s2": 0.0,
-                                        "load_rate_floor_nm_s": 0.0, "duty_floor": 0.0})
-    other = select_segments(scaled, {"omega_floor_rad_s": 0.0, "accel_floor_rad_s2": 0.0,
-                                     "load_rate_floor_nm_s": 0.0, "duty_floor": 0.0})
-    assert other.thresholds["omega_rad_s"] == pytest.approx(37.0 * reference.thresholds["omega_rad_s"], rel=1e-9)
+    reference = select_segments(frame, ROLES, {})
+    other = select_segments(scaled, ROLES, {})
+    for name in ("speed", "angle", "load_torque", "level_load_torque"):
+        assert other.thresholds[name] == pytest.approx(37.0 * reference.thresholds[name], rel=1e-6), name
     np.testing.assert_allclose(other.spans_s, reference.spans_s, atol=2e-4)
 
 
 def test_pure_rest_selects_nothing():
     rest = maneuver_frame(pulses=[])
-    selection = select_segments(rest, {})
+    selection = select_segments(rest, ROLES, {})
     assert selection.spans_s == [] and selection.fraction_kept == 0.0
 
 
-def test_disabled_indicators(frame):
-    only_motion = select_segments(frame, {"accel_relative": None, "load_rate_relative": None,
-                                          "duty_relative": None})
-    assert only_motion.thresholds["duty_activity"] is None
-    everything = select_segments(frame, {})
+def test_held_load_is_kept_by_the_input_levels():
+    """A long hold under load (no motion, constant input): kept through the input's distance from rest."""
+    held = maneuver_frame(pulses=[(2.0, 9.0)])
+    time_s = held["time_s"].to_numpy()
+    middle = (time_s > 4.0) & (time_s < 7.0)
+    with_levels = select_segments(held, ROLES, {})
+    without = select_segments(held, ROLES, {"input_levels": False})
+    assert span_mask(time_s, with_levels.spans_s)[middle].all()
+    assert not span_mask(time_s, without.spans_s)[middle].any()
+
+
+def test_chosen_signals(frame):
+    only_motion = select_segments(frame, ROLES, {"signals": ["speed"]})
+    assert set(only_motion.thresholds) & set(ROLES.signals) == {"speed"}
+    everything = select_segments(frame, ROLES, {})
     assert only_motion.fraction_kept <= everything.fraction_kept + 1e-12
+    with pytest.raises(DataError, match=r"config\.segments\.signals: \['torque'\] are not signals of the case"):
+        select_segments(frame, ROLES, {"signals": ["torque"]})
 
 
 def test_spans_from_mask_merges_drops_and_pads():
@@ -120,7 +147,7 @@ def test_files_contract_and_plot(frame, tmp_path):
     data.parent.mkdir()
     frame.to_parquet(data, index=False)
     json_path, png_path = tmp_path / "segments" / "train.json", tmp_path / "segments" / "train.png"
-    selection = select_segments_to_files(data, json_path, png_path, "train", {})
+    selection = select_segments_to_files(data, json_path, png_path, "train", {"segments": {}}, ROLES)
     record = json.loads(json_path.read_text())
     assert set(record) == {"maneuver", "spans_s", "thresholds", "fraction_kept"}
     assert record["maneuver"] == "train"
@@ -137,9 +164,9 @@ def test_files_contract_and_plot(frame, tmp_path):
 
 def test_bad_inputs_name_the_file(frame, tmp_path):
     data = tmp_path / "data.parquet"
-    frame.drop(columns=["tau_load_nm"]).to_parquet(data, index=False)
-    with pytest.raises(DataError, match=r"data.parquet: .*columns \['tau_load_nm'\] missing"):
-        select_segments_to_files(data, tmp_path / "s.json", tmp_path / "s.png", "x", {})
+    frame.drop(columns=["load_torque"]).to_parquet(data, index=False)
+    with pytest.raises(DataError, match=r"data.parquet: .*columns \['load_torque'\] missing"):
+        select_segments_to_files(data, tmp_path / "s.json", tmp_path / "s.png", "x", {}, ROLES)
     assert not (tmp_path / "s.json").exists() and not (tmp_path / "s.png").exists()
     broken = tmp_path / "broken.json"
     broken.write_text('{"maneuver": "x", "spans_s": [[2, 1]], "thresholds": {}, "fraction_kept": 0}')

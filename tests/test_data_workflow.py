@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import copy
 import json
 import subprocess
 import sys
@@ -12,7 +11,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from test_data_ingest import INGEST, raw_signals, write_mdf
+from test_data_ingest import raw_signals, write_mdf
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -25,19 +24,22 @@ def test_ingest_and_select_segments_rules(tmp_path):
     case["results_dir"] = str(tmp_path / "results")
     case["maneuvers"] = {name: {"role": role, "raw": str(raw)}  # a case needs all three roles
                          for name, role in [("run1", "train"), ("run2", "validation"), ("run3", "test")]}
-    case["ingest"] = copy.deepcopy(INGEST)
+    case["maneuvers"]["run3"].update(t_start_s=0.5, t_end_s=1.5)  # a slice of the log
     case.pop("bench", None)  # a user's case: its own logs, no emulated bench
     config_path = tmp_path / "case.yaml"
     config_path.write_text(yaml.safe_dump(case))
     target = tmp_path / "results" / "datacase" / "segments" / "run1.json"
+    sliced = tmp_path / "results" / "datacase" / "data" / "run3.parquet"
     proc = subprocess.run(
-        [sys.executable, "-m", "snakemake", "-j1", str(target), "--configfile", str(config_path)],
+        [sys.executable, "-m", "snakemake", "-j1", str(target), str(sliced), "--configfile", str(config_path)],
         cwd=REPO, capture_output=True, text=True, timeout=300,
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     results = tmp_path / "results" / "datacase"
     frame = pd.read_parquet(results / "data" / "run1.parquet")
     assert frame["time_s"].iloc[0] == 0.0 and len(frame) > 19000
+    assert {"load_torque", "current_d", "current_q", "speed"} <= set(frame.columns)
+    assert pd.read_parquet(sliced)["time_s"].iloc[-1] == pytest.approx(1.0)
     record = json.loads(target.read_text())
     assert record["maneuver"] == "run1" and 0.0 < record["fraction_kept"] <= 1.0
     assert (results / "segments" / "run1.png").stat().st_size > 10_000

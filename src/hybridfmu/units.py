@@ -28,6 +28,12 @@ import pint
 #: The one registry of the package (quantities of different registries do not mix).
 UREG = pint.UnitRegistry(autoconvert_offset_to_baseunit=True)
 UREG.define("Ohm = ohm")  # the spelling of Modelica's SIunits
+if hasattr(UREG, "formatter"):  # keep the written order of factors ("N*m", not pint's sorted "m*N")
+    UREG.formatter.default_sort_func = None
+
+#: ECU spellings of revolutions per minute: pint reads "1/min" as 1/(60 s), and with radians
+#: dimensionless that is 1/(2 pi) rpm; a speed logged in "1/min" means rev/min.
+_RPM_SPELLINGS = {"1/min", "U/min", "u/min", "r/min", "rev/min", "min^-1", "min-1", "min**-1", "1/min."}
 
 _MODELICA_FACTOR = re.compile(r"(?<=[A-Za-z\)])\.(?=[A-Za-z\(])")
 _MODELICA_EXPONENT = re.compile(r"(?<=[A-Za-z])(-?\d+)(?![\d.])")
@@ -40,6 +46,8 @@ class UnitError(ValueError):
 def _pint_spelling(text: str) -> str:
     """Normalise a unit string: Modelica ``N.m``/``kg.m2``, ``·``, ``µ``, ``°`` -> pint's spelling."""
     spelled = text.strip()
+    if spelled.replace(" ", "") in _RPM_SPELLINGS:
+        return "rpm"
     spelled = spelled.replace("·", "*").replace("⋅", "*").replace("µ", "u").replace("μ", "u")
     spelled = spelled.replace("°C", "degC").replace("°F", "degF").replace("°", "deg")
     spelled = _MODELICA_FACTOR.sub("*", spelled)
@@ -66,7 +74,7 @@ def parse_unit(text: str) -> pint.Unit:
 
 
 def unit_string(unit: pint.Unit | str) -> str:
-    """Short canonical spelling of a unit (``"rad/s"``, ``"m*N"``, ``""`` for dimensionless)."""
+    """Short canonical spelling of a unit (``"rad/s"``, ``"N*m"``, ``""`` for dimensionless)."""
     unit = parse_unit(unit) if isinstance(unit, str) else unit
     return f"{unit:~C}" if unit != UREG.dimensionless else ""
 

@@ -1,7 +1,12 @@
-# Shared definitions for all rule files: validated config, case paths, default targets.
+# Shared definitions for all rule files: validated config, case roles, case paths, default targets.
+from hybridfmu.case import check_case
 from hybridfmu.config import validate_case_config
 
+CONFIG_FILE = str((workflow.config_settings.configfiles or ["config/config.yaml"])[-1])
 validate_case_config(config)
+# Roles against the FMU's interface and every unit, before any job runs: a ConfigError here names the
+# config file and the field (an FMU variable that does not exist, a unit of the wrong dimension ...).
+ROLES = check_case(config, CONFIG_FILE)
 
 CASE = config["case"]
 RESULTS = f"{config.get('results_dir', 'results')}/{CASE}"
@@ -14,3 +19,4 @@ def fmu_path():
     if config["fmu"]["source"] == "build":
         return f"{RESULTS}/fmu/{config['fmu']['model_name']}.fmu"
     return config["fmu"]["path"]
+

@@ -1,10 +1,20 @@
-# Raw logs -> canonical signals on the case's grid (rule ingest), and the spans of each maneuver
-# that carry information (rule select_segments, paper Fig. 8).
+# Raw logs -> the case's signals in their model units on the case's grid (rule ingest), and the spans
+# of each maneuver that carry information (rule select_segments, paper Fig. 8).
 
 
 def raw_log(wildcards):
     """The raw log of a maneuver, as the case config names it."""
     return config["maneuvers"][wildcards.maneuver]["raw"]
+
+
+def data_job_config(wildcards, *sections):
+    """The config a data job reads (a job reruns when it changes): the named sections, what locates the
+    FMU's interface (declared units), and only this maneuver's entry of config.maneuvers."""
+    return {
+        **{name: config[name] for name in ("case", *sections) if name in config},
+        "fmu": {key: config["fmu"].get(key) for key in ("source", "model_name", "path")},
+        "maneuvers": {wildcards.maneuver: config["maneuvers"][wildcards.maneuver]},
+    }
 
 
 rule ingest:
@@ -13,7 +23,7 @@ rule ingest:
     output:
         data=f"{RESULTS}/data/{{maneuver}}.parquet",
     params:
-        ingest=config.get("ingest", {}),
+        config=lambda wildcards: data_job_config(wildcards, "ingest", "signals", "transforms", "roles"),
     wildcard_constraints:
         maneuver="|".join(MANEUVERS),
     log:
@@ -31,7 +41,7 @@ rule select_segments:
         segments=f"{RESULTS}/segments/{{maneuver}}.json",
         plot=f"{RESULTS}/segments/{{maneuver}}.png",
     params:
-        segments=config.get("segments", {}),
+        config=lambda wildcards: data_job_config(wildcards, "segments", "signals", "transforms", "roles"),
     wildcard_constraints:
         maneuver="|".join(MANEUVERS),
     log:

@@ -1,7 +1,8 @@
-"""Rule ingest: one raw log -> canonical signals in SI units on the case's grid (Parquet)."""
+"""Rule ingest: one raw log -> the case's signals in their model units on the case's grid (Parquet)."""
 
 from hybridfmu.data.ingest import ingest_to_parquet
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
-ingest_to_parquet(snakemake.input.raw, snakemake.output.data, snakemake.params.ingest)
+ingest_to_parquet(snakemake.input.raw, snakemake.output.data, dict(snakemake.params.config),
+                  snakemake.wildcards.maneuver)

@@ -5,4 +5,4 @@ from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 select_segments_to_files(snakemake.input.data, snakemake.output.segments, snakemake.output.plot,
-                         snakemake.wildcards.maneuver, snakemake.params.segments)
+                         snakemake.wildcards.maneuver, dict(snakemake.params.config))

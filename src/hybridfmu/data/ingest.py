@@ -1,117 +1,172 @@
-"""Ingestion: a raw log -> canonical signals in SI units on the case's uniform grid -> Parquet.
+"""Ingestion: a raw log -> the case's signals in their model units on the case's uniform grid -> Parquet.
 
-Steps (config section ``ingest``):
-1. read the mapped channels (:mod:`hybridfmu.data.readers`), each with its own time base;
+The case config declares what is read (:func:`hybridfmu.case.case_roles`): every logged signal of
+``config.signals`` names a raw channel and its unit; ``config.maneuvers.<m>.channels`` may map a
+signal to another channel for one maneuver. Steps:
+
+1. read the channels (:mod:`hybridfmu.data.readers`), each with its own time base (table logs: the
+   time column ``config.ingest.time``, or sample k at ``k * config.ingest.sample_period_s``);
 2. check each channel: time stamps finite and strictly increasing, no run of more than
    ``max_nonfinite_samples`` NaN/inf samples (shorter runs are dropped), no gap longer than
-   ``max_gap_s`` between usable samples;
-3. convert to SI: unwrap (``wrap_period``), ``gain * raw + offset``, unit factor; the unit comes from
-   the file or, where the file has none, from the channel map; both must agree where both exist;
-4. resample onto ``rate_hz`` from the common start of all channels (``time_s`` starts at 0): held
-   (zero-order hold) for the signals listed in ``discrete``, linear for the others;
-5. derive what is not logged: ``tau_load_nm`` from ``pressure_pa`` with the static factor
-   ``tau_load_nm_per_pa`` (or ``tau_load_nm_per_bar``), ``omega_rad_s`` from ``theta_rad`` by a
-   Savitzky-Golay differentiator (``speed_from_angle``), a missing third phase current from
-   ``i_a + i_b + i_c = 0``.
+   ``max_gap_s`` between usable samples; a unit in the file must agree with the config's unit (an
+   unknown file unit is warned about and the config's unit used);
+3. in the raw unit: unwrap (``wrap_period``), ``gain * raw + offset``;
+4. slice the maneuver (``t_start_s``/``t_end_s``, relative to the log's first sample) and resample
+   onto ``rate_hz`` from the common start of all channels: zero-order hold or linear per signal;
+5. apply the transforms (:mod:`hybridfmu.data.transforms`) in natural units (the raw unit of a
+   logged signal, the unit a transform gives a derived one);
+6. convert every column to its model unit (``Signal.unit``; affine conversions allowed).
 
-Output columns (float64): ``time_s``, ``duty_a``, ``duty_b``, ``duty_c``, ``u_dc_v``, ``tau_load_nm``,
-``theta_rad``, ``omega_rad_s``, then ``i_a_a``, ``i_b_a``, ``i_c_a`` (if currents are mapped) and
-``pressure_pa`` (if pressure is mapped).
+Output: a DataFrame with ``time_s`` (from 0, step ``1 / rate_hz``) and one float64 column per signal
+of ``case_roles(config).signals`` (logged signals, then derived ones), each in its model unit.
 """
 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from hybridfmu.data.channels import (
-    CANONICAL_SIGNALS, PHASE_CURRENTS, SIGNALS_BY_NAME, ChannelSpec, channel_specs, pressure_to_torque_nm_per_pa,
-    time_spec,
-)
+from hybridfmu.case import CaseRoles, Signal, case_roles
 from hybridfmu.data.errors import DataError
 from hybridfmu.data.readers import MDF_SUFFIXES, RawChannel, read_channels
-from hybridfmu.data.resample import common_grid, linear, smoothing_derivative, zero_order_hold
+from hybridfmu.data.resample import common_grid, linear, zero_order_hold
 from hybridfmu.data.settings import section_settings
-from hybridfmu.data.units import UnitError, si_factor
+from hybridfmu.data.transforms import TransformError, apply_transforms
 from hybridfmu.io import write_parquet_atomic
+from hybridfmu.units import UnitError, converter, parse_unit
 
 LOG = logging.getLogger(__name__)
 
+#: Resampling functions by ``Signal.resample``: (time_s (n,), values (n,), grid_s (T,)) -> (T,).
+RESAMPLERS = {"hold": zero_order_hold, "linear": linear}
 
-def ingest_to_parquet(raw_path: str | Path, output_path: str | Path, ingest_config: dict[str, Any] | None) -> Path:
+
+@dataclass(frozen=True)
+class ManeuverSource:
+    """Where a maneuver's samples come from in its raw log.
+
+    Attributes:
+        channels: logged signal -> raw channel name (config.signals, with the maneuver's overrides).
+        t_start_s, t_end_s: slice of the log (s, relative to its first sample); None = unbounded.
+    """
+
+    channels: dict[str, str]
+    t_start_s: float | None = None
+    t_end_s: float | None = None
+
+
+def ingest_to_parquet(raw_path: str | Path, output_path: str | Path, config: dict[str, Any],
+                      maneuver: str | None = None) -> Path:
     """Ingest ``raw_path`` (see :func:`ingest_log`) and write the frame atomically to ``output_path``.
 
     Nothing is written when any check fails.
     """
-    frame = ingest_log(raw_path, ingest_config)
+    frame = ingest_log(raw_path, config, maneuver)
     write_parquet_atomic(output_path, frame)
     LOG.info("wrote %s: %d samples x %d columns (%.3f s)", output_path, len(frame), frame.shape[1],
              frame["time_s"].iloc[-1])
     return Path(output_path)
 
 
-def ingest_log(raw_path: str | Path, ingest_config: dict[str, Any] | None) -> pd.DataFrame:
-    """Read, check, convert and resample a raw log (steps in the module docstring).
+def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | None = None) -> pd.DataFrame:
+    """Read, check, resample, transform and convert a raw log (steps in the module docstring).
 
     Args:
-        raw_path: MDF4, CSV or Parquet log.
-        ingest_config: the case's ``ingest`` section (schema defaults are filled in here).
+        raw_path: MDF4 (``.mf4``/``.mdf``), CSV (``.csv``/``.txt``) or Parquet log.
+        config: the case config (sections ``fmu``, ``signals``, ``transforms``, ``roles``, ``ingest``
+            and, for ``maneuver``, ``maneuvers``); schema defaults of ``ingest`` are filled in here.
+        maneuver: name of the maneuver in ``config.maneuvers`` (its channel overrides and slice), or
+            None for the log as a whole.
 
     Returns:
-        DataFrame (T rows) of the canonical float64 columns, ``time_s`` from 0 with step 1/rate_hz.
+        DataFrame of T rows: ``time_s`` (s, from 0, step ``1 / rate_hz``), then one float64 column per
+        signal of ``case_roles(config).signals``, each in its model unit ``Signal.unit``.
 
     Raises:
-        DataError: naming the file, the channel and what was expected.
+        DataError: naming the file, the channel (and signal) and what was expected.
+        ConfigError: the config's roles or units are inconsistent (naming the field).
     """
     raw_path = Path(raw_path)
-    settings = section_settings(ingest_config, "ingest")
-    specs = channel_specs(settings)
+    settings = section_settings(config.get("ingest"), "ingest")
+    roles = case_roles(config)
+    source = maneuver_source(config, roles, maneuver)
     rate_hz = float(settings["rate_hz"])
-    tspec = time_spec(settings)
-    raw = read_channels(raw_path, [spec.name for spec in specs.values()], time_column=tspec.name,
-                        csv_delimiter=settings["csv"]["delimiter"], csv_decimal=settings["csv"]["decimal"])
+    logged = {name: signal for name, signal in roles.signals.items() if not signal.derived}
+
+    raw = read_channels(raw_path, sorted(set(source.channels.values())), time_column=settings["time"]["channel"],
+                        csv_delimiter=settings["csv"]["delimiter"], csv_decimal=settings["csv"]["decimal"],
+                        sample_period_s=settings["sample_period_s"])
+    time_factor = {name: _time_factor(raw_path, settings, channel) for name, channel in raw.items()}
+    log_start_s = min(float(channel.time_s[0]) * time_factor[name] for name, channel in raw.items()
+                      if len(channel.time_s))
+    start_s = None if source.t_start_s is None else log_start_s + source.t_start_s
+    end_s = None if source.t_end_s is None else log_start_s + source.t_end_s
 
     clean: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for signal, spec in specs.items():
-        channel = raw[spec.name]
-        time_s, values = checked_samples(raw_path, channel, signal, _time_factor(raw_path, tspec, channel),
-                                         float(settings["max_gap_s"]), int(settings["max_nonfinite_samples"]))
-        clean[signal] = (time_s, to_si(raw_path, spec, channel.unit, values))
-        LOG.info("%s: %s -> %s: %d samples, %.4g Hz mean rate, unit %s", raw_path.name, spec.name, signal,
-                 len(time_s), (len(time_s) - 1) / max(time_s[-1] - time_s[0], 1e-12),
-                 channel.unit or spec.unit)
+    for name, signal in logged.items():
+        channel = raw[source.channels[name]]
+        time_s, values = checked_samples(raw_path, channel, name, time_factor[channel.name],
+                                         float(settings["max_gap_s"]), int(settings["max_nonfinite_samples"]),
+                                         start_s, end_s)
+        check_file_unit(raw_path, channel, signal)
+        clean[name] = (time_s, raw_to_natural(signal, values))
+        LOG.info("%s: %s -> %s: %d samples, %.4g Hz mean rate, unit %s", raw_path.name, channel.name, name,
+                 len(time_s), (len(time_s) - 1) / max(time_s[-1] - time_s[0], 1e-12), signal.natural_unit)
 
     try:
-        grid_s = common_grid({specs[signal].name: time for signal, (time, _) in clean.items()}, rate_hz)
+        grid_s = common_grid({source.channels[name]: time for name, (time, _) in clean.items()}, rate_hz,
+                             start_s, end_s)
     except ValueError as err:
         raise DataError(f"{raw_path}: {err}") from None
     _log_trimmed(raw_path, clean, grid_s)
-    discrete = set(settings["discrete"])
-    columns: dict[str, np.ndarray] = {}
-    for signal, (time_s, values) in clean.items():
-        resample = zero_order_hold if signal in discrete else linear
-        columns[SIGNALS_BY_NAME[signal].column] = resample(time_s, values, grid_s)
-    _derive_missing(columns, specs, settings, rate_hz)
-
-    frame = pd.DataFrame({"time_s": grid_s - grid_s[0]})
-    for signal in CANONICAL_SIGNALS:
-        if signal.column in columns:
-            frame[signal.column] = np.asarray(columns[signal.column], dtype=np.float64)
-    bad = [column for column in frame.columns if not np.isfinite(frame[column].to_numpy()).all()]
-    if bad:
-        raise DataError(f"{raw_path}: columns {bad} hold NaN/inf after resampling; expected finite values")
+    columns = {name: RESAMPLERS[logged[name].resample](time_s, values, grid_s)
+               for name, (time_s, values) in clean.items()}
+    columns = derive_signals(raw_path, roles, columns, rate_hz)
+    frame = model_frame(raw_path, roles, grid_s - grid_s[0], columns)
     LOG.info("%s: %d samples at %.6g Hz over %.4g s, columns %s", raw_path.name, len(frame), rate_hz,
              frame["time_s"].iloc[-1], list(frame.columns))
     return frame
 
 
+def maneuver_source(config: dict[str, Any], roles: CaseRoles, maneuver: str | None) -> ManeuverSource:
+    """The raw channel of every logged signal and the slice of the log for ``maneuver``.
+
+    Raises:
+        DataError: an unknown maneuver, an override for a signal that is not logged, or a slice whose
+            end is not after its start (naming the ``config.maneuvers`` field).
+    """
+    channels = {name: signal.channel for name, signal in roles.signals.items() if not signal.derived}
+    if maneuver is None:
+        return ManeuverSource(channels)
+    maneuvers = config.get("maneuvers") or {}
+    if maneuver not in maneuvers:
+        raise DataError(f"config.maneuvers: no maneuver {maneuver!r}; expected one of {sorted(maneuvers)}")
+    entry = maneuvers[maneuver] or {}
+    for name, channel in (entry.get("channels") or {}).items():
+        if name not in channels:
+            raise DataError(f"config.maneuvers.{maneuver}.channels.{name}: not a logged signal; expected one of "
+                            f"config.signals {sorted(channels)}")
+        channels[name] = str(channel)
+    t_start_s, t_end_s = entry.get("t_start_s"), entry.get("t_end_s")
+    if t_start_s is not None and t_end_s is not None and not float(t_end_s) > float(t_start_s):
+        raise DataError(f"config.maneuvers.{maneuver}: t_end_s = {t_end_s} is not after t_start_s = {t_start_s}; "
+                        "expected a slice of positive length")
+    return ManeuverSource(channels, None if t_start_s is None else float(t_start_s),
+                          None if t_end_s is None else float(t_end_s))
+
+
 def checked_samples(path: Path, channel: RawChannel, signal: str, time_factor: float, max_gap_s: float,
-                    max_nonfinite_samples: int) -> tuple[np.ndarray, np.ndarray]:
+                    max_nonfinite_samples: int, start_s: float | None = None,
+                    end_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Check one channel's time base and samples; return (time_s (n,), values (n,)) without NaN/inf.
+
+    The time stamps are checked over the whole channel; the samples (NaN runs, gaps) only inside
+    ``start_s..end_s`` (absolute s, plus the sample just outside either bound, which interpolation needs).
 
     Raises:
         DataError: naming file and channel for too few samples, non-finite / duplicated / decreasing
@@ -120,17 +175,11 @@ def checked_samples(path: Path, channel: RawChannel, signal: str, time_factor: f
     where = f"{path}: channel {channel.name} ({signal})"
     time_s = np.asarray(channel.time_s, dtype=np.float64) * time_factor
     values = np.asarray(channel.values, dtype=np.float64)
+    _check_time_stamps(where, time_s)
+    time_s, values = _slice(time_s, values, start_s, end_s)
     if len(time_s) < 2:
-        raise DataError(f"{where}: {len(time_s)} sample(s); expected a time series (at least 2 samples)")
-    if not np.isfinite(time_s).all():
-        index = int(np.flatnonzero(~np.isfinite(time_s))[0])
-        raise DataError(f"{where}: time stamp {index} is {time_s[index]}; expected finite time stamps")
-    steps = np.diff(time_s)
-    if (steps <= 0).any():
-        index = int(np.flatnonzero(steps <= 0)[0])
-        kind = "duplicated" if steps[index] == 0 else "decreasing"
-        raise DataError(f"{where}: time stamps not strictly increasing ({kind}) at sample {index + 1}: "
-                        f"{time_s[index]:.9g} s -> {time_s[index + 1]:.9g} s; expected increasing time stamps")
+        raise DataError(f"{where}: {len(time_s)} sample(s) in the slice {start_s}..{end_s} s; expected a time "
+                        "series (check config.maneuvers.<maneuver>.t_start_s/t_end_s)")
     finite = np.isfinite(values)
     if not finite.all():
         start, length = _longest_run(~finite)
@@ -149,65 +198,130 @@ def checked_samples(path: Path, channel: RawChannel, signal: str, time_factor: f
     return time_s, values
 
 
-def to_si(path: Path, spec: ChannelSpec, file_unit: str | None, values: np.ndarray) -> np.ndarray:
-    """Unwrap, apply gain/offset and convert ``values`` (raw unit) to SI; (n,) -> (n,).
+def check_file_unit(path: Path, channel: RawChannel, signal: Signal) -> None:
+    """Check that the unit the file gives a channel (if any) is the config's unit of the signal.
+
+    Units agree when they convert with factor 1 and offset 0 (``N.m`` = ``N*m``, ``1/min`` = ``rpm``).
+    A file unit pint does not know is warned about; the config's unit is used.
 
     Raises:
-        DataError: no unit known, a unit that cannot be converted to the signal's dimension, or a file
-            unit that disagrees with the channel map's unit.
+        DataError: naming file, channel and ``config.signals.<signal>.unit`` when the units differ.
     """
-    factor = unit_factor(path, spec, file_unit)
-    if spec.wrap_period is not None:
-        values = np.unwrap(values, period=float(spec.wrap_period))
-    return (spec.gain * values + spec.offset) * factor
+    file_unit = (channel.unit or "").strip()
+    if not file_unit:
+        return
+    where = f"{path}: channel {channel.name} ({signal.name})"
+    if not _known_unit(file_unit):
+        LOG.warning("%s: unit %r from the file is unknown; using %r from config.signals.%s.unit", where,
+                    file_unit, signal.natural_unit, signal.name)
+        return
+    try:
+        factor, offset = converter(file_unit, signal.natural_unit)
+    except UnitError as err:
+        raise DataError(f"{where}: the file says unit {file_unit!r} but config.signals.{signal.name}.unit says "
+                        f"{signal.natural_unit!r} ({err}); expected the same unit") from None
+    if not (np.isclose(factor, 1.0, rtol=1e-9, atol=0.0) and abs(offset) <= 1e-9):
+        raise DataError(f"{where}: the file says unit {file_unit!r} but config.signals.{signal.name}.unit says "
+                        f"{signal.natural_unit!r} (1 {file_unit} = {factor:.6g} {signal.natural_unit}"
+                        f"{f' + {offset:.6g}' if offset else ''}); expected the same unit (fix the config's unit)")
 
 
-def unit_factor(path: Path, spec: ChannelSpec, file_unit: str | None) -> float:
-    """SI factor of a channel's unit: the file's, or the channel map's where the file has none."""
-    where = f"{path}: channel {spec.name} ({spec.signal})"
-    file_unit = file_unit.strip() if file_unit and file_unit.strip() else None
-    if file_unit is None and spec.unit is None:
-        raise DataError(f"{where}: no unit in the file and none in config.ingest.channels.{spec.signal}.unit; "
-                        f"expected a unit of {spec.dimension}")
-    file_factor = map_factor = None
-    if file_unit is not None:
-        try:
-            file_factor = si_factor(file_unit, spec.dimension)
-        except UnitError as err:
-            if spec.unit is None:
-                raise DataError(f"{where}: {err}") from None
-            LOG.warning("%s: unit %r from the file is unknown; using %r from the channel map", where, file_unit,
-                        spec.unit)
-    if spec.unit is not None:
-        try:
-            map_factor = si_factor(spec.unit, spec.dimension)
-        except UnitError as err:
-            raise DataError(f"{where}: config.ingest.channels.{spec.signal}.unit: {err}") from None
-    if file_factor is not None and map_factor is not None and not np.isclose(file_factor, map_factor, rtol=1e-12):
-        raise DataError(f"{where}: the file says unit {file_unit!r} but config.ingest.channels.{spec.signal}.unit "
-                        f"says {spec.unit!r}; expected the same unit (fix or remove the unit in the channel map)")
-    return file_factor if file_factor is not None else map_factor
+def raw_to_natural(signal: Signal, values: np.ndarray) -> np.ndarray:
+    """Unwrap (``wrap_period``) and apply ``gain * raw + offset``, all in the raw unit; (n,) -> (n,)."""
+    if signal.wrap_period is not None:
+        values = np.unwrap(values, period=float(signal.wrap_period))
+    return signal.gain * values + signal.offset
 
 
-def _time_factor(path: Path, tspec: ChannelSpec, channel: RawChannel) -> float:
-    """SI factor of a channel's time stamps: seconds in MDF4; the time column's unit in tables."""
-    if path.suffix.lower() in MDF_SUFFIXES:
+def derive_signals(path: Path, roles: CaseRoles, columns: dict[str, np.ndarray],
+                   rate_hz: float) -> dict[str, np.ndarray]:
+    """Add the transforms' outputs to ``columns`` (each (T,), natural units) and return it.
+
+    Raises:
+        DataError: a transform fails on the data (naming the file and the transform).
+    """
+    natural = {name: signal.natural_unit for name, signal in roles.signals.items()}
+    try:
+        return apply_transforms(roles.transforms, columns, natural, rate_hz)
+    except (TransformError, UnitError, ValueError) as err:
+        raise DataError(f"{path}: config.transforms: {err}") from None
+
+
+def model_frame(path: Path, roles: CaseRoles, time_s: np.ndarray, columns: dict[str, np.ndarray]) -> pd.DataFrame:
+    """The output frame: ``time_s`` (T,) then every signal converted from its natural to its model unit.
+
+    Raises:
+        DataError: a column holds NaN/inf after resampling and transforms (naming file and columns).
+    """
+    frame = {"time_s": np.asarray(time_s, dtype=np.float64)}
+    for name, signal in roles.signals.items():
+        factor, offset = converter(signal.natural_unit, signal.unit)
+        frame[name] = factor * np.asarray(columns[name], dtype=np.float64) + offset
+    bad = [name for name, values in frame.items() if not np.isfinite(values).all()]
+    if bad:
+        raise DataError(f"{path}: columns {bad} hold NaN/inf after resampling and transforms; expected finite "
+                        "values")
+    return pd.DataFrame(frame)
+
+
+def _time_factor(path: Path, settings: dict[str, Any], channel: RawChannel) -> float:
+    """Factor to seconds of a channel's time stamps: 1 for MDF4 and ``sample_period_s``; else the time unit.
+
+    The time column's unit comes from the file where it has one (checked against ``config.ingest.time.unit``),
+    else from the config.
+    """
+    if path.suffix.lower() in MDF_SUFFIXES or settings["sample_period_s"] is not None:
         return 1.0
-    return unit_factor(path, tspec, channel.time_unit)
+    time_cfg = settings["time"]
+    config_unit = time_cfg["unit"]
+    where = f"{path}: time column {time_cfg['channel']}"
+    try:
+        factor, offset = converter(config_unit, "s")
+    except UnitError as err:
+        raise DataError(f"config.ingest.time.unit: {err}; expected a unit of time") from None
+    file_unit = (channel.time_unit or "").strip()
+    if file_unit and not _known_unit(file_unit):
+        LOG.warning("%s: unit %r from the file is unknown; using %r from config.ingest.time.unit", where,
+                    file_unit, config_unit)
+    elif file_unit:
+        try:
+            file_factor, _ = converter(file_unit, "s")
+        except UnitError as err:
+            raise DataError(f"{where}: unit {file_unit!r} from the file: {err}; expected a unit of time") from None
+        if not np.isclose(file_factor, factor, rtol=1e-9):
+            raise DataError(f"{where}: the file says unit {file_unit!r} but config.ingest.time.unit says "
+                            f"{config_unit!r}; expected the same unit")
+    return factor
 
 
-def _derive_missing(columns: dict[str, np.ndarray], specs: dict[str, ChannelSpec], settings: dict[str, Any],
-                    rate_hz: float) -> None:
-    if "tau_load" not in specs:
-        columns["tau_load_nm"] = pressure_to_torque_nm_per_pa(settings) * columns["pressure_pa"]
-    if "speed" not in specs:
-        options = settings["speed_from_angle"]
-        columns["omega_rad_s"] = smoothing_derivative(columns["theta_rad"], rate_hz, float(options["window_s"]),
-                                                      int(options["polyorder"]))
-    present = [signal for signal in PHASE_CURRENTS if signal in specs]
-    if len(present) == 2:
-        missing = next(signal for signal in PHASE_CURRENTS if signal not in specs)
-        columns[SIGNALS_BY_NAME[missing].column] = -sum(columns[SIGNALS_BY_NAME[s].column] for s in present)
+def _known_unit(text: str) -> bool:
+    try:
+        parse_unit(text)
+    except UnitError:
+        return False
+    return True
+
+
+def _check_time_stamps(where: str, time_s: np.ndarray) -> None:
+    if len(time_s) < 2:
+        raise DataError(f"{where}: {len(time_s)} sample(s); expected a time series (at least 2 samples)")
+    if not np.isfinite(time_s).all():
+        index = int(np.flatnonzero(~np.isfinite(time_s))[0])
+        raise DataError(f"{where}: time stamp {index} is {time_s[index]}; expected finite time stamps")
+    steps = np.diff(time_s)
+    if (steps <= 0).any():
+        index = int(np.flatnonzero(steps <= 0)[0])
+        kind = "duplicated" if steps[index] == 0 else "decreasing"
+        raise DataError(f"{where}: time stamps not strictly increasing ({kind}) at sample {index + 1}: "
+                        f"{time_s[index]:.9g} s -> {time_s[index + 1]:.9g} s; expected increasing time stamps")
+
+
+def _slice(time_s: np.ndarray, values: np.ndarray, start_s: float | None,
+           end_s: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """Samples inside ``start_s..end_s`` plus the one just outside each bound; (n,), (n,) -> (m,), (m,)."""
+    first = 0 if start_s is None else max(int(np.searchsorted(time_s, start_s, side="right")) - 1, 0)
+    last = len(time_s) if end_s is None else int(np.searchsorted(time_s, end_s, side="left")) + 1
+    return time_s[first:last], values[first:last]
 
 
 def _longest_run(mask: np.ndarray) -> tuple[int, int]:
@@ -223,5 +337,5 @@ def _log_trimmed(path: Path, clean: dict[str, tuple[np.ndarray, np.ndarray]], gr
     first = min(time[0] for time, _ in clean.values())
     last = max(time[-1] for time, _ in clean.values())
     if grid_s[0] - first > 0 or last - grid_s[-1] > 0:
-        LOG.info("%s: common span %.6g..%.6g s of the channels' %.6g..%.6g s is used", path.name, grid_s[0],
+        LOG.info("%s: span %.6g..%.6g s of the channels' %.6g..%.6g s is used", path.name, grid_s[0],
                  grid_s[-1], first, last)

@@ -4,7 +4,8 @@ Each reader returns the requested channels as :class:`RawChannel` (own time base
 from the file if it has one). Nothing is resampled or converted here. Format by file suffix:
 ``.mf4``/``.mdf`` (MDF4; every channel has its own time base and rate), ``.csv``/``.txt`` (a time
 column and channel columns; units from a second header row or ``name [unit]`` headers), ``.parquet``/
-``.pq`` (same layout as CSV; units from ``name [unit]`` column names or the channel map).
+``.pq`` (same layout as CSV; units from ``name [unit]`` column names, else the config's). Table logs
+without a time column give ``sample_period_s``: sample k is then at ``k * sample_period_s``.
 
 Every failure raises :class:`~hybridfmu.data.errors.DataError` naming the file, and the channel where
 one is concerned: an empty file, a truncated or corrupt file, a missing channel (with the list of
@@ -53,7 +54,8 @@ class RawChannel:
 
 
 def read_channels(path: str | Path, names: list[str], time_column: str = "time",
-                  csv_delimiter: str = ",", csv_decimal: str = ".") -> dict[str, RawChannel]:
+                  csv_delimiter: str = ",", csv_decimal: str = ".",
+                  sample_period_s: float | None = None) -> dict[str, RawChannel]:
     """Read channels ``names`` from a raw log; return ``{name: RawChannel}``.
 
     Args:
@@ -61,6 +63,8 @@ def read_channels(path: str | Path, names: list[str], time_column: str = "time",
         names: raw channel names to read.
         time_column: time column of CSV/Parquet logs (ignored for MDF4).
         csv_delimiter, csv_decimal: CSV field separator and decimal mark.
+        sample_period_s: table logs without a time column: sample k is at ``k * sample_period_s`` (s);
+            ``time_column`` is then ignored. MDF4 channels always keep their own time bases.
 
     Raises:
         DataError: naming the file (and channel) for a missing, empty, truncated or corrupt file,
@@ -75,9 +79,9 @@ def read_channels(path: str | Path, names: list[str], time_column: str = "time",
     if suffix in MDF_SUFFIXES:
         return read_mdf(path, names)
     if suffix in CSV_SUFFIXES:
-        return read_csv(path, names, time_column, csv_delimiter, csv_decimal)
+        return read_csv(path, names, time_column, csv_delimiter, csv_decimal, sample_period_s)
     if suffix in PARQUET_SUFFIXES:
-        return read_parquet(path, names, time_column)
+        return read_parquet(path, names, time_column, sample_period_s)
     raise DataError(f"{path}: unknown log format {path.suffix!r}; expected one of "
                     f"{list(MDF_SUFFIXES + CSV_SUFFIXES + PARQUET_SUFFIXES)}")
 
@@ -121,12 +125,12 @@ def read_mdf(path: Path, names: list[str]) -> dict[str, RawChannel]:
 
 
 def read_csv(path: Path, names: list[str], time_column: str = "time", delimiter: str = ",",
-             decimal: str = ".") -> dict[str, RawChannel]:
+             decimal: str = ".", sample_period_s: float | None = None) -> dict[str, RawChannel]:
     """Read channels from a CSV table (see :func:`read_channels`).
 
     Layout: a header row of column names, optionally a second row of units (recognised when the
-    time column's entry there is not a number), then one row per time stamp. Headers of the form
-    ``name [unit]`` also give the unit.
+    time column's entry there is not a number; without a time column, when no entry is a number),
+    then one row per sample. Headers of the form ``name [unit]`` also give the unit.
     """
     import pandas as pd
 
@@ -140,10 +144,14 @@ def read_csv(path: Path, names: list[str], time_column: str = "time", delimiter:
     if not lines[0].strip() or not lines[1].strip():
         raise DataError(f"{path}: the file is empty (no data rows); expected a header row and samples")
     names_in_file, header_units = _split_header(header)
-    if time_column not in names_in_file:
-        raise DataError(f"{path}: time column {time_column!r} not found; the file has columns {names_in_file}")
+    if sample_period_s is None:
+        _require_time_column(path, time_column, names_in_file)
     second = [field.strip().strip('"') for field in lines[1].rstrip("\r\n").split(delimiter)]
-    units_row = len(second) == len(header) and not _is_number(second[names_in_file.index(time_column)], decimal)
+    if sample_period_s is None:
+        units_row = len(second) == len(header) and not _is_number(second[names_in_file.index(time_column)], decimal)
+    else:
+        units_row = (len(second) == len(header) and any(second)
+                     and not any(_is_number(field, decimal) for field in second))
     if units_row:
         header_units = [unit or from_row or None for unit, from_row in zip(header_units, second)]
     if len(last_line.split(delimiter)) < len(header):
@@ -157,10 +165,11 @@ def read_csv(path: Path, names: list[str], time_column: str = "time", delimiter:
     if frame.empty:
         raise DataError(f"{path}: the file is empty (no data rows); expected samples below the header")
     units = dict(zip(names_in_file, header_units))
-    return _table_channels(path, frame, names, time_column, units, decimal)
+    return _table_channels(path, frame, names, time_column, units, decimal, sample_period_s)
 
 
-def read_parquet(path: Path, names: list[str], time_column: str = "time") -> dict[str, RawChannel]:
+def read_parquet(path: Path, names: list[str], time_column: str = "time",
+                 sample_period_s: float | None = None) -> dict[str, RawChannel]:
     """Read channels from a Parquet table (see :func:`read_channels`)."""
     import pandas as pd
 
@@ -172,18 +181,31 @@ def read_parquet(path: Path, names: list[str], time_column: str = "time") -> dic
     frame.columns = names_in_file
     if frame.empty or not names_in_file:
         raise DataError(f"{path}: the file is empty (no rows); expected samples")
+    if sample_period_s is None:
+        _require_time_column(path, time_column, names_in_file)
+    return _table_channels(path, frame, names, time_column, dict(zip(names_in_file, header_units)), ".",
+                           sample_period_s)
+
+
+def _require_time_column(path: Path, time_column: str, names_in_file: list[str]) -> None:
     if time_column not in names_in_file:
-        raise DataError(f"{path}: time column {time_column!r} not found; the file has columns {names_in_file}")
-    return _table_channels(path, frame, names, time_column, dict(zip(names_in_file, header_units)), ".")
+        raise DataError(f"{path}: time column {time_column!r} not found; the file has columns {names_in_file} "
+                        "(set config.ingest.time.channel, or config.ingest.sample_period_s for logs without "
+                        "a time column)")
 
 
 def _table_channels(path: Path, frame, names: list[str], time_column: str, units: dict[str, str | None],
-                    decimal: str) -> dict[str, RawChannel]:
-    available = [column for column in frame.columns if column != time_column]
-    _require(path, names, available)
-    time_s = _column_values(path, frame, time_column, decimal)
+                    decimal: str, sample_period_s: float | None = None) -> dict[str, RawChannel]:
+    """Channels of a table: one shared time base, from the time column or ``k * sample_period_s``."""
+    if sample_period_s is None:
+        available = [column for column in frame.columns if column != time_column]
+        _require(path, names, available)
+        time_s, time_unit = _column_values(path, frame, time_column, decimal), units.get(time_column)
+    else:
+        _require(path, names, list(frame.columns))
+        time_s, time_unit = np.arange(len(frame), dtype=np.float64) * float(sample_period_s), "s"
     return {name: RawChannel(name, time_s, _column_values(path, frame, name, decimal), units.get(name),
-                             units.get(time_column)) for name in names}
+                             time_unit) for name in names}
 
 
 def _column_values(path: Path, frame, column: str, decimal: str) -> np.ndarray:

@@ -1,21 +1,32 @@
 """Automatic segment selection: the spans of a maneuver that carry information (paper Sec. 2.3, Fig. 8).
 
-Measured maneuvers spend much of their time at rest (before and after the actual test). A sample is
-*active* when any of these indicators exceeds its threshold (all computed on the ingested frame,
-smoothed by a Savitzky-Golay filter over ``smooth_s``):
+Measured maneuvers spend much of their time at rest (before and after the actual test). What moves
+is read from the case's roles, never from a particular machine: one *indicator* per signal of a
+measured state and per signal of an FMU input (each signal once), the smoothed absolute rate of
+change of the signal::
 
-- motion: ``|omega|`` (rad/s);
-- acceleration: ``|d omega / dt|`` (rad/s^2);
-- load change: ``|d tau_load / dt|`` (N·m/s);
-- duty activity: the magnitude of the differential duties ``|d - mean(d)|`` (a voltage vector is
-  applied: the motor is driven or holds a load).
+    rate(t)      = d signal / dt        (Savitzky-Golay differentiator over smooth_s, degree 2,
+                                         the signal mirrored at its ends)
+    indicator(t) = mean of |rate| over a centred window of smooth_s
 
-Each threshold is relative to the indicator's own spread, so the same settings work on another
-case's data: ``threshold = max(floor, low + relative * (high - low))`` with ``low`` and ``high`` the
-indicator's quantiles ``rest_quantile`` (the level at rest) and ``spread_quantile`` (robust to single
-spikes); the floors keep pure sensor noise out. ``relative: null`` disables an indicator. Active runs closer than ``merge_gap_s`` are merged, runs
-shorter than ``min_span_s`` dropped, the rest padded by ``pad_s`` on both sides (clipped to the
-maneuver) and overlaps merged again.
+A sample is *active* when any indicator exceeds its threshold
+
+    threshold = max(noise_floor * noise, low + relative * (high - low))
+
+with ``low`` and ``high`` the indicator's quantiles ``rest_quantile`` (its level at rest) and
+``spread_quantile`` (its spread, robust to single spikes), and ``noise`` the larger of ``low`` and the
+level pure white sensor noise gives the indicator (the robust standard deviation of the signal's
+sample-to-sample differences, through the same filters). Both parts are relative to the signal's
+own data, so the same settings work in any unit and on any case. Active runs closer than
+``merge_gap_s`` are merged, runs shorter than ``min_span_s`` dropped, the rest padded by ``pad_s``
+on both sides (clipped to the maneuver) and overlaps merged again.
+
+API::
+
+    indicator_signals(frame, signals, smooth_s) -> {signal: (T,)}
+    select_segments(frame, roles, segments_config) -> SegmentSelection
+    select_segments_to_files(data_path, json_path, png_path, maneuver, config, roles=None) -> SegmentSelection
+    read_segments(path) -> record;  span_mask(time_s, spans_s) -> (T,) bool
 """
 
 from __future__ import annotations
@@ -23,25 +34,22 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
 
+from hybridfmu.case import CaseRoles
 from hybridfmu.data.errors import DataError
-from hybridfmu.data.resample import smooth, smoothing_derivative
+from hybridfmu.data.resample import savgol_window, smoothing_derivative
 from hybridfmu.data.settings import section_settings
 
 LOG = logging.getLogger(__name__)
 
-#: Indicator name -> (config key of its relative threshold, config key of its floor, unit).
-INDICATORS: dict[str, tuple[str, str, str]] = {
-    "omega_rad_s": ("omega_relative", "omega_floor_rad_s", "rad/s"),
-    "accel_rad_s2": ("accel_relative", "accel_floor_rad_s2", "rad/s^2"),
-    "load_rate_nm_s": ("load_rate_relative", "load_rate_floor_nm_s", "N·m/s"),
-    "duty_activity": ("duty_relative", "duty_floor", "1"),
-}
-REQUIRED_COLUMNS = ("time_s", "omega_rad_s", "tau_load_nm", "duty_a", "duty_b", "duty_c")
+#: Settings copied into the record's ``thresholds`` (beside the per-signal thresholds).
+RECORDED_SETTINGS = ("rest_quantile", "spread_quantile", "smooth_s", "relative", "noise_floor", "input_levels",
+                     "merge_gap_s", "min_span_s", "pad_s")
+MIN_SAMPLES = 5
 
 
 @dataclass
@@ -50,10 +58,12 @@ class SegmentSelection:
 
     Attributes:
         spans_s: [(t_start_s, t_end_s), ...] sorted, non-overlapping, in ``time_s`` of the frame.
-        thresholds: indicator name -> absolute threshold used (None when disabled), plus the span settings.
+        thresholds: signal -> threshold of its indicator (the signal's model unit per second), plus
+            the settings used (``RECORDED_SETTINGS``).
         fraction_kept: total span duration / maneuver duration.
         duration_s: maneuver duration (s).
         active: (T,) bool, samples where any indicator exceeded its threshold (before merging/padding).
+        indicators: signal -> (T,) indicator values (for the figure; not written to the record).
     """
 
     spans_s: list[tuple[float, float]]
@@ -61,27 +71,84 @@ class SegmentSelection:
     fraction_kept: float
     duration_s: float
     active: np.ndarray = field(repr=False)
+    indicators: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
 
-def indicator_signals(frame: pd.DataFrame, smooth_s: float) -> dict[str, np.ndarray]:
-    """The activity indicators of an ingested frame (module docstring); each (T,) non-negative."""
-    missing = [column for column in REQUIRED_COLUMNS if column not in frame.columns]
-    if missing:
-        raise DataError(f"ingested frame: columns {missing} missing; expected {list(REQUIRED_COLUMNS)}")
-    time_s = frame["time_s"].to_numpy(dtype=np.float64)
-    if len(time_s) < 5:
-        raise DataError(f"ingested frame: {len(time_s)} samples; expected a time series of at least 5 samples")
+def indicator_signals_of(roles: CaseRoles, settings: dict[str, Any]) -> list[str]:
+    """Signals with an indicator: ``settings["signals"]`` if given, else every measured-state signal then
+    every input signal (each once).
+
+    Raises:
+        DataError: a listed signal is not a signal of the case (names ``config.segments.signals``).
+    """
+    chosen = settings.get("signals")
+    if chosen:
+        unknown = [name for name in chosen if name not in roles.signals]
+        if unknown:
+            raise DataError(f"config.segments.signals: {unknown} are not signals of the case; expected some of "
+                            f"{list(roles.signals)}")
+        return list(dict.fromkeys(chosen))
+    return list(dict.fromkeys([*roles.states.values(), *roles.input_signals]))
+
+
+def indicator_signals(frame: pd.DataFrame, signals: Sequence[str], smooth_s: float) -> dict[str, np.ndarray]:
+    """The indicator of each signal (module docstring): ``{signal: (T,) >= 0}`` in the signal's unit per s.
+
+    Raises:
+        DataError: a column is missing, or the frame is too short or not uniformly sampled.
+    """
+    time_s = _time(frame)
     rate_hz = (len(time_s) - 1) / (time_s[-1] - time_s[0])
-    omega = frame["omega_rad_s"].to_numpy(dtype=np.float64)
-    duties = frame[["duty_a", "duty_b", "duty_c"]].to_numpy(dtype=np.float64)
-    differential = duties - duties.mean(axis=1, keepdims=True)
-    return {
-        "omega_rad_s": np.abs(smooth(omega, rate_hz, smooth_s)),
-        "accel_rad_s2": np.abs(smoothing_derivative(omega, rate_hz, smooth_s)),
-        "load_rate_nm_s": np.abs(smoothing_derivative(frame["tau_load_nm"].to_numpy(dtype=np.float64), rate_hz,
-                                                      smooth_s)),
-        "duty_activity": smooth(np.linalg.norm(differential, axis=1), rate_hz, smooth_s),
-    }
+    missing = [name for name in signals if name not in frame.columns]
+    if missing:
+        raise DataError(f"ingested frame: columns {missing} missing; expected the signals {list(signals)}")
+    window = savgol_window(smooth_s, rate_hz, 2, len(time_s))
+    rates = {name: smoothing_derivative(frame[name].to_numpy(dtype=np.float64), rate_hz, smooth_s, 2, "mirror")
+             for name in signals}
+    return {name: _moving_mean(np.abs(rate), window) for name, rate in rates.items()}
+
+
+def noise_level(values: np.ndarray, rate_hz: float, smooth_s: float) -> float:
+    """Indicator level that white sensor noise alone gives a signal (signal unit per s).
+
+    The noise's standard deviation is the robust (MAD) standard deviation of the sample-to-sample
+    differences divided by sqrt(2); it passes the Savitzky-Golay differentiator with the gain of its
+    coefficients' 2-norm, and the mean of |Gaussian| is sqrt(2/pi) times its standard deviation.
+    """
+    from scipy.signal import savgol_coeffs
+
+    steps = np.diff(np.asarray(values, dtype=np.float64))
+    sigma = 1.4826 * float(np.median(np.abs(steps - np.median(steps)))) / np.sqrt(2.0)
+    window = savgol_window(smooth_s, rate_hz, 2, len(values))
+    gain = float(np.linalg.norm(savgol_coeffs(window, 2, deriv=1, delta=1.0 / rate_hz)))
+    return sigma * gain * np.sqrt(2.0 / np.pi)
+
+
+def input_level(values: np.ndarray, rest: np.ndarray, rate_hz: float, smooth_s: float, relative: float,
+                rest_quantile: float, spread_quantile: float, noise_floor: float) -> tuple[np.ndarray, float]:
+    """Level indicator of an input: the smoothed distance from its rest value, and its threshold.
+
+    The rest value is the input's median over the samples before the first and after the last
+    sample where a rate indicator is active (``rest``, (T,) bool: no rate indicator active; all of
+    them when the maneuver starts and ends in motion); the distance of the smoothed input (Savitzky-Golay over ``smooth_s``,
+    degree 2) from it is averaged over ``smooth_s``. The threshold is
+    ``max(noise_floor * noise, low + relative * (high - low))`` as for the rates, the noise being the
+    larger of ``low`` and the robust (MAD) standard deviation of what the smoothing removes (sensor
+    noise, ripple: everything faster than ``smooth_s``).
+
+    Returns:
+        ((T,) indicator >= 0 in the input's unit, threshold).
+    """
+    from hybridfmu.data.resample import smooth
+
+    reference = float(np.median(values[_outer_rest(rest)]))
+    window = savgol_window(smooth_s, rate_hz, 2, len(values))
+    smoothed = smooth(values, rate_hz, smooth_s, 2, "mirror")
+    distance = _moving_mean(np.abs(smoothed - reference), window)
+    residual = values - smoothed
+    noise = max(float(np.quantile(distance, rest_quantile)),
+                1.4826 * float(np.median(np.abs(residual - np.median(residual)))))
+    return distance, relative_threshold(distance, relative, rest_quantile, spread_quantile, noise_floor * noise)
 
 
 def relative_threshold(values: np.ndarray, relative: float, rest_quantile: float, spread_quantile: float,
@@ -95,41 +162,57 @@ def relative_threshold(values: np.ndarray, relative: float, rest_quantile: float
     return max(float(floor), low + float(relative) * (high - low))
 
 
-def select_segments(frame: pd.DataFrame, segments_config: dict[str, Any] | None) -> SegmentSelection:
+def select_segments(frame: pd.DataFrame, roles: CaseRoles, segments_config: dict[str, Any] | None) -> SegmentSelection:
     """Find the informative spans of an ingested maneuver.
 
     Args:
-        frame: ingested data (columns of ``REQUIRED_COLUMNS``; ``time_s`` uniform, (T,)).
+        frame: ingested data: ``time_s`` (T,) uniform, and a column per signal of the roles.
+        roles: the case's roles (which signals are measured states and inputs).
         segments_config: the case's ``segments`` section (schema defaults filled in here).
 
     Returns:
         The selected spans, thresholds and kept fraction.
+
+    Raises:
+        DataError: a column missing, or too few samples.
     """
     settings = section_settings(segments_config, "segments")
-    time_s = frame["time_s"].to_numpy(dtype=np.float64) if "time_s" in frame.columns else np.empty(0)
-    indicators = indicator_signals(frame, float(settings["smooth_s"]))
-    active = np.zeros(len(time_s), dtype=bool)
+    time_s = _time(frame)
+    rate_hz = (len(time_s) - 1) / (time_s[-1] - time_s[0])
+    smooth_s = float(settings["smooth_s"])
+    signals = indicator_signals_of(roles, settings)
+    indicators = indicator_signals(frame, signals, smooth_s)
     thresholds: dict[str, Any] = {}
-    for name, (relative_key, floor_key, unit) in INDICATORS.items():
-        relative = settings[relative_key]
-        if relative is None:
-            thresholds[name] = None
-            continue
-        level = relative_threshold(indicators[name], relative, float(settings["rest_quantile"]),
-                                   float(settings["spread_quantile"]), float(settings[floor_key]))
-        above = indicators[name] > level
+    rest_q, spread_q = float(settings["rest_quantile"]), float(settings["spread_quantile"])
+    floor, relative = float(settings["noise_floor"]), float(settings["relative"])
+    active = np.zeros(len(time_s), dtype=bool)
+    for name, values in indicators.items():
+        low = float(np.quantile(values, rest_q))
+        noise = max(low, noise_level(frame[name].to_numpy(dtype=np.float64), rate_hz, smooth_s))
+        level = relative_threshold(values, relative, rest_q, spread_q, floor * noise)
+        above = values > level
         thresholds[name] = level
-        LOG.info("indicator %s: threshold %.4g %s, active %.1f%% of samples", name, level, unit,
-                 100.0 * above.mean())
+        LOG.info("indicator d%s/dt: threshold %.4g (%s)/s, noise %.3g, active %.1f%% of samples", name, level,
+                 roles.signals[name].unit or "1", noise, 100.0 * above.mean())
         active |= above
+    if settings["input_levels"]:
+        rest = ~active.copy()
+        for name in [name for name in dict.fromkeys(roles.input_signals) if name in signals]:
+            values, level = input_level(frame[name].to_numpy(dtype=np.float64), rest, rate_hz, smooth_s,
+                                        relative, rest_q, spread_q, floor)
+            above = values > level
+            indicators[f"level_{name}"] = values
+            thresholds[f"level_{name}"] = level
+            LOG.info("indicator |%s - rest|: threshold %.4g %s, active %.1f%% of samples", name, level,
+                     roles.signals[name].unit or "1", 100.0 * above.mean())
+            active |= above
     spans = spans_from_mask(time_s, active, float(settings["merge_gap_s"]), float(settings["min_span_s"]),
                             float(settings["pad_s"]))
     duration_s = float(time_s[-1] - time_s[0])
     kept_s = sum(end - start for start, end in spans)
-    thresholds.update({key: settings[key] for key in
-                       ("rest_quantile", "spread_quantile", "smooth_s", "merge_gap_s", "min_span_s", "pad_s")})
-    thresholds.update({key: settings[key] for _, (rel, floor, _) in INDICATORS.items() for key in (rel, floor)})
-    return SegmentSelection(spans, thresholds, kept_s / duration_s if duration_s > 0 else 0.0, duration_s, active)
+    thresholds.update({key: settings[key] for key in RECORDED_SETTINGS})
+    return SegmentSelection(spans, thresholds, kept_s / duration_s if duration_s > 0 else 0.0, duration_s, active,
+                            indicators)
 
 
 def spans_from_mask(time_s: np.ndarray, active: np.ndarray, merge_gap_s: float, min_span_s: float,
@@ -195,25 +278,66 @@ def read_segments(path: str | Path) -> dict[str, Any]:
 
 
 def select_segments_to_files(data_path: str | Path, json_path: str | Path, png_path: str | Path, maneuver: str,
-                             segments_config: dict[str, Any] | None) -> SegmentSelection:
-    """Select the segments of an ingested maneuver; write the JSON record and the Fig. 8 plot atomically."""
+                             config: dict[str, Any], roles: CaseRoles | None = None) -> SegmentSelection:
+    """Select the segments of an ingested maneuver; write the JSON record and the Fig. 8 plot atomically.
+
+    Args:
+        data_path: the ingested maneuver (Parquet).
+        json_path, png_path: outputs.
+        maneuver: its name (record and title).
+        config: the case config (sections ``segments`` and, unless ``roles`` is given, those
+            :func:`hybridfmu.case.case_roles` reads).
+        roles: the case's roles, if already known.
+    """
+    from hybridfmu.case import case_roles
     from hybridfmu.data.segments_plot import plot_segments
     from hybridfmu.io import write_json_atomic
 
+    roles = roles if roles is not None else case_roles(config)
     data_path = Path(data_path)
     try:
         frame = pd.read_parquet(data_path)
     except Exception as err:
         raise DataError(f"{data_path}: cannot read the ingested data: {err}") from None
     try:
-        selection = select_segments(frame, segments_config)
+        selection = select_segments(frame, roles, config.get("segments"))
     except DataError as err:
         raise DataError(f"{data_path}: {err}") from None
     LOG.info("%s: %d spans, %.1f%% of %.4g s kept", maneuver, len(selection.spans_s),
              100.0 * selection.fraction_kept, selection.duration_s)
-    plot_segments(frame, selection, maneuver, png_path)
+    plot_segments(frame, selection, maneuver, png_path, roles)
     write_json_atomic(json_path, segments_record(maneuver, selection))
     return selection
+
+
+def _time(frame: pd.DataFrame) -> np.ndarray:
+    if "time_s" not in frame.columns:
+        raise DataError(f"ingested frame: column 'time_s' missing; the frame has {list(frame.columns)}")
+    time_s = frame["time_s"].to_numpy(dtype=np.float64)
+    if len(time_s) < MIN_SAMPLES or not time_s[-1] > time_s[0]:
+        raise DataError(f"ingested frame: {len(time_s)} samples; expected a time series of at least "
+                        f"{MIN_SAMPLES} samples")
+    return time_s
+
+
+def _outer_rest(rest: np.ndarray) -> np.ndarray:
+    """(T,) bool: the leading and trailing runs of ``rest`` (or all of ``rest``, or everything, if empty)."""
+    if not rest.any():
+        return np.ones_like(rest)
+    if rest.all():
+        return rest
+    moving = np.flatnonzero(~rest)
+    outer = np.zeros_like(rest)
+    outer[:moving[0]] = True
+    outer[moving[-1] + 1:] = True
+    return outer if outer.any() else rest
+
+
+def _moving_mean(values: np.ndarray, window: int) -> np.ndarray:
+    """Centred moving mean over ``window`` samples (edges: the mean over the part inside); (T,) -> (T,)."""
+    from scipy.ndimage import uniform_filter1d
+
+    return uniform_filter1d(values, size=window, mode="nearest")
 
 
 def _merge(runs: list[list[float]], gap_s: float) -> list[list[float]]:
