@@ -5,26 +5,22 @@ import pytest
 
 from hybridfmu.evaluation.comparison import ManeuverRun, pooled_errors, role_metrics
 
-STATES = ["i_d", "i_q", "theta", "omega"]
+SIGNALS = ["angle", "speed"]
+ZOOM = {"length_s": {"angle": 0.3, "speed": 0.2}, "criterion": {"angle": "growth", "speed": "mse"}, "intervals": {}}
 
 
 def _run(name, n=11, fmu_angle_offset=0.2, neural_angle_offset=0.05):
     t = np.linspace(0.0, 1.0, n)
-    angle = np.linspace(0, 2, n)
-    speed = np.full(n, 2.0)
-    fmu = np.zeros((n, 4))
-    fmu[:, 2] = angle + fmu_angle_offset * 10 * t ** 2  # error grows 0 .. 10*offset, fastest at the end
-    fmu[:, 3] = speed + 1.0                             # speed error 1
-    neural = np.zeros((n, 4))
-    neural[:, 2] = angle + neural_angle_offset           # constant angle error
-    neural[:, 3] = speed - 0.5                           # speed error -0.5
-    return ManeuverRun(name, t, angle, speed, fmu[:, 2], fmu[:, 3], neural[:, 2], neural[:, 3])
+    data = np.column_stack([np.linspace(0, 2, n), np.full(n, 2.0)])
+    fmu = data + np.column_stack([fmu_angle_offset * 10 * t ** 2,   # error grows 0 .. 10*offset, fastest at the end
+                                  np.full(n, 1.0)])                 # speed error 1
+    neural = data + np.column_stack([np.full(n, neural_angle_offset), np.full(n, -0.5)])
+    return ManeuverRun(name, t, SIGNALS, data, fmu, neural)
 
 
 def test_role_metrics_by_hand():
     run = _run("validation")
-    metrics = role_metrics("validation", [run], {"angle_length_s": 0.3, "speed_length_s": 0.2, "intervals": {}},
-                           {"dt_s": -2e-5})
+    metrics = role_metrics("validation", [run], ZOOM, {"dt_s": -2e-5})
     # FMU angle error = 2 t^2, t = 0, 0.1, ..., 1 -> mean |e| = 2 * 3.85 / 11 = 0.7; mean e^2 = 4 * mean(t^4)
     assert metrics["fmu"]["angle_mae"] == pytest.approx(0.7)
     assert metrics["fmu"]["angle_mse"] == pytest.approx(4 * np.mean(np.linspace(0, 1, 11) ** 4))
@@ -33,15 +29,31 @@ def test_role_metrics_by_hand():
     assert metrics["neural_fmu"]["speed_mse"] == pytest.approx(0.25)
     assert metrics["improvement"]["angle_mae"] == pytest.approx(14.0)
     assert metrics["improvement"]["speed_mse"] == pytest.approx(4.0)
+    assert metrics["fmu"]["speed_rmse"] == pytest.approx(1.0) and metrics["neural_fmu"]["speed_rmse"] == 0.5
+    assert metrics["improvement"]["speed_rmse"] == pytest.approx(2.0)
+    assert list(metrics["fmu"]) == [f"{s}_{m}" for s in SIGNALS for m in ("mae", "mse", "rmse")]
+    assert metrics["signals"] == SIGNALS
     assert metrics["dt_s"] == -2e-5 and metrics["samples"] == 11 and metrics["duration_s"] == pytest.approx(1.0)
     angle_zoom, speed_zoom = metrics["zooms"]
-    assert angle_zoom["quantity"] == "angle" and angle_zoom["source"] == "auto"
+    assert angle_zoom["signal"] == "angle" and angle_zoom["source"] == "auto" and angle_zoom["criterion"] == "growth"
     # the error grows fastest at the end: window [0.7, 1.0] s
     assert (angle_zoom["t_start_s"], angle_zoom["t_end_s"]) == pytest.approx((0.7, 1.0))
     # there: FMU angle errors 0.98, 1.28, 1.62, 2.0 -> MAE 1.47; neural 0.05 -> x29.4
     assert angle_zoom["fmu"]["angle_mae"] == pytest.approx(1.47)
     assert angle_zoom["improvement"]["angle_mae"] == pytest.approx(29.4)
-    assert speed_zoom["quantity"] == "speed"
+    assert speed_zoom["signal"] == "speed" and speed_zoom["criterion"] == "mse"
+
+
+def test_one_target_signal_and_one_length_for_all():
+    """Any number of target signals: one signal, one zoom length and the default criterion."""
+    t = np.linspace(0.0, 1.0, 101)
+    run = ManeuverRun("m", t, ["level"], np.zeros(101), np.sin(t), np.zeros(101) + 0.01)
+    metrics = role_metrics("test", [run], {"length_s": 0.25}, {})
+    assert set(metrics["fmu"]) == {"level_mae", "level_mse", "level_rmse"}
+    (zoom,) = metrics["zooms"]
+    assert zoom["signal"] == "level" and zoom["t_end_s"] - zoom["t_start_s"] == pytest.approx(0.25)
+    with pytest.raises(ValueError, match=r"zoom\.length_s: signal\(s\) \['speed'\]"):
+        role_metrics("test", [run], {"length_s": {"speed": 1.0}}, {})
 
 
 def test_pooled_over_maneuvers_and_configured_zoom():
@@ -50,7 +62,7 @@ def test_pooled_over_maneuvers_and_configured_zoom():
     errors = np.concatenate([2 * np.linspace(0, 1, 11) ** 2, np.zeros(21)])
     assert pooled["angle_mae"] == pytest.approx(errors.mean())
     metrics = role_metrics("test", [a, b], {"intervals": {"test_b": [{"t_start_s": 0.5, "t_end_s": 0.6,
-                                                                       "quantity": "speed"}]}}, {})
+                                                                       "signal": "speed"}]}}, {})
     assert metrics["maneuvers"] == ["test_a", "test_b"] and set(metrics["per_maneuver"]) == {"test_a", "test_b"}
     configured = [z for z in metrics["zooms"] if z["source"] == "config"]
     assert len(configured) == 1 and configured[0]["maneuver"] == "test_b"
@@ -59,12 +71,13 @@ def test_pooled_over_maneuvers_and_configured_zoom():
 
 def test_shape_mismatch_named():
     t = np.linspace(0, 1, 5)
-    with pytest.raises(ValueError, match=r"speed_neural_rad_s has shape \(4,\), expected \(5,\)"):
-        ManeuverRun("m", t, t, t, t, t, t, t[:4])
-    with pytest.raises(ValueError, match=r"x\.parquet: column\(s\) \['neural_fmu_speed_rad_s'\] missing"):
+    two = np.column_stack([t, t])
+    with pytest.raises(ValueError, match=r"neural_fmu has shape \(4, 2\), expected \(5, 2\)"):
+        ManeuverRun("m", t, SIGNALS, two, two, two[:4])
+    with pytest.raises(ValueError, match=r"x\.parquet: column\(s\) \['neural_fmu_speed'\] missing"):
         import pandas as pd
-        ManeuverRun.from_frame(pd.DataFrame({c: t for c in ("time_s", "data_angle_rad", "data_speed_rad_s",
-                                                            "fmu_angle_rad", "fmu_speed_rad_s",
-                                                            "neural_fmu_angle_rad")}), "m", "x.parquet")
+        ManeuverRun.from_frame(pd.DataFrame({c: t for c in ("time_s", "data_angle", "data_speed", "fmu_angle",
+                                                            "fmu_speed", "neural_fmu_angle")}), "m", SIGNALS,
+                               "x.parquet")
     with pytest.raises(ValueError, match="no maneuver with role"):
         role_metrics("test", [], {}, {})

@@ -11,7 +11,8 @@ import torch
 from hybridfmu.evaluation.baseline import run_baseline
 from hybridfmu.evaluation.evaluate import run_evaluation, simulate_best
 from hybridfmu.fmu import FmuRhs, load_fmu, simulate_open_loop
-from test_evaluation_baseline import STEP_S, measured_frame, rotating_field_inputs
+from test_evaluation_baseline import (MANEUVERS, STEP_S, measured_frame, motor_roles, rotating_field_inputs,
+                                      write_calibration)
 
 
 def write_best(tmp_path, fmu_path, gate_opening: float):
@@ -21,7 +22,7 @@ def write_best(tmp_path, fmu_path, gate_opening: float):
     from hybridfmu.training.trial import CHECKPOINT_FORMAT
 
     # random output layer: with an open gate the untrained ANN changes the dynamics
-    model_config = section_settings({"end_stop": {"state": "theta", "rate_state": "omega",
+    model_config = section_settings({"corrected_states": ["omega"], "end_stop": {"state": "theta", "rate_state": "omega",
                                                   "min_parameter": "theta_min", "max_parameter": "theta_max"},
                                      "ann_output_init": "random"}, "model")
     with load_fmu(fmu_path) as fmu:
@@ -47,7 +48,8 @@ def maneuvers(ipbmotor_fmu, tmp_path):
         data = tmp_path / f"{name}.parquet"
         measured_frame(time_s, u, states).to_parquet(data)
         baseline = tmp_path / f"{name}.baseline.parquet"
-        run_baseline(ipbmotor_fmu, data, baseline, tmp_path / f"{name}.baseline.json", {}, None, name)
+        run_baseline(ipbmotor_fmu, None, data, baseline, tmp_path / f"{name}.baseline.json", motor_roles(),
+                     MANEUVERS, name)
         paths[name] = (str(data), str(baseline))
     return paths
 
@@ -58,13 +60,14 @@ def evaluate(tmp_path, fmu_path, best, maneuvers, zoom=None):
     for name in ("val", "tst"):
         trajectories.append(str(out / "traj" / f"{name}.parquet"))
         learned.append(str(out / "traj" / f"{name}.learned.json"))
-        simulate_best(best, fmu_path, maneuvers[name][0], maneuvers[name][1], trajectories[-1], learned[-1],
-                      None, {}, name)
+        simulate_best(best, fmu_path, write_calibration(tmp_path / "calibration.json"), maneuvers[name][0],
+                      maneuvers[name][1], trajectories[-1], learned[-1], motor_roles(), MANEUVERS, name)
     return out, run_evaluation(
         best_path=best, trajectory_paths=trajectories, learned_paths=learned,
         maneuver_roles={"val": "validation", "tst": "test"},
         metrics_paths=[str(out / "metrics" / "validation.json"), str(out / "metrics" / "test.json")],
-        run_path=out / "run.json", zoom_settings=zoom or {"angle_length_s": 0.02, "speed_length_s": 0.01},
+        run_path=out / "run.json",
+        zoom_settings=zoom or {"length_s": {"angle": 0.02, "speed": 0.01}, "criterion": {"speed": "mse"}},
         mlflow_config={}, results_dir=tmp_path / "results", case="unit")
 
 
@@ -78,16 +81,20 @@ def test_closed_gate_neural_fmu_equals_the_fmu(ipbmotor_fmu, maneuvers, tmp_path
     assert test["neural_fmu"]["angle_mae"] < 1e-6 and test["neural_fmu"]["speed_mae"] < 1e-4
     assert test["dt_s"] == 0.0 and test["gates"] == {"omega": {"g_F": 1.0, "g_A": 0.0}}
     assert test["best_trial"]["trial_id"] == "b0c0"
-    assert [z["quantity"] for z in test["zooms"]] == ["angle", "speed"]
-    assert all(z["t_end_s"] - z["t_start_s"] == pytest.approx(0.02 if z["quantity"] == "angle" else 0.01)
+    assert set(test["fmu"]) == {f"{s}_{m}" for s in ("angle", "speed") for m in ("mae", "mse", "rmse")}
+    assert test["signals"] == ["angle", "speed"] and set(test["improvement"]) == set(test["fmu"])
+    assert [(z["signal"], z["criterion"]) for z in test["zooms"]] == [("angle", "growth"), ("speed", "mse")]
+    assert all(z["t_end_s"] - z["t_start_s"] == pytest.approx(0.02 if z["signal"] == "angle" else 0.01)
                for z in test["zooms"])
     frame = pd.read_parquet(out / "traj" / "val.parquet")
-    assert {"time_s", "data_angle_rad", "fmu_speed_rad_s", "neural_fmu_angle_rad", "neural_fmu_i_q"} <= set(frame)
-    np.testing.assert_allclose(frame["neural_fmu_theta"], frame["fmu_theta"], atol=1e-6)
+    assert {"time_s", "data_angle", "fmu_speed", "neural_fmu_angle", "neural_fmu_state_i_q"} <= set(frame)
+    np.testing.assert_allclose(frame["neural_fmu_state_theta"], frame["fmu_state_theta"], atol=1e-6)
+    np.testing.assert_allclose(frame["neural_fmu_angle"], frame["neural_fmu_state_theta"])
     run = json.loads((out / "run.json").read_text())
     assert run["experiment"] == "unit" and run["tracking_uri"].endswith("results/mlflow.db")
     learned = json.loads((out / "traj" / "tst.learned.json").read_text())
     assert learned["trial_id"] == "b0c0" and learned["x0"]["theta"] == pytest.approx(8.0)
+    assert learned["signals"] == ["angle", "speed"]
 
 
 def test_trajectories_of_another_trial_are_refused(ipbmotor_fmu, maneuvers, tmp_path):

@@ -4,16 +4,19 @@ import numpy as np
 import pytest
 from matplotlib import image
 
+from hybridfmu.case import Signal
 from hybridfmu.evaluation.figures import (PlotOptions, Trajectories, decimate_minmax, plot_time_offset,
-                                          plot_trajectory, plot_zooms)
+                                          plot_trajectory, plot_zooms, squared_unit)
 
 OPTIONS = PlotOptions(dpi=60, width_in=6, height_in=3, max_points=2000)
+SIGNALS = {"angle": Signal("angle", "rad", "deg", "rotor angle"), "speed": Signal("speed", "rad/s", "rpm", "rotor speed"),
+           "level": Signal("level", "", "", "fill level")}
 
 
-def _synthetic(quantity="angle"):
+def _synthetic(signal="angle"):
     t = np.linspace(0.0, 4.0, 4001)
     data = np.sin(t) * 10
-    return Trajectories("validation", quantity, t, data, data + 0.3 * t ** 2, data + 0.05 * np.cos(9 * t),
+    return Trajectories("validation", SIGNALS[signal], t, data, data + 0.3 * t ** 2, data + 0.05 * np.cos(9 * t),
                         zooms=[(2.0, 3.0), (3.5, 4.0)])
 
 
@@ -25,9 +28,9 @@ def _assert_png(path, min_width_px=200):
     assert len(np.unique(pixels.reshape(-1, pixels.shape[-1])[:, :3].round(2), axis=0)) > 10
 
 
-@pytest.mark.parametrize("quantity", ["angle", "speed"])
-def test_trajectory_and_zoom_figures(tmp_path, quantity):
-    traj = _synthetic(quantity)
+@pytest.mark.parametrize("signal", ["angle", "speed", "level"])
+def test_trajectory_and_zoom_figures(tmp_path, signal):
+    traj = _synthetic(signal)
     _assert_png(plot_trajectory(traj, tmp_path / "whole.png", OPTIONS))
     _assert_png(plot_zooms(traj, tmp_path / "zoom.png", OPTIONS))
 
@@ -44,9 +47,16 @@ def test_zoom_without_interval_or_with_bad_shapes_fails(tmp_path):
 
 def test_time_offset_figure(tmp_path):
     t = np.arange(0, 0.02, 1e-4)
-    _assert_png(plot_time_offset(t, np.tanh((t - 0.01) * 500), np.tanh((t - 0.0098) * 500),
-                                 tmp_path / "offset.png", np.tanh((t - 0.01) * 500) + 0.01, input_delay_s=2e-4,
-                                 maneuver="train", options=OPTIONS))
+    data = np.column_stack([np.tanh((t - 0.01) * 500), t * 3])
+    fmu = np.column_stack([np.tanh((t - 0.0098) * 500), t * 3.1])
+    _assert_png(plot_time_offset(t, [SIGNALS["speed"], SIGNALS["angle"]], data, fmu, tmp_path / "offset.png",
+                                 data + 0.01, input_delay_s=2e-4, maneuver="train", options=OPTIONS))
+    with pytest.raises(ValueError, match="1 signals"):
+        plot_time_offset(t, [SIGNALS["speed"]], data, fmu, tmp_path / "bad.png")
+
+
+def test_squared_units():
+    assert squared_unit("rad") == "rad²" and squared_unit("rad/s") == "(rad/s)²" and squared_unit("") == "-"
 
 
 def test_decimation_keeps_extremes():

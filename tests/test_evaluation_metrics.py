@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from hybridfmu.evaluation.metrics import (METRIC_KEYS, improvement_factors, interval_mask, mae, mse,
+from hybridfmu.evaluation.metrics import (improvement_factors, interval_mask, mae, metric_keys, mse,
                                           trajectory_errors)
 from hybridfmu.evaluation.zoom import (choose_zoom_intervals, largest_error_growth, largest_mean_square,
                                        window_samples)
@@ -24,8 +24,13 @@ def test_trajectory_errors_keys_and_values():
     angle_sim = np.array([0.1, 0.3, 1.0])       # diffs 0.1, -0.2, 0
     speed_data = np.array([10.0, 20.0, 30.0])
     speed_sim = np.array([13.0, 16.0, 30.0])    # diffs 3, -4, 0
-    errors = trajectory_errors(angle_sim, speed_sim, angle_data, speed_data)
-    assert tuple(errors) == METRIC_KEYS
+    errors = trajectory_errors(np.column_stack([angle_sim, speed_sim]), np.column_stack([angle_data, speed_data]),
+                               ["angle", "speed"])
+    assert list(errors) == metric_keys(["angle", "speed"]) == [
+        "angle_mae", "angle_mse", "angle_rmse", "speed_mae", "speed_mse", "speed_rmse"]
+    assert errors["speed_rmse"] == pytest.approx((25 / 3) ** 0.5)
+    with pytest.raises(ValueError, match="3 signals"):
+        trajectory_errors(np.zeros((3, 2)), np.zeros((3, 2)), ["a", "b", "c"])
     assert errors["angle_mae"] == pytest.approx(0.3 / 3)
     assert errors["angle_mse"] == pytest.approx(0.05 / 3)
     assert errors["speed_mae"] == pytest.approx(7 / 3)
@@ -78,15 +83,25 @@ def test_zoom_on_largest_speed_mse():
 def test_configured_intervals_replace_auto_and_are_checked():
     t = np.linspace(0, 2, 201)
     zero = np.zeros_like(t)
-    auto = choose_zoom_intervals(t, zero, zero, 0.5, 0.2)
-    assert [z.quantity for z in auto] == ["angle", "speed"]
+    errors, lengths = {"angle": zero, "speed": zero}, {"angle": 0.5, "speed": 0.2}
+    criteria = {"angle": "growth", "speed": "mse"}
+    auto = choose_zoom_intervals(t, errors, lengths, criteria)
+    assert [(z.signal, z.criterion) for z in auto] == [("angle", "growth"), ("speed", "mse")]
     assert auto[0].t_end_s - auto[0].t_start_s == pytest.approx(0.5)
-    chosen = choose_zoom_intervals(t, zero, zero, 0.5, 0.2,
-                                   configured=[{"t_start_s": 0.1, "t_end_s": 0.3, "quantity": "speed"}])
-    assert [(z.t_start_s, z.t_end_s, z.quantity, z.source) for z in chosen] == [
+    chosen = choose_zoom_intervals(t, errors, lengths, criteria,
+                                   configured=[{"t_start_s": 0.1, "t_end_s": 0.3, "signal": "speed"}])
+    assert [(z.t_start_s, z.t_end_s, z.signal, z.source) for z in chosen] == [
         (auto[0].t_start_s, auto[0].t_end_s, "angle", "auto"), (0.1, 0.3, "speed", "config")]
     with pytest.raises(ValueError, match="does not overlap"):
-        choose_zoom_intervals(t, zero, zero, 0.5, 0.2, configured=[{"t_start_s": 5, "t_end_s": 6}])
+        choose_zoom_intervals(t, errors, lengths, criteria, configured=[{"t_start_s": 5, "t_end_s": 6}])
+    with pytest.raises(ValueError, match="target signals"):
+        choose_zoom_intervals(t, errors, lengths, criteria, configured=[{"t_start_s": 0, "t_end_s": 1,
+                                                                          "signal": "torque"}])
+    bump = np.exp(-((t - 1.0) / 0.05) ** 2)  # growth and mse pick different windows of the same error
+    growth = choose_zoom_intervals(t, {"x": bump}, {"x": 0.5}, {"x": "growth"})[0]
+    square = choose_zoom_intervals(t, {"x": bump}, {"x": 0.5}, {"x": "mse"})[0]
+    assert growth.t_end_s == pytest.approx(1.0)                                   # ends at the peak
+    assert square.t_start_s < 1.0 < square.t_end_s and square.t_start_s > 0.5    # holds the peak inside
 
 
 def test_time_offset_window_and_input_shift():
@@ -96,6 +111,10 @@ def test_time_offset_window_and_input_shift():
     speed = 100 * np.tanh((t - 0.6) * 200)
     start, end = steepest_window(t, speed, 0.01)
     assert start < 0.6 < end
+    # two targets: each change counts relative to its spread, so the small but sudden step wins
+    other = 1e-3 * (t > 0.3) + 1e-4 * np.sin(t)
+    start, end = steepest_window(t, np.column_stack([speed, other]), 0.01)
+    assert start < 0.3 < end
     u = np.column_stack([np.arange(6.0), 10 * np.arange(6.0)])
     np.testing.assert_array_equal(shift_inputs(u, 0.0, 0.1), u)
     np.testing.assert_allclose(shift_inputs(u, 0.2, 0.1)[:, 0], [2, 3, 4, 5, 5, 5])      # two steps ahead, held
@@ -104,3 +123,8 @@ def test_time_offset_window_and_input_shift():
     best, fit = estimate_input_delay_s(lambda d: np.sin(np.arange(50) * 0.1 + d), measured,
                                        np.linspace(-1, 1, 201))
     assert best == pytest.approx(0.3) and np.allclose(fit, measured)
+    both = np.column_stack([measured, 1e3 * measured])
+    best, _ = estimate_input_delay_s(lambda d: np.column_stack([np.sin(np.arange(50) * 0.1 + d),
+                                                                1e3 * np.sin(np.arange(50) * 0.1 + d + 0.2)]),
+                                     both, np.linspace(-1, 1, 201), scales=np.array([1.0, 1e3]))
+    assert best == pytest.approx(0.2, abs=0.011)  # the normalised compromise between 0.3 and 0.1

@@ -1,13 +1,28 @@
-"""The report puts this run's improvement factors beside the paper's and lists the figures."""
+"""The report puts this run's improvement factors beside a reference's (the paper's) and lists the figures;
+labels and units come from the case's signals."""
+
+import yaml
 
 from hybridfmu.evaluation.metrics import improvement_factors
 from hybridfmu.evaluation.report import ReportFigure, render_report
+from test_evaluation_baseline import motor_roles
+
+UNITS = {"angle": "rad", "speed": "rad/s"}
+
+
+def _reference():
+    """The paper's results as config/config.yaml declares them (section evaluation.reference)."""
+    from pathlib import Path
+
+    config = yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / "config.yaml").read_text())
+    return config["evaluation"]["reference"]
 
 
 def _metrics(role, fmu, neural):
-    zoom = {"maneuver": role, "quantity": "angle", "source": "auto", "t_start_s": 1.0, "t_end_s": 3.0,
-            "fmu": fmu, "neural_fmu": neural, "improvement": improvement_factors(fmu, neural)}
-    return {"fmu": fmu, "neural_fmu": neural, "improvement": improvement_factors(fmu, neural), "zooms": [zoom]}
+    zoom = {"maneuver": role, "signal": "angle", "source": "auto", "criterion": "growth", "t_start_s": 1.0,
+            "t_end_s": 3.0, "fmu": fmu, "neural_fmu": neural, "improvement": improvement_factors(fmu, neural)}
+    return {"signals": ["angle", "speed"], "fmu": fmu, "neural_fmu": neural,
+            "improvement": improvement_factors(fmu, neural), "zooms": [zoom]}
 
 
 def test_report_tables_and_verdicts():
@@ -18,8 +33,11 @@ def test_report_tables_and_verdicts():
         "tiny", {"validation": _metrics("validation", fmu, good), "test": _metrics("test", fmu, weak)},
         {"lr": 3e-6, "width": 8}, {"trial": "t007"}, dt_s=-2.0e-5, gates=[0.9, 0.3], true_dt_s=-5.0e-5,
         truth_source="raw/test.truth.json", figures=[ReportFigure("figures/test_angle.png", "Test angle")],
-        mlflow_run={"run_id": "abc", "experiment": "tiny", "tracking_uri": "sqlite:///x.db"})
+        mlflow_run={"run_id": "abc", "experiment": "tiny", "tracking_uri": "sqlite:///x.db"}, units=UNITS,
+        reference=_reference())
     assert "| validation | angle | MAE | 10 rad | 1 rad | ×10 | ×4.6 (Figs. 9-10) |" in text
+    assert "| test | speed | MSE | 90 (rad/s)² | 90 (rad/s)² | ×1 | not reported |" in text
+    assert "| validation | validation | 1.000 – 3.000 | angle | auto (growth) |" in text
     assert "| test | angle | MSE | 200 rad² | 100 rad² | ×2 | ×74 (Fig. 13) |" in text
     assert "validation angle MSE: ×100 against the paper's ×61 (Figs. 9-10) — reached." in text
     assert "test angle MAE: ×2 against the paper's ×5.4 (Fig. 13) — not reached." in text
@@ -33,6 +51,7 @@ def test_report_without_truth():
     text = render_report("user", {"test": _metrics("test", fmu, fmu)}, {}, {}, dt_s=1e-6, gates=None,
                          true_dt_s=None, truth_source=None, figures=[], mlflow_run=None)
     assert "no ground truth" in text and "| validation |" not in text
+    assert "paper" not in text  # no reference configured: nothing to compare with
 
 
 def test_write_report_from_files(tmp_path):
@@ -59,18 +78,20 @@ def test_write_report_from_files(tmp_path):
     run.write_text(json.dumps({"tracking_uri": "sqlite:///x", "experiment": "e", "run_id": "r2"}))
     offset = tmp_path / "offset.json"
     offset.write_text(json.dumps({"maneuver": "train", "t_start_s": 1.0, "t_end_s": 1.02, "input_delay_s": 3e-5,
-                                  "speed_mse_without_delay": 4.0, "speed_mse_with_delay": 1.0}))
+                                  "signals": ["angle", "speed"], "mse_without_delay": {"angle": 0.1, "speed": 4.0},
+                                  "mse_with_delay": {"angle": 0.05, "speed": 1.0}}))
     truth = tmp_path / "test.truth.json"
     truth.write_text(json.dumps({"time_offset": {"input_delay_s": 3e-5}}))
     figures = {"validation_angle": str(tmp_path / "figures" / "validation_angle.png"),
                "time_offset": str(tmp_path / "figures" / "time_offset.png")}
     report = write_report(tmp_path / "report.md", "tiny", paths, best, run, offset, figures, [str(truth)],
-                          log_to_mlflow=False)
+                          roles=motor_roles(), reference=_reference(), log_to_mlflow=False)
     text = report.read_text()
     assert "| validation | angle | MAE | 10 rad | 2 rad | ×5 | ×4.6 (Figs. 9-10) |" in text
     assert "learned input delay Δt: 2.5e-05 s (25.00 µs)" in text and "learned minus true: -5.00 µs" in text
-    assert "![Validation maneuver 'validation': rotor angle, whole trajectory, open loop (cf. paper Fig. 9).]" \
+    assert "![Validation maneuver 'validation': angle, whole trajectory, open loop (cf. paper Fig. 9).]" \
            "(figures/validation_angle.png)" in text
+    assert "speed MSE 4 → 1 (rad/s)²" in text
     assert "| depth | 4 |" in text and "trial_id: b2c1" in text and "estimated input delay 30.0 µs" in text
     bad = tmp_path / "bad.truth.json"
     bad.write_text("{}")

@@ -15,8 +15,8 @@ def test_default_tracking_uri_is_absolute(tmp_path):
 def test_evaluation_run_records_metrics_and_artifacts(tmp_path):
     from mlflow.tracking import MlflowClient
 
-    fmu = {"angle_mae": 2.0, "angle_mse": 8.0, "speed_mae": 1.0, "speed_mse": 3.0}
-    neural = {"angle_mae": 0.5, "angle_mse": 0.5, "speed_mae": 0.5, "speed_mse": 0.0}
+    fmu = {"angle_mae": 2.0, "angle_mse": 8.0, "speed_mae": 1.0, "speed_mse": 3.0, "level_rmse": 1.0}
+    neural = {"angle_mae": 0.5, "angle_mse": 0.5, "speed_mae": 0.5, "speed_mse": 0.0, "level_rmse": 0.25}
     metrics = {"test": {"fmu": fmu, "neural_fmu": neural, "improvement": improvement_factors(fmu, neural)}}
     metric_file = tmp_path / "test.json"
     metric_file.write_text(json.dumps(metrics["test"]))
@@ -35,6 +35,7 @@ def test_evaluation_run_records_metrics_and_artifacts(tmp_path):
     assert run.info.status == "FINISHED"
     assert run.data.tags["best_trial_run_id"] == "abc123" and run.data.tags["hybridfmu.role"] == "evaluation"
     assert run.data.metrics["test/improvement/angle_mae"] == 4.0
+    assert run.data.metrics["test/improvement/level_rmse"] == 4.0 and run.data.metrics["test/fmu/level_rmse"] == 1.0
     assert "test/improvement/speed_mse" not in run.data.metrics       # unbounded factor is not logged
     assert run.data.params["dt_s"] == "-2e-05"
     artifacts = {a.path for a in client.list_artifacts(info["run_id"])}

@@ -79,3 +79,33 @@ def test_paper_plan_from_default_sections():
     assert search_plan(hpo, training, seed=3, search_id="x") == plan
     with pytest.raises(ValueError, match="bracket 0 has rungs 0..0"):
         plan_entry(plan, bracket=0, rung=1, config=0)
+
+
+def test_target_weights_in_the_search_space_and_objective():
+    """w_<state> entries sample like any [0, 1] parameter and must name a target state of the case."""
+    from types import SimpleNamespace
+
+    from hybridfmu.training.hpo import check_target_weights
+    from hybridfmu.training.losses import objective_from_config
+
+    space = dict(PAPER_SEARCH_SPACE, w_v={"distribution": "uniform", "low": 0.0, "high": 1.0})
+    hpo = section_settings({"search_space": space, "objective": {"loss": "MSE", "w_v": 0.25}}, "hpo")
+    draws = [sample_configuration(hpo["search_space"], 1, 0, i)["w_v"] for i in range(50)]
+    assert all(0.0 <= w <= 1.0 for w in draws) and len(set(draws)) == 50
+
+    class Roles(SimpleNamespace):
+        def weights_with(self, overrides):
+            from hybridfmu.case import CaseRoles
+            return CaseRoles.weights_with(self, overrides)
+
+    roles = Roles(target_weights={"p": 0.5, "v": 0.5}, target_states=["p", "v"])
+    check_target_weights(hpo, roles)
+    objective = objective_from_config(hpo["objective"], roles)
+    assert objective.loss == "MSE" and objective.weights == pytest.approx({"p": 0.75, "v": 0.25})
+    assert objective_from_config({"loss": "MAE"}, roles).weights == {"p": 0.5, "v": 0.5}
+    with pytest.raises(ValueError, match=r"config\.hpo\.search_space\.w_q: 'q' is not a target state"):
+        check_target_weights({"search_space": {"w_q": {}}, "objective": {}}, roles)
+    with pytest.raises(ValueError, match=r"config\.hpo\.objective"):
+        objective_from_config({"loss": "MAE", "w_q": 0.2}, roles)
+    with pytest.raises(Exception, match="w_"):
+        section_settings({"objective": {"loss": "MAE", "weight": 0.2}}, "hpo")

@@ -5,31 +5,61 @@ import math
 import pytest
 import torch
 
-from hybridfmu.model import (EndStop, Gates, InputDelay, MotorRhs, NeuralFmu, NeuralFmuSpec, ScaleShift,
-                             ShiftScale, TanhMLP)
+from hybridfmu.model import (EndStop, Gates, InputDelay, NeuralFmu, NeuralFmuSpec, ScaleShift, ShiftScale,
+                             TanhMLP)
 from hybridfmu.training.solver import rollout
 
 H = 1e-4
-STATS = dict(x_mean=[0.0, 10.0, 30.0, 0.0], x_std=[5.0, 30.0, 10.0, 100.0],
-             u_mean=[0.5, 0.5, 0.5, 12.0, 0.5], u_std=[0.1, 0.1, 0.1, 0.1, 0.3],
-             xdot_mean=[0.0, 0.0, 0.0, 0.0], xdot_std=[1e4, 1e4, 100.0, 1e3])
+
+
+class Pendulum:
+    """A small pure-torch right-hand side for the tests: a driven, damped pendulum.
+
+    States x = [p, v, q] (rad, rad/s, -), inputs u = [f, g] (drive in rad/s^2, damping gain):
+    dp/dt = v, dv/dt = f - K sin(p) - C g v, dq/dt = g v / 2 - q (a third state the ANN leaves alone).
+    Offers closed-form Jacobians like the FMU bridge.
+    """
+
+    state_names = ["p", "v", "q"]
+    input_names = ["f", "g"]
+    K, C = 400.0, 2.0
+
+    def __call__(self, x, u):
+        p, v, q = x.unbind(dim=1)
+        f, g = u.unbind(dim=1)
+        return torch.stack([v, f - self.K * torch.sin(p) - self.C * g * v, 0.5 * v * g - q], dim=1)
+
+    def value_and_jacobians(self, x, u):
+        """(xdot (N, 3), dfdx (N, 3, 3), dfdu (N, 3, 2))."""
+        p, v, q = x.unbind(dim=1)
+        f, g = u.unbind(dim=1)
+        zero, one = torch.zeros_like(p), torch.ones_like(p)
+        dfdx = torch.stack([torch.stack([zero, one, zero], 1),
+                            torch.stack([-self.K * torch.cos(p), -self.C * g, zero], 1),
+                            torch.stack([zero, 0.5 * g, -one], 1)], dim=1)
+        dfdu = torch.stack([torch.stack([zero, zero], 1), torch.stack([one, -self.C * v], 1),
+                            torch.stack([zero, 0.5 * v], 1)], dim=1)
+        return self(x, u), dfdx, dfdu
+
+
+STATS = dict(x_mean=[0.0, 10.0, 1.0], x_std=[0.5, 30.0, 2.0], u_mean=[50.0, 1.0], u_std=[30.0, 0.3],
+             xdot_mean=[0.0, 0.0, 0.0], xdot_std=[30.0, 1e3, 10.0])
 
 
 def make_spec(**overrides):
-    kwargs = dict(state_names=MotorRhs.state_names, input_names=MotorRhs.input_names, corrected_states=["omega"],
-                  ann_states=MotorRhs.state_names, ann_inputs=MotorRhs.input_names,
-                  ann_derivatives=MotorRhs.state_names, sample_period_s=H, width=8, depth=2, gate_opening=0.3,
+    kwargs = dict(state_names=Pendulum.state_names, input_names=Pendulum.input_names, corrected_states=["v"],
+                  ann_states=Pendulum.state_names, ann_inputs=Pendulum.input_names,
+                  ann_derivatives=Pendulum.state_names, sample_period_s=H, width=8, depth=2, gate_opening=0.3,
                   delay_min_s=-5e-4, delay_max_s=5e-4, ann_output_init="random")
     kwargs.update(overrides)
     return NeuralFmuSpec(**kwargs)
 
 
 def inputs(batch, length, seed=0):
+    """(batch, length, 2) inputs: a drive around 50 rad/s^2 and a damping gain around 1."""
     gen = torch.Generator().manual_seed(seed)
-    u = torch.rand(batch, length, 5, dtype=torch.float64, generator=gen) * 0.2 + 0.4
-    u[..., 3] = 12.0
-    u[..., 4] = 0.01
-    return u
+    u = torch.rand(batch, length, 2, dtype=torch.float64, generator=gen)
+    return torch.stack([u[..., 0] * 60.0 + 20.0, u[..., 1] * 0.4 + 0.8], dim=-1)
 
 
 def test_delay_shifts_by_whole_samples_and_interpolates():
@@ -77,7 +107,7 @@ def test_fixed_delay_has_no_parameter():
 
 
 def test_gates_mix_and_forward():
-    gates = Gates(4, [3], opening=0.25)
+    gates = Gates(4, [3], opening=0.25)  # four states, the last one corrected
     xdot_f = torch.tensor([[1.0, 2.0, 3.0, 4.0]], dtype=torch.float64)
     xdot_a = torch.tensor([[8.0]], dtype=torch.float64)
     assert gates(xdot_f, xdot_a).tolist() == [[1.0, 2.0, 3.0, 4.0 + 0.25 * 8.0]]
@@ -107,13 +137,13 @@ def test_mlp_layout():
 
 def test_forwarded_derivatives_untouched_and_fused_equals_layers():
     torch.manual_seed(0)
-    model = NeuralFmu(MotorRhs(), make_spec(depth=3), STATS)
-    x = torch.randn(6, 4, dtype=torch.float64) * torch.tensor([5.0, 30.0, 10.0, 100.0])
+    model = NeuralFmu(Pendulum(), make_spec(depth=3), STATS)
+    x = torch.randn(6, 3, dtype=torch.float64) * torch.tensor([0.5, 30.0, 2.0])
     u = inputs(6, 1)[:, 0]
     xdot = model.derivative(x, u)
-    xdot_f = MotorRhs()(x, u)
-    assert torch.equal(xdot[:, :3], xdot_f[:, :3])
-    assert not torch.allclose(xdot[:, 3], xdot_f[:, 3])
+    xdot_f = Pendulum()(x, u)
+    assert torch.equal(xdot[:, [0, 2]], xdot_f[:, [0, 2]])
+    assert not torch.allclose(xdot[:, 1], xdot_f[:, 1])
     fused = model.fused()
     assert torch.allclose(fused(x, u, fused.input_term(u)), xdot, rtol=1e-13, atol=1e-9)
     with torch.no_grad():
@@ -121,42 +151,43 @@ def test_forwarded_derivatives_untouched_and_fused_equals_layers():
     assert torch.equal(model.derivative(x, u), xdot_f)
 
 
-def plain_motor(x, u):
-    """The motor as a bare callable (no Jacobians offered: the adjoint falls back to autograd)."""
-    return MotorRhs()(x, u)
+def plain_pendulum(x, u):
+    """The pendulum as a bare callable (no Jacobians offered: the adjoint falls back to autograd)."""
+    return Pendulum()(x, u)
 
 
-def test_motor_jacobians_match_autograd():
-    x = torch.tensor([[3.0, -20.0, 4.0, 120.0], [0.5, 2.0, -1.0, -30.0]], dtype=torch.float64)
+def test_fixture_jacobians_match_autograd():
+    x = torch.tensor([[0.3, -20.0, 1.0], [1.5, 2.0, -1.0]], dtype=torch.float64)
     u = inputs(2, 1)[:, 0]
-    xdot, dfdx, dfdu = MotorRhs().value_and_jacobians(x, u)
-    ref_x, ref_u = torch.func.vmap(torch.func.jacrev(lambda a, b: MotorRhs()(a[None], b[None])[0],
+    xdot, dfdx, dfdu = Pendulum().value_and_jacobians(x, u)
+    ref_x, ref_u = torch.func.vmap(torch.func.jacrev(lambda a, b: Pendulum()(a[None], b[None])[0],
                                                      argnums=(0, 1)))(x, u)
-    assert torch.allclose(xdot, MotorRhs()(x, u))
+    assert torch.allclose(xdot, Pendulum()(x, u))
     assert torch.allclose(dfdx, ref_x, rtol=1e-12, atol=1e-9)
     assert torch.allclose(dfdu, ref_u, rtol=1e-12, atol=1e-9)
 
 
-@pytest.mark.parametrize("solver,rhs", [("rk4", MotorRhs()), ("euler", MotorRhs()), ("rk4", plain_motor)])
+@pytest.mark.parametrize("solver,rhs", [("rk4", Pendulum()), ("euler", Pendulum()), ("rk4", plain_pendulum)])
 def test_gradients_reach_every_parameter_and_adjoint_matches_autograd(solver, rhs):
     torch.manual_seed(1)
-    stop = EndStop("theta", "omega", -1.0, 0.02)
+    stop = EndStop("p", "v", -1.0, 0.02)
     model = NeuralFmu(rhs, make_spec(solver=solver, delay_init_s=0.3 * H, end_stop=stop), STATS)
     u = inputs(3, 60).requires_grad_(True)
-    x0 = torch.tensor([[1.0, 2.0, 0.0, 50.0]] * 3, dtype=torch.float64, requires_grad=True)
+    x0 = torch.tensor([[0.0, 50.0, 1.0]] * 3, dtype=torch.float64, requires_grad=True)
     results = {}
     for mode in ("autograd", "adjoint"):
         model.zero_grad()
         u.grad = x0.grad = None
         states = rollout(model, u, 10, x0, 40, gradients=mode)
-        assert states.shape == (3, 41, 4)
-        loss = (states[:, :, 2] * torch.linspace(0, 1, 41, dtype=torch.float64)).sum() + 1e-3 * states[:, :, 3].pow(2).mean()
+        assert states.shape == (3, 41, 3)
+        loss = ((states[:, :, 0] + states[:, :, 2]) * torch.linspace(0, 1, 41, dtype=torch.float64)).sum() \
+            + 1e-3 * states[:, :, 1].pow(2).mean()
         loss.backward()
         results[mode] = (states.detach(), {n: p.grad.clone() for n, p in model.named_parameters()}, u.grad.clone(),
                          x0.grad.clone())
     ref, fast = results["autograd"], results["adjoint"]
     assert torch.allclose(ref[0], fast[0], rtol=0, atol=1e-12)
-    assert (ref[0][:, :, 2] >= 0.02 - 1e-15).any(), "the end stop must be reached in this test"
+    assert (ref[0][:, :, 0] >= 0.02 - 1e-15).any(), "the end stop must be reached in this test"
     for name, grad in ref[1].items():
         assert torch.isfinite(grad).all() and grad.abs().sum() > 0, f"no gradient reaches {name}"
         assert torch.allclose(fast[1][name], grad, rtol=1e-9, atol=1e-12 * grad.abs().max()), name
@@ -165,34 +196,34 @@ def test_gradients_reach_every_parameter_and_adjoint_matches_autograd(solver, rh
 
 
 def test_adjoint_uses_rhs_jacobians_when_offered():
-    class CountingMotor(MotorRhs):
+    class CountingPendulum(Pendulum):
         calls = 0
 
         def value_and_jacobians(self, x, u):
-            CountingMotor.calls += 1
+            CountingPendulum.calls += 1
             return super().value_and_jacobians(x, u)
 
     torch.manual_seed(2)
     spec = make_spec()
-    plain, jac = NeuralFmu(plain_motor, spec, STATS), NeuralFmu(CountingMotor(), spec, STATS)
+    plain, jac = NeuralFmu(plain_pendulum, spec, STATS), NeuralFmu(CountingPendulum(), spec, STATS)
     jac.load_state_dict(plain.state_dict())
     u = inputs(2, 40)
-    x0 = torch.tensor([[1.0, 2.0, 0.0, 50.0]] * 2, dtype=torch.float64)
+    x0 = torch.tensor([[0.1, 20.0, 1.0]] * 2, dtype=torch.float64)
     grads = []
     for model in (plain, jac):
-        rollout(model, u, 5, x0, 20)[:, :, 3].sum().backward()
+        rollout(model, u, 5, x0, 20)[:, :, 1].sum().backward()
         grads.append(torch.cat([p.grad.flatten() for p in model.parameters()]))
-    assert CountingMotor.calls == 4 * 20
+    assert CountingPendulum.calls == 4 * 20
     assert torch.allclose(grads[0], grads[1], rtol=1e-10)
 
 
 def test_zero_output_init_starts_at_the_fmu():
-    stats = dict(STATS, xdot_mean=[0.0, 0.0, 0.0, 50.0])
-    model = NeuralFmu(MotorRhs(), make_spec(ann_output_init="zero", gate_opening=0.2), stats)
-    x = torch.randn(5, 4, dtype=torch.float64) * torch.tensor([5.0, 30.0, 10.0, 100.0])
+    stats = dict(STATS, xdot_mean=[0.0, 50.0, 0.0])
+    model = NeuralFmu(Pendulum(), make_spec(ann_output_init="zero", gate_opening=0.2), stats)
+    x = torch.randn(5, 3, dtype=torch.float64) * torch.tensor([0.5, 30.0, 2.0])
     u = inputs(5, 1)[:, 0]
-    expected = MotorRhs()(x, u)
-    expected[:, 3] += 0.2 * 50.0  # g_A times the post-processing shift (the mean FMU acceleration)
+    expected = Pendulum()(x, u)
+    expected[:, 1] += 0.2 * 50.0  # g_A times the post-processing shift (the mean FMU acceleration)
     assert torch.allclose(model.derivative(x, u), expected, rtol=1e-14, atol=1e-9)
     with pytest.raises(ValueError, match="ann_output_init"):
         make_spec(ann_output_init="ones")
@@ -200,9 +231,9 @@ def test_zero_output_init_starts_at_the_fmu():
 
 def test_spec_names_are_checked():
     with pytest.raises(ValueError, match="corrected_states"):
-        make_spec(corrected_states=["speed"])
+        make_spec(corrected_states=["w"])
     with pytest.raises(ValueError, match="ann_inputs"):
         make_spec(ann_inputs=["voltage"])
-    spec = make_spec(end_stop=EndStop("theta", "omega", 0.0, 60.0))
+    spec = make_spec(end_stop=EndStop("p", "v", 0.0, 6.0))
     assert NeuralFmuSpec.from_dict(spec.to_dict()) == spec
     assert math.isclose(spec.sample_period_s, H)

@@ -12,27 +12,27 @@ from hybridfmu.tracking import default_tracking_uri, experiment_name, retry_lock
 WORKER = textwrap.dedent('''
     import json, sys
     import torch
-    from hybridfmu.model import MotorRhs, NeuralFmu, NeuralFmuSpec
+    from hybridfmu.model import NeuralFmu, NeuralFmuSpec
     from hybridfmu.tracking.search import log_trial_rung
 
     tracking, worker = json.loads(sys.argv[1]), int(sys.argv[2])
-    spec = NeuralFmuSpec(state_names=MotorRhs.state_names, input_names=MotorRhs.input_names,
-                         corrected_states=["omega"], ann_states=["omega"], ann_inputs=[], ann_derivatives=[],
-                         sample_period_s=1e-4)
-    model = NeuralFmu(MotorRhs(), spec, None)
+    spec = NeuralFmuSpec(state_names=["p", "v"], input_names=["f"], corrected_states=["v"], ann_states=["v"],
+                         ann_inputs=[], ann_derivatives=[], sample_period_s=1e-4)
+    model = NeuralFmu(lambda x, u: torch.stack([x[:, 1], u[:, 0] - x[:, 0]], dim=1), spec, None)
     for trial in range(3):
         run_id, history, validations = None, [], []
         for rung in range(2):
             start = len(history)
             history += [[0.01 * (k + 1), 1.0 / (k + 1), float(k % 50 == 7), 1.0] for k in range(start, start + 150)]
-            validations.append({"objective": 0.5 / (rung + 1), "resource_s": history[-1][0]})
+            validations.append({"objective": 0.5 / (rung + 1), "resource_s": history[-1][0],
+                                "position_mae": 0.2 / (rung + 1), "position_rmse": None})
             result = {"trial_id": f"b{worker}c{trial}", "bracket": worker, "rung": rung, "config": trial,
                       "hash": "abc", "status": "ok", "reason": "", "objective": 0.5 / (rung + 1), "hyperparameters": {"lr": 1e-3, "width": 8},
                       "fmu": {"path": "IPBMotor.fmu", "sha256": "0" * 64}, "resource_s": history[-1][0],
-                      "validation": {"objective": 0.5 / (rung + 1), "angle_mae": 0.1, "angle_mse": 0.01,
-                                     "speed_mae": 1.0, "speed_mse": 2.0, "loss": 0.3},
+                      "validation": {"objective": 0.5 / (rung + 1), "position_mae": 0.1, "position_mse": 0.01,
+                                     "position_rmse": 0.1, "loss": 0.3},
                       "validations": validations, "delay_s": 1e-5, "skipped_steps": 3,
-                      "gates": {"omega": {"g_F": 1.0, "g_A": 0.3}}, "checkpoint": "c.pt"}
+                      "gates": {"v": {"g_F": 1.0, "g_A": 0.3}}, "checkpoint": "c.pt"}
             run_id = log_trial_rung(tracking, "search-1", result, history, model, spec, run_id,
                                     since_resource_s=history[start - 1][0] if start else 0.0)
     print("done", worker)
@@ -122,6 +122,7 @@ def test_two_training_processes_log_everything(tmp_path):
         assert [m.step for m in sorted(client.get_metric_history(run_id, "val_objective"), key=lambda m: m.step)] == [
             1500, 3000]
         assert run.data.metrics["best_val_objective"] == 0.25
+        assert run.data.metrics["val_position_mae"] == 0.1 and "val_position_rmse" not in run.data.metrics
         artifacts = {a.path for a in client.list_artifacts(run_id, "rung1")}
         assert {"rung1/model", "rung1/training_curve.png"} <= artifacts
         model_files = {a.path for a in client.list_artifacts(run_id, "rung1/model")}

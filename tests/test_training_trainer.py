@@ -1,4 +1,4 @@
-"""Training: windows, losses, the trainer's resumable state, skipped steps, determinism (pure-torch motor)."""
+"""Training: windows, losses, the trainer's resumable state, skipped steps, determinism (pure-torch pendulum)."""
 
 import dataclasses
 import io
@@ -7,58 +7,91 @@ import numpy as np
 import pytest
 import torch
 
-from hybridfmu.model import MotorParameters, MotorRhs, NeuralFmu, NeuralFmuSpec
+from hybridfmu.model import NeuralFmu, NeuralFmuSpec
 from hybridfmu.training.data import ManeuverArrays
-from hybridfmu.training.losses import error_measures, weighted_loss
+from hybridfmu.training.losses import Objective, error_measures, weighted_loss
 from hybridfmu.training.statistics import data_statistics
-from hybridfmu.training.synthetic import motor_inputs, simulate_rhs
 from hybridfmu.training.trainer import Hyperparameters, Trainer, TrainerSettings, TrialDiverged
 from hybridfmu.training.validation import validate
 from hybridfmu.training.windows import WindowSampler
+from test_model_layers import Pendulum
 
 H = 1e-4
+TARGETS, SIGNALS = ["p", "v"], ["position", "rate"]
+WEIGHTS = {"p": 0.3, "v": 0.7}
 
 
-class NumpyMotor:
-    """The FMU-like batched interface (numpy) of the pure-torch motor, for the statistics."""
+class TruePendulum(Pendulum):
+    """The "real" system: stiffer and more damped than the model."""
 
-    state_names, input_names = MotorRhs.state_names, MotorRhs.input_names
+    K, C = 460.0, 3.0
+
+
+class NumpyPendulum:
+    """The FMU-like batched interface (numpy) of the pure-torch model, for the statistics."""
+
+    state_names, input_names = Pendulum.state_names, Pendulum.input_names
 
     def derivatives(self, x, u):
-        return MotorRhs()(torch.from_numpy(x), torch.from_numpy(u)).numpy()
+        return Pendulum()(torch.from_numpy(x), torch.from_numpy(u)).numpy()
+
+
+def pendulum_inputs(n: int, seed: int) -> np.ndarray:
+    """(n, 2) drive (rad/s^2) and damping gain: slow sines plus a little noise."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * H
+    drive = 150.0 * np.sin(2 * np.pi * 7.0 * t) + 60.0 * np.sin(2 * np.pi * 23.0 * t) + rng.normal(0, 2.0, n)
+    gain = 1.0 + 0.3 * np.sin(2 * np.pi * 3.0 * t)
+    return np.column_stack([drive, gain])
+
+
+def simulate(rhs, u: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """RK4 with inputs held per sample: u (T, 2), x0 (3,) -> states (T, 3)."""
+    u_t = torch.from_numpy(u)
+    x = torch.from_numpy(x0)[None]
+    states = [x]
+    for k in range(u.shape[0] - 1):
+        uk = u_t[k:k + 1]
+        k1 = rhs(x, uk)
+        k2 = rhs(x + 0.5 * H * k1, uk)
+        k3 = rhs(x + 0.5 * H * k2, uk)
+        k4 = rhs(x + H * k3, uk)
+        x = x + H / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        states.append(x)
+    return torch.cat(states).numpy()
 
 
 @pytest.fixture(scope="module")
 def arrays():
     n = 3000
-    u = motor_inputs(n, H, seed=0, theta0_rad=5.0)
-    states = simulate_rhs(MotorRhs(MotorParameters(J=2.4e-4, b=1e-4)), u, np.array([0.0, 0.0, 5.0, 0.0]), H)
-    return ManeuverArrays(name="synthetic", time_s=np.arange(n) * H, u=u, x_init=states, angle=states[:, 2].copy(),
-                          speed=states[:, 3].copy(), spans=np.array([[300, 1400], [1600, 2900]]),
-                          state_names=MotorRhs.state_names, input_names=MotorRhs.input_names, angle_state="theta",
-                          speed_state="omega", measured_states=MotorRhs.state_names)
+    u = pendulum_inputs(n, seed=0)
+    states = simulate(TruePendulum(), u, np.array([0.2, 0.0, 0.0]))
+    return ManeuverArrays(name="synthetic", time_s=np.arange(n) * H, u=u, x_init=states, targets=states[:, :2].copy(),
+                          spans=np.array([[300, 1400], [1600, 2900]]), state_names=Pendulum.state_names,
+                          input_names=Pendulum.input_names, target_states=TARGETS, target_signals=SIGNALS,
+                          measured_states=Pendulum.state_names)
 
 
 @pytest.fixture(scope="module")
 def statistics(arrays):
-    return data_statistics(arrays, NumpyMotor())
+    return data_statistics(arrays, NumpyPendulum())
 
 
 def make_model(statistics, seed=0, width=8, depth=2):
-    spec = NeuralFmuSpec(state_names=MotorRhs.state_names, input_names=MotorRhs.input_names,
-                         corrected_states=["omega"], ann_states=MotorRhs.state_names, ann_inputs=MotorRhs.input_names,
-                         ann_derivatives=MotorRhs.state_names, sample_period_s=H, width=width, depth=depth,
+    spec = NeuralFmuSpec(state_names=Pendulum.state_names, input_names=Pendulum.input_names,
+                         corrected_states=["v"], ann_states=Pendulum.state_names, ann_inputs=Pendulum.input_names,
+                         ann_derivatives=Pendulum.state_names, sample_period_s=H, width=width, depth=depth,
                          gate_opening=0.2, delay_min_s=-3e-4, delay_max_s=3e-4)
     torch.manual_seed(seed)
-    return NeuralFmu(MotorRhs(), spec, statistics)
+    return NeuralFmu(Pendulum(), spec, statistics)
 
 
-HYPER = Hyperparameters(lr=3e-3, beta1=0.9, beta2=0.999, window_s=0.004, loss="MAE", w_speed=0.7, width=8, depth=2,
-                        gate_opening=0.2, batch_windows=4)
+HYPER = Hyperparameters(lr=3e-3, beta1=0.9, beta2=0.999, window_s=0.004, loss="MAE", width=8, depth=2,
+                        gate_opening=0.2, batch_windows=4, target_weights={"v": 0.7})
 
 
 def make_trainer(arrays, statistics, seed=5, settings=TrainerSettings(), hyper=HYPER):
-    return Trainer(make_model(statistics), arrays, hyper, statistics, settings, seed)
+    return Trainer(make_model(statistics), arrays, hyper, statistics, settings, seed, WEIGHTS)
 
 
 def test_windows_lie_inside_segments(arrays):
@@ -68,26 +101,40 @@ def test_windows_lie_inside_segments(arrays):
     assert inside.all()
     assert starts.min() < 330 and starts.max() > 2700  # both segments, near their ends
     batch = sampler.gather(starts[:3])
-    assert batch.u_seq.shape == (3, 150 + 2 * 4 + 1, 5) and batch.start_index == 4
+    assert batch.u_seq.shape == (3, 150 + 2 * 4 + 1, 2) and batch.start_index == 4
     assert torch.equal(batch.u_seq[:, 4], torch.from_numpy(arrays.u[starts[:3]]))
-    assert torch.equal(batch.angle[:, -1], torch.from_numpy(arrays.angle[starts[:3] + 150]))
+    assert batch.targets.shape == (3, 151, 2)
+    assert torch.equal(batch.targets[:, -1], torch.from_numpy(arrays.targets[starts[:3] + 150]))
     with pytest.raises(ValueError, match="no selected segment holds a window"):
         WindowSampler(arrays, n_steps=1400, pad=4)
 
 
 def test_weighted_loss_and_measures():
-    angle_error = torch.tensor([[0.0, 2.0, -2.0]], dtype=torch.float64)
-    speed_error = torch.tensor([[0.0, 10.0, 0.0]], dtype=torch.float64)
-    mae = weighted_loss(angle_error, speed_error, "MAE", 0.25, angle_scale=2.0, speed_scale=5.0)
+    errors = torch.tensor([[[0.0, 0.0], [2.0, 10.0], [-2.0, 0.0]]], dtype=torch.float64)  # (1, 3 samples, 2 targets)
+    mae = weighted_loss(errors, "MAE", [0.75, 0.25], [2.0, 5.0])
     assert mae.item() == pytest.approx(0.75 * (2 / 3) + 0.25 * (2 / 3))
-    mse = weighted_loss(angle_error, speed_error, "MSE", 1.0, angle_scale=2.0, speed_scale=5.0)
+    mse = weighted_loss(errors, "MSE", [0.0, 1.0], [2.0, 5.0])
     assert mse.item() == pytest.approx(4 / 3)
-    masked = weighted_loss(angle_error, speed_error, "MAE", 0.0, 1.0, 1.0, mask=torch.tensor([[False, True, False]]))
+    masked = weighted_loss(errors, "MAE", [1.0, 0.0], [1.0, 1.0], mask=torch.tensor([[False, True, False]]))
     assert masked.item() == 2.0
-    assert error_measures(angle_error, speed_error) == pytest.approx(
-        {"angle_mae": 4 / 3, "angle_mse": 8 / 3, "speed_mae": 10 / 3, "speed_mse": 100 / 3})
+    three = torch.cat([errors, errors[..., :1]], dim=-1)
+    assert weighted_loss(three, "MAE", [0.5, 0.25, 0.25], [1.0, 1.0, 2.0]).item() == pytest.approx(
+        0.5 * 4 / 3 + 0.25 * 10 / 3 + 0.25 * 2 / 3)
+    assert error_measures(errors, ["position", "rate"]) == pytest.approx(
+        {"position_mae": 4 / 3, "position_mse": 8 / 3, "position_rmse": (8 / 3) ** 0.5,
+         "rate_mae": 10 / 3, "rate_mse": 100 / 3, "rate_rmse": (100 / 3) ** 0.5})
     with pytest.raises(ValueError, match="loss kind"):
-        weighted_loss(angle_error, speed_error, "L1", 0.5, 1.0, 1.0)
+        weighted_loss(errors, "L1", [0.5, 0.5], [1.0, 1.0])
+    with pytest.raises(ValueError, match="2 targets but 1 weights"):
+        weighted_loss(errors, "MAE", [1.0], [1.0, 1.0])
+
+
+def test_hyperparameters_carry_target_weights():
+    values = {**HYPER.to_dict()}
+    assert values["w_v"] == 0.7 and "target_weights" not in values
+    assert Hyperparameters.from_dict(values) == HYPER
+    with pytest.raises(ValueError, match="unknown"):
+        Hyperparameters.from_dict({**values, "w_speedy": 0.1, "momentum": 0.5})
 
 
 def test_resumed_training_equals_uninterrupted(arrays, statistics):
@@ -122,11 +169,13 @@ def test_training_is_deterministic_and_learns(arrays, statistics):
     losses = [row[1] for row in a.history]
     assert np.mean(losses[-10:]) < 0.8 * np.mean(losses[:10])
     assert a.model.delay_s() != 0.0  # dt is trained
-    objective = {"loss": "MAE", "w_speed": 0.5}
+    objective = Objective("MAE", {"p": 0.5, "v": 0.5})
     short = dataclasses.replace(arrays, spans=np.array([[300, 700], [1600, 2000]]))
-    trained = validate(a.model, short, "MAE", 0.7, objective, statistics)
-    untrained = validate(make_model(statistics), short, "MAE", 0.7, objective, statistics)
+    trained = validate(a.model, short, "MAE", WEIGHTS, objective, statistics)
+    untrained = validate(make_model(statistics), short, "MAE", WEIGHTS, objective, statistics)
     assert trained["finite"] == 1.0 and trained["objective"] < untrained["objective"]
+    assert {"position_mae", "position_mse", "position_rmse", "rate_mae", "rate_mse", "rate_rmse"} <= set(trained)
+    assert trained["rate_mae"] < untrained["rate_mae"]
 
 
 def test_bad_gradients_are_skipped_then_the_trial_diverges(arrays, statistics):

@@ -14,10 +14,24 @@ from hybridfmu.fmu.build import build_fmu
 from hybridfmu.io import read_json, write_json_atomic
 from hybridfmu.training.hpo import plan_search, prepare_training_data, select_best, select_rung
 from hybridfmu.training.inference import load_trained_neural_fmu, simulate_neural_fmu
-from hybridfmu.training.synthetic import ingested_frame, motor_inputs
 from hybridfmu.training.trial import load_checkpoint, run_trial_rung
+from test_evaluation_baseline import MANEUVERS, measured_frame, motor_roles, write_calibration
 
 H = 1e-4
+ROLES = motor_roles()
+
+
+def motor_inputs(n: int, seed: int, theta0_rad: float = 5.0, pole_pairs: int = 4) -> np.ndarray:
+    """(n, 5) inputs [d_a, d_b, d_c, u_dc, tau_load] of the IPBMotor: duties of a voltage vector leading the
+    q-axis of a rotor that speeds up to 150 rad/s and back twice a second, 12 V with noise, a varying load."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * H
+    speed = 150.0 * (0.5 - 0.5 * np.cos(2 * np.pi * 2.0 * t))
+    angle_e = pole_pairs * (theta0_rad + np.cumsum(speed) * H) + np.pi / 2
+    amplitude = (pole_pairs * 6e-3 * speed + 0.6) / 12.0
+    duties = [0.5 + amplitude * np.cos(angle_e - k * 2 * np.pi / 3) + 0.002 * rng.standard_normal(n)
+              for k in range(3)]
+    return np.column_stack(duties + [12.0 + 0.05 * rng.standard_normal(n), 0.05 + 0.03 * np.sin(2 * np.pi * 1.5 * t)])
 
 
 @pytest.fixture(scope="module")
@@ -29,18 +43,19 @@ def case(tmp_path_factory):
     for role, seed in (("train", 0), ("validation", 1)):
         n = 2500
         time_s = np.arange(n) * H
-        u = motor_inputs(n, H, seed, theta0_rad=5.0)
+        u = motor_inputs(n, seed, theta0_rad=5.0)
         states = simulate_open_loop(true_motor, time_s, u, np.array([0.0, 0.0, 5.0, 0.0])).states
         data = root / f"{role}.parquet"
-        ingested_frame(time_s, u, states).to_parquet(data)
+        measured_frame(time_s, u, states).to_parquet(data)
         segments = root / f"{role}.json"
         write_json_atomic(segments, {"maneuver": role, "spans_s": [[0.02, 0.12], [0.14, 0.24]], "thresholds": {},
                                      "fraction_kept": 0.8})
         paths[role] = (data, segments)
     arrays = {role: root / "prepared" / f"{role}.npz" for role in paths}
     statistics = root / "prepared" / "statistics.json"
-    prepare_training_data(fmu_path=fmu_path, fmu_parameters={}, signals_config={},
-                          maneuvers={"train": "train", "validation": "validation"},
+    calibration = write_calibration(root / "calibration.json", {"theta_min": -100.0})
+    prepare_training_data(fmu_path=fmu_path, calibration_path=calibration, roles=ROLES,
+                          maneuvers={"train": "train", "validation": "val"}, maneuvers_config=MANEUVERS,
                           data_paths={r: p[0] for r, p in paths.items()},
                           segments_paths={r: p[1] for r, p in paths.items()}, baseline_paths={},
                           array_paths=arrays, statistics_path=statistics)
@@ -49,17 +64,18 @@ def case(tmp_path_factory):
         "beta1": {"distribution": "fixed", "value": 0.9}, "beta2": {"distribution": "fixed", "value": 0.999},
         "window_s": {"distribution": "uniform", "low": 0.003, "high": 0.005},
         "loss": {"distribution": "choice", "values": ["MAE", "MSE"]},
-        "w_speed": {"distribution": "uniform", "low": 0.0, "high": 1.0},
+        "w_omega": {"distribution": "uniform", "low": 0.0, "high": 1.0},
         "width": {"distribution": "fixed", "value": 8}, "depth": {"distribution": "fixed", "value": 2},
         "gate_opening": {"distribution": "uniform", "low": 0.0, "high": 0.3},
         "batch_windows": {"distribution": "fixed", "value": 2}}}, "hpo")
-    model = section_settings({"end_stop": {"state": "theta", "rate_state": "omega"}}, "model")
+    model = section_settings({"corrected_states": ["omega"], "end_stop": {
+        "state": "theta", "rate_state": "omega", "min_parameter": "theta_min", "max_parameter": "theta_max"}}, "model")
     training = section_settings({}, "training")
     plan_path = root / "hpo" / "plan.json"
     plan_search(case="synthetic", seed=11, hpo_config=hpo, training_config=training, model_config=model,
-                plan_path=plan_path, tracking_uri=None, experiment=None)
+                plan_path=plan_path, tracking_uri=None, experiment=None, roles=ROLES)
     return {"root": root, "fmu": fmu_path, "arrays": arrays, "statistics": statistics, "plan": plan_path,
-            "model": model, "training": training}
+            "model": model, "training": training, "calibration": calibration}
 
 
 def train(case, bracket, rung, config, plan=None):
@@ -68,7 +84,7 @@ def train(case, bracket, rung, config, plan=None):
     return run_trial_rung(
         plan_path=plan or case["plan"], bracket=bracket, rung=rung, config_index=config,
         train_arrays_path=case["arrays"]["train"], validation_arrays_path=case["arrays"]["validation"],
-        statistics_path=case["statistics"], fmu_path=case["fmu"], fmu_parameters={}, model_config=case["model"],
+        statistics_path=case["statistics"], fmu_path=case["fmu"], calibration_path=case["calibration"], roles=ROLES, model_config=case["model"],
         training_config=case["training"], previous_checkpoint=previous if rung > 0 else None,
         checkpoint_path=folder / "checkpoint.pt", result_path=folder / "result.json", track=False)
 
@@ -123,12 +139,15 @@ def test_search_end_to_end(case):
     assert len(summary["trials"]) == 6 and summary["best_trial"] == best["trial_id"]
     assert {t["status"] for t in summary["trials"]} == {"ok", "failed"}
 
-    model = load_trained_neural_fmu(hpo / "best.json", case["fmu"])
+    model = load_trained_neural_fmu(hpo / "best.json", case["fmu"], {"theta_min": -100.0})
     assert model.delay_s() == pytest.approx(best["delay_s"]) and model.gate_values() == best["gates"]
+    assert model.spec.end_stop.min == -100.0  # the calibrated parameter
     valid = np.load(case["arrays"]["validation"])
+    assert [str(s) for s in valid["target_signals"]] == ["angle", "speed"]
     states = simulate_neural_fmu(model, valid["time_s"], valid["u"], valid["x_init"][0])
     assert states.shape == valid["x_init"].shape and np.all(np.isfinite(states))
-    assert np.abs(states[:, 2] - valid["angle"]).max() < 5.0
+    assert np.abs(states[:, 2] - valid["targets"][:, 0]).max() < 5.0
+    assert {"angle_mae", "speed_rmse", "objective"} <= set(best["validation"])
     with pytest.raises(ValueError, match="step"):
         simulate_neural_fmu(model, valid["time_s"] * 2, valid["u"], valid["x_init"][0])
 
@@ -147,7 +166,7 @@ def test_resumed_trial_equals_one_run(case, tmp_path):
     one_job = run_trial_rung(
         plan_path=straight_plan, bracket=1, rung=0, config_index=config,
         train_arrays_path=case["arrays"]["train"], validation_arrays_path=case["arrays"]["validation"],
-        statistics_path=case["statistics"], fmu_path=case["fmu"], fmu_parameters={}, model_config=case["model"],
+        statistics_path=case["statistics"], fmu_path=case["fmu"], calibration_path=case["calibration"], roles=ROLES, model_config=case["model"],
         training_config=case["training"], previous_checkpoint=None, checkpoint_path=folder / "checkpoint.pt",
         result_path=folder / "result.json", track=False)
     a, b = load_checkpoint(two_jobs["checkpoint"]), load_checkpoint(one_job["checkpoint"])
@@ -188,7 +207,7 @@ def test_intermediate_validations_report_the_best_state(case, tmp_path):
     result = run_trial_rung(
         plan_path=case["plan"], bracket=0, rung=0, config_index=1,
         train_arrays_path=case["arrays"]["train"], validation_arrays_path=case["arrays"]["validation"],
-        statistics_path=case["statistics"], fmu_path=case["fmu"], fmu_parameters={}, model_config=case["model"],
+        statistics_path=case["statistics"], fmu_path=case["fmu"], calibration_path=case["calibration"], roles=ROLES, model_config=case["model"],
         training_config=training, previous_checkpoint=None, checkpoint_path=tmp_path / "checkpoint.pt",
         result_path=tmp_path / "result.json", track=False)
     objectives = [v["objective"] for v in result["validations"]]

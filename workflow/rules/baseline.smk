@@ -1,5 +1,21 @@
 # The FMU open loop over each whole maneuver (rule simulate_baseline), and the short window that
-# shows the time offset between data and model (rule time_offset, paper Fig. 6).
+# shows the time offset between data and model (rule time_offset, paper Fig. 6). Every stage that
+# simulates the FMU loads it with the calibrated parameters (rule calibrate) and reads the data through
+# the case's roles; the definitions below are shared with train.smk and evaluate.smk.
+from hybridfmu.case import case_roles
+
+CALIBRATION_JSON = f"{RESULTS}/calibration/calibration.json"
+_ROLES = case_roles(config)
+TARGET_SIGNALS = _ROLES.target_signals
+UNMEASURED_STATES = _ROLES.unmeasured_states
+
+
+def case_sections():
+    """The config sections that define the case's roles (params of every stage that reads data through
+    them, so that a change reruns the stage); ``hybridfmu.case.case_roles`` builds the roles from them."""
+    return {"fmu": config["fmu"], "maneuvers": config["maneuvers"], "signals": config.get("signals", {}),
+            "transforms": config.get("transforms", []), "roles": config.get("roles", {})}
+
 
 
 def time_offset_maneuver():
@@ -17,13 +33,13 @@ def time_offset_maneuver():
 rule simulate_baseline:
     input:
         fmu=fmu_path(),
+        calibration=CALIBRATION_JSON,
         data=f"{RESULTS}/data/{{maneuver}}.parquet",
     output:
         trajectory=f"{RESULTS}/baseline/{{maneuver}}.parquet",
         metrics=f"{RESULTS}/baseline/{{maneuver}}.metrics.json",
     params:
-        fmu_parameters=config["fmu"].get("parameters", {}),
-        signals=config.get("signals", {}),
+        case=case_sections(),
     wildcard_constraints:
         maneuver="|".join(MANEUVERS),
     log:
@@ -37,6 +53,7 @@ rule simulate_baseline:
 rule time_offset:
     input:
         fmu=fmu_path(),
+        calibration=CALIBRATION_JSON,
         data=f"{RESULTS}/data/{time_offset_maneuver()}.parquet",
     output:
         window=f"{RESULTS}/evaluation/time_offset.parquet",
@@ -44,8 +61,7 @@ rule time_offset:
     params:
         maneuver=time_offset_maneuver(),
         options=config.get("evaluation", {}).get("time_offset", {}),
-        fmu_parameters=config["fmu"].get("parameters", {}),
-        signals=config.get("signals", {}),
+        case=case_sections(),
     log:
         f"{RESULTS}/logs/time_offset/time_offset.log",
     benchmark:

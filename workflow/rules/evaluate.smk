@@ -11,12 +11,15 @@ FIGURES = f"{RESULTS}/figures"
 
 
 def evaluation_figure_specs():
-    """(name, path, maneuver or None, kind) of every figure: per evaluated maneuver the angle and speed,
-    whole and zoomed (paper Figs. 9-16); the time offset (Fig. 6), training curves, Hyperband overview."""
+    """(name, path, maneuver or None, caption) of every figure: per evaluated maneuver and target signal
+    (TARGET_SIGNALS, baseline.smk) the whole trajectory and the zoomed intervals (paper Figs. 9-16); the time
+    offset (Fig. 6), training curves, Hyperband overview."""
     specs = [(kind, f"{FIGURES}/{kind}.png", None, kind) for kind in ("time_offset", "training_curves", "hyperband")]
     for maneuver in EVAL_MANEUVERS:
-        for kind in ("angle", "angle_zoom", "speed", "speed_zoom"):
-            specs.append((f"{maneuver}_{kind}", f"{FIGURES}/{maneuver}_{kind}.png", maneuver, kind))
+        for signal in TARGET_SIGNALS:
+            for suffix, caption in (("", "trajectory"), ("_zoom", "trajectory_zoom")):
+                name = f"{maneuver}_{signal}{suffix}"
+                specs.append((name, f"{FIGURES}/{name}.png", maneuver, caption))
     return specs
 
 
@@ -40,14 +43,15 @@ rule simulate_best:
     input:
         best=f"{RESULTS}/hpo/best.json",
         fmu=fmu_path(),
+        calibration=CALIBRATION_JSON,
         data=f"{RESULTS}/data/{{maneuver}}.parquet",
         baseline=f"{RESULTS}/baseline/{{maneuver}}.parquet",
     output:
         trajectory=f"{RESULTS}/evaluation/trajectories/{{maneuver}}.parquet",
         learned=f"{RESULTS}/evaluation/trajectories/{{maneuver}}.learned.json",
     params:
-        signals=config.get("signals", {}),
-        fmu_parameters=config["fmu"].get("parameters", {}),
+        case=case_sections(),
+        model=config.get("model", {}),
     wildcard_constraints:
         maneuver="|".join(EVAL_MANEUVERS) if EVAL_MANEUVERS else "(?!)",
     threads: 1
@@ -84,9 +88,9 @@ rule evaluate:
 def figure_outputs():
     """Named plot outputs, each marked as an item of the Snakemake report with its caption."""
     outputs = {}
-    for name, path, maneuver, kind in evaluation_figure_specs():
+    for name, path, maneuver, caption in evaluation_figure_specs():
         subcategory = f"{config['maneuvers'][maneuver]['role']}: {maneuver}" if maneuver else "training and data"
-        outputs[name] = report(path, caption=f"../report/{kind}.rst", category="Evaluation",
+        outputs[name] = report(path, caption=f"../report/{caption}.rst", category="Evaluation",
                                subcategory=subcategory, labels={"figure": name})
     return outputs
 
@@ -103,6 +107,7 @@ rule plot:
     params:
         plot=EVAL_CONFIG.get("plot", {}),
         maneuvers={name: config["maneuvers"][name]["role"] for name in EVAL_MANEUVERS},
+        case=case_sections(),
         hpo_dir=f"{RESULTS}/hpo",
     log:
         f"{RESULTS}/logs/plot/plot.log",
@@ -126,6 +131,8 @@ rule report:
     params:
         case=CASE,
         figure_names=list(evaluation_figures()),
+        case_sections=case_sections(),
+        reference=EVAL_CONFIG.get("reference", {}),
     log:
         f"{RESULTS}/logs/report/report.log",
     benchmark:

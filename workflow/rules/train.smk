@@ -43,10 +43,14 @@ def rung_results(wildcards):
 rule hpo_prepare:
     input:
         fmu=fmu_path(),
+        calibration=CALIBRATION_JSON,
         train_data=f"{RESULTS}/data/{TRAIN_MANEUVERS['train']}.parquet",
         validation_data=f"{RESULTS}/data/{TRAIN_MANEUVERS['validation']}.parquet",
         train_segments=f"{RESULTS}/segments/{TRAIN_MANEUVERS['train']}.json",
         validation_segments=f"{RESULTS}/segments/{TRAIN_MANEUVERS['validation']}.json",
+        # unmeasured states start the training windows from the FMU's baseline (from the calibration)
+        baselines=[f"{RESULTS}/baseline/{name}.parquet" for name in TRAIN_MANEUVERS.values()]
+        if UNMEASURED_STATES else [],
     output:
         train=f"{HPO_DIR}/prepared/train.npz",
         validation=f"{HPO_DIR}/prepared/validation.npz",
@@ -54,8 +58,7 @@ rule hpo_prepare:
     params:
         maneuvers=TRAIN_MANEUVERS,
         baselines={role: f"{RESULTS}/baseline/{name}.parquet" for role, name in TRAIN_MANEUVERS.items()},
-        fmu_parameters=config["fmu"].get("parameters", {}),
-        signals=config.get("signals", {}),
+        case=case_sections(),
     log:
         f"{RESULTS}/logs/hpo_prepare/hpo_prepare.log",
     benchmark:
@@ -73,6 +76,7 @@ rule hpo_plan:
         hpo=HPO,
         training=TRAINING,
         model=MODEL,
+        case_sections=case_sections(),
         tracking_uri=tracking_uri(config.get("mlflow"), config.get("results_dir", "results")),
         experiment=experiment_name(config.get("mlflow"), CASE),
     log:
@@ -90,6 +94,7 @@ rule train_rung:
         validation=f"{HPO_DIR}/prepared/validation.npz",
         statistics=f"{HPO_DIR}/prepared/statistics.json",
         fmu=fmu_path(),
+        calibration=CALIBRATION_JSON,
         previous=previous_rung_checkpoint,
     output:
         checkpoint=f"{HPO_DIR}/b{{bracket}}/r{{rung}}/c{{config}}/checkpoint.pt",
@@ -97,7 +102,8 @@ rule train_rung:
     params:
         model=MODEL,
         training=TRAINING,
-        fmu_parameters=config["fmu"].get("parameters", {}),
+        hpo=HPO,
+        case=case_sections(),
     wildcard_constraints:
         bracket=r"\d+",
         rung=r"\d+",

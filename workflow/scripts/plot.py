@@ -1,5 +1,6 @@
 """Rule plot: the paper's figures, training curves and the Hyperband overview, from saved results."""
 
+from hybridfmu.case import case_roles
 from hybridfmu.evaluation.plots import draw_all
 from hybridfmu.progress import setup_rule_logging
 
@@ -14,4 +15,5 @@ draw_all(
     hpo_dir=snakemake.params.hpo_dir,
     maneuver_roles=snakemake.params.maneuvers,
     plot_options=snakemake.params.plot,
+    roles=case_roles(snakemake.params.case),
 )

@@ -1,5 +1,6 @@
 """Rule report: report.md (improvement factors beside the paper's, figures, hyperparameters, learned dt)."""
 
+from hybridfmu.case import case_roles
 from hybridfmu.evaluation.report import write_report
 from hybridfmu.progress import setup_rule_logging
 
@@ -13,4 +14,6 @@ write_report(
     time_offset_summary_path=snakemake.input.time_offset_summary,
     figure_paths=dict(zip(snakemake.params.figure_names, snakemake.input.figures)),
     truth_paths=list(snakemake.input.truth),
+    roles=case_roles(snakemake.params.case_sections),
+    reference=snakemake.params.reference,
 )

@@ -1,15 +1,17 @@
-"""Rule simulate_baseline: the FMU open loop over one whole maneuver."""
+"""Rule simulate_baseline: the calibrated FMU open loop over one whole maneuver."""
 
+from hybridfmu.case import case_roles
 from hybridfmu.evaluation.baseline import run_baseline
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 run_baseline(
     fmu_path=snakemake.input.fmu,
+    calibration_path=snakemake.input.calibration,
     data_path=snakemake.input.data,
     trajectory_path=snakemake.output.trajectory,
     metrics_path=snakemake.output.metrics,
-    fmu_parameters=snakemake.params.fmu_parameters,
-    signals_config=snakemake.params.signals,
+    roles=case_roles(snakemake.params.case),
+    maneuvers=snakemake.params.case["maneuvers"],
     maneuver=snakemake.wildcards.maneuver,
 )

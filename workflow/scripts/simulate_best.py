@@ -2,6 +2,7 @@
 
 import torch
 
+from hybridfmu.case import case_roles
 from hybridfmu.evaluation.evaluate import simulate_best
 from hybridfmu.progress import setup_rule_logging
 
@@ -10,11 +11,12 @@ setup_rule_logging(snakemake.log[0])
 simulate_best(
     best_path=snakemake.input.best,
     fmu_path=snakemake.input.fmu,
+    calibration_path=snakemake.input.calibration,
     data_path=snakemake.input.data,
     baseline_path=snakemake.input.baseline,
     trajectory_path=snakemake.output.trajectory,
     learned_path=snakemake.output.learned,
-    signals_config=snakemake.params.signals,
-    fmu_parameters=snakemake.params.fmu_parameters,
+    roles=case_roles(snakemake.params.case),
+    maneuvers=snakemake.params.case["maneuvers"],
     maneuver=snakemake.wildcards.maneuver,
 )

@@ -1,5 +1,6 @@
 """Rule hpo_plan: the search plan (brackets, rungs, configurations) and the MLflow parent run."""
 
+from hybridfmu.case import case_roles
 from hybridfmu.progress import setup_rule_logging
 from hybridfmu.training.hpo import plan_search
 
@@ -13,4 +14,5 @@ plan_search(
     plan_path=snakemake.output.plan,
     tracking_uri=snakemake.params.tracking_uri,
     experiment=snakemake.params.experiment,
+    roles=case_roles(snakemake.params.case_sections),
 )

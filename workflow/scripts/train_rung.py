@@ -2,6 +2,7 @@
 
 import torch
 
+from hybridfmu.case import case_roles
 from hybridfmu.progress import setup_rule_logging
 from hybridfmu.training.trial import run_trial_rung
 
@@ -16,7 +17,8 @@ run_trial_rung(
     validation_arrays_path=snakemake.input.validation,
     statistics_path=snakemake.input.statistics,
     fmu_path=snakemake.input.fmu,
-    fmu_parameters=snakemake.params.fmu_parameters,
+    calibration_path=snakemake.input.calibration,
+    roles=case_roles(snakemake.params.case),
     model_config=snakemake.params.model,
     training_config=snakemake.params.training,
     previous_checkpoint=snakemake.input.previous or None,

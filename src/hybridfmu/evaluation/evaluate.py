@@ -1,9 +1,10 @@
 """Evaluation of the best neural FMU (rules ``simulate_best`` and ``evaluate``).
 
 ``simulate_best``: the best model of the hyperparameter search is simulated open loop over the WHOLE
-maneuver, from its first sample (measured initial state, recorded inputs, no controller, no
-windows), one job per validation/test maneuver. The FMU trajectory is the baseline's (same FMU,
-parameters, inputs and initial state). Data, FMU and neural FMU are saved together for plotting.
+maneuver, from its first sample (measured initial states, unmeasured ones from the calibration,
+recorded inputs, no windows), one job per validation/test maneuver. The FMU trajectory is the
+baseline's (same calibrated FMU, inputs and initial state). Data, FMU and neural FMU are saved
+together for plotting.
 
 ``evaluate``: errors of both models over the whole trajectories and the zoomed intervals, per role
 ``metrics/<role>.json``, and the evaluation's MLflow run.
@@ -19,7 +20,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from hybridfmu.evaluation.baseline import mechanical_states, read_maneuver
 from hybridfmu.evaluation.best import best_trial_summary
 from hybridfmu.evaluation.comparison import ManeuverRun, role_metrics
 from hybridfmu.evaluation.tracking import log_evaluation_run, resolve_tracking
@@ -48,31 +48,45 @@ def learned_quantities(model: Any) -> dict[str, Any]:
     return {"dt_s": float(model.delay_s()), "gates": model.gate_values()}
 
 
-def simulate_best(best_path: str | Path, fmu_path: str | Path, data_path: str | Path, baseline_path: str | Path,
-                  trajectory_path: str | Path, learned_path: str | Path, signals_config: dict[str, Any] | None,
-                  fmu_parameters: dict[str, float] | None, maneuver: str) -> dict[str, Any]:
+def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path: str | Path | None,
+                  data_path: str | Path, baseline_path: str | Path, trajectory_path: str | Path,
+                  learned_path: str | Path, roles: Any, maneuvers: dict[str, Any] | None,
+                  maneuver: str) -> dict[str, Any]:
     """Simulate the best neural FMU open loop over the whole maneuver; save it beside data and FMU.
 
-    Writes ``trajectory_path`` (Parquet: ``time_s``, ``data_angle_rad``, ``data_speed_rad_s``,
-    ``fmu_angle_rad``, ``fmu_speed_rad_s``, ``neural_fmu_angle_rad``, ``neural_fmu_speed_rad_s``, and
-    ``fmu_<state>``, ``neural_fmu_<state>`` for every FMU state; SI units) and ``learned_path`` (JSON:
-    ``{"maneuver", "trial_id", "dt_s", "gates", "x0", "wall_time_s"}``). Returns the latter.
+    Args:
+        best_path: ``hpo/best.json``; fmu_path, calibration_path: the FMU and its calibration (None: as
+            configured); data_path, baseline_path: the ingested maneuver and the FMU's baseline of it.
+        trajectory_path, learned_path: outputs.
+        roles: :class:`hybridfmu.case.CaseRoles`; maneuvers: config ``maneuvers``; maneuver: its name.
+
+    Writes ``trajectory_path`` (Parquet: ``time_s``; per target signal ``data_<signal>``, ``fmu_<signal>``,
+    ``neural_fmu_<signal>``; per FMU state ``fmu_state_<state>``, ``neural_fmu_state_<state>``; model
+    units) and ``learned_path`` (JSON: ``{"maneuver", "trial_id", "signals", "dt_s", "gates", "x0",
+    "wall_time_s"}``). Returns the latter.
     """
     from hybridfmu.training.inference import load_trained_neural_fmu, simulate_neural_fmu
+    from hybridfmu.training.measured import initial_state, load_calibration, read_measured
 
     best = read_json(best_path)
     summary = best_trial_summary(best, best_path)
-    model = load_trained_neural_fmu(best_path, fmu_path, fmu_parameters or None)
-    state_names, input_names = list(model.spec.state_names), list(model.spec.input_names)
-    time_s, u, x_measured = read_maneuver(data_path, state_names, input_names, signals_config)
+    calibration = load_calibration(calibration_path)
+    model = load_trained_neural_fmu(best_path, fmu_path, dict(calibration.parameters) or None)
+    state_names = list(model.spec.state_names)
+    if state_names != list(roles.state_names) or list(model.spec.input_names) != list(roles.input_names):
+        raise ValueError(f"{best_path}: the trained model's states {state_names} / inputs {model.spec.input_names} "
+                         f"differ from the case roles' {roles.state_names} / {roles.input_names}")
+    measured = read_measured(data_path, roles)
+    time_s = measured.time_s
     fmu_states = read_baseline(baseline_path, state_names, time_s)
-    angle_i, speed_i = (state_names.index(name) for name in mechanical_states(signals_config))
+    x0 = initial_state(model.fmu.rhs.model, measured.x[0], roles, calibration, maneuver, maneuvers)
+    target_index = [state_names.index(name) for name in measured.target_states]
     learned = learned_quantities(model)
     duration_s = float(time_s[-1] - time_s[0])
     LOG.info("%s: neural FMU (trial %s, dt = %.4g s, gates %s) open loop over %.3f s (%d samples) ...", maneuver,
              summary["trial_id"], learned["dt_s"], learned["gates"], duration_s, time_s.size)
     start = time.perf_counter()
-    states = np.asarray(simulate_neural_fmu(model, time_s, u, x_measured[0]), dtype=float)
+    states = np.asarray(simulate_neural_fmu(model, time_s, measured.u, x0), dtype=float)
     wall_s = time.perf_counter() - start
     if states.shape != (time_s.size, len(state_names)):
         raise ValueError(f"{maneuver}: neural FMU returned states of shape {states.shape}, "
@@ -82,15 +96,17 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, data_path: str | 
         raise FloatingPointError(f"{maneuver}: neural FMU open-loop simulation diverged at t = {time_s[bad]:.6g} s")
     LOG.info("%s: %.3f s simulated in %.1f s wall time (%.3g s per simulated second)", maneuver, duration_s, wall_s,
              wall_s / max(duration_s, 1e-12))
-    columns = {"time_s": time_s, "data_angle_rad": x_measured[:, angle_i], "data_speed_rad_s": x_measured[:, speed_i],
-               "fmu_angle_rad": fmu_states[:, angle_i], "fmu_speed_rad_s": fmu_states[:, speed_i],
-               "neural_fmu_angle_rad": states[:, angle_i], "neural_fmu_speed_rad_s": states[:, speed_i]}
+    columns: dict[str, np.ndarray] = {"time_s": time_s}
+    for k, signal in enumerate(measured.target_signals):
+        columns[f"data_{signal}"] = measured.targets[:, k]
+        columns[f"fmu_{signal}"] = fmu_states[:, target_index[k]]
+        columns[f"neural_fmu_{signal}"] = states[:, target_index[k]]
     for i, name in enumerate(state_names):
-        columns[f"fmu_{name}"] = fmu_states[:, i]
-        columns[f"neural_fmu_{name}"] = states[:, i]
+        columns[f"fmu_state_{name}"] = fmu_states[:, i]
+        columns[f"neural_fmu_state_{name}"] = states[:, i]
     write_parquet_atomic(trajectory_path, pd.DataFrame(columns))
-    record = {"maneuver": maneuver, "trial_id": summary["trial_id"], **learned,
-              "x0": dict(zip(state_names, x_measured[0].tolist())), "wall_time_s": wall_s}
+    record = {"maneuver": maneuver, "trial_id": summary["trial_id"], "signals": list(measured.target_signals),
+              **learned, "x0": dict(zip(state_names, x0.tolist())), "wall_time_s": wall_s}
     write_json_atomic(learned_path, record)
     return record
 
@@ -128,9 +144,14 @@ def run_evaluation(best_path: str | Path, trajectory_paths: list[str], learned_p
         if record.get("trial_id") != summary["trial_id"] or record.get("dt_s") != learned[0].get("dt_s"):
             raise ValueError(f"{path}: simulated with trial {record.get('trial_id')} (dt {record.get('dt_s')}), but "
                              f"best.json names {summary['trial_id']}; rerun simulate_best")
+    signals = list(learned[0].get("signals") or [])
+    for path, record in zip(learned_paths, learned):
+        if list(record.get("signals") or []) != signals or not signals:
+            raise ValueError(f"{path}: target signals {record.get('signals')} differ from {signals} (or none); "
+                             "rerun simulate_best")
     runs_by_role: dict[str, list[ManeuverRun]] = {}
     for name, path in zip(maneuvers, trajectory_paths):
-        run = ManeuverRun.from_frame(pd.read_parquet(path), name, str(path))
+        run = ManeuverRun.from_frame(pd.read_parquet(path), name, signals, str(path))
         runs_by_role.setdefault(maneuver_roles[name], []).append(run)
     extra = {"dt_s": learned[0]["dt_s"], "gates": learned[0]["gates"], "best_trial": summary}
     metrics_by_role: dict[str, dict] = {}
@@ -139,8 +160,9 @@ def run_evaluation(best_path: str | Path, trajectory_paths: list[str], learned_p
         metrics_by_role[role] = role_metrics(role, runs_by_role.get(role, []), zoom_settings or {}, extra)
         write_json_atomic(path, metrics_by_role[role])
         improvement = metrics_by_role[role]["improvement"]
-        LOG.info("%s: improvement angle MAE x%s, MSE x%s; speed MAE x%s, MSE x%s", role,
-                 *(_fmt(improvement[k]) for k in ("angle_mae", "angle_mse", "speed_mae", "speed_mse")))
+        LOG.info("%s: improvement %s", role, "; ".join(
+            f"{signal} MAE x{_fmt(improvement[f'{signal}_mae'])}, MSE x{_fmt(improvement[f'{signal}_mse'])}"
+            for signal in signals))
     uri, experiment = resolve_tracking(mlflow_config, results_dir, case)
     params = {"dt_s": extra["dt_s"], "best_trial_id": summary["trial_id"],
               **{f"hp.{k}": v for k, v in summary["hyperparameters"].items()},

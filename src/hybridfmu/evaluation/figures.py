@@ -1,15 +1,16 @@
 """The paper's figures (Figs. 6, 9-16), training curves and the Hyperband overview.
 
 Every function draws from arrays already computed (nothing is simulated here), writes one PNG
-with the Agg backend and returns its path. Legends carry the loss values in square brackets,
-as in the paper, e.g. ``FMU [MAE 1.23 rad, MSE 2.5 rad²]``.
+with the Agg backend and returns its path. Signals are :class:`hybridfmu.case.Signal` (or anything
+with ``name``, ``label``, ``unit`` and ``display()``): titles and axes come from them. Legends carry
+the loss values in square brackets, as in the paper, e.g. ``FMU [MAE 1.23 rad, MSE 2.5 rad²]``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import matplotlib
 
@@ -24,9 +25,13 @@ DATA_STYLE = {"color": "black", "label": "data"}
 FMU_STYLE = {"color": "tab:red"}
 NEURAL_STYLE = {"color": "tab:blue"}
 
-#: Unit of each quantity on the axes, in the legends and of its squared error.
-QUANTITY_UNITS = {"angle": ("rad", "rad²"), "speed": ("rad/s", "(rad/s)²")}
-QUANTITY_LABELS = {"angle": "rotor angle θ", "speed": "rotor speed ω"}
+
+
+def squared_unit(unit: str) -> str:
+    """The unit of a squared error: ``rad`` -> ``rad²``, ``rad/s`` -> ``(rad/s)²``, dimensionless -> ``-``."""
+    if not unit:
+        return "-"
+    return f"({unit})²" if any(c in unit for c in "/* ·") else f"{unit}²"
 
 
 @dataclass(frozen=True)
@@ -55,16 +60,17 @@ class PlotOptions:
 
 @dataclass
 class Trajectories:
-    """Data, FMU and neural FMU of one quantity on one maneuver, all on the grid ``time_s`` (T,).
+    """Data, FMU and neural FMU of one target signal on one maneuver, all on the grid ``time_s`` (T,).
 
     Attributes:
         maneuver: name of the maneuver (in titles).
-        quantity: ``"angle"`` (rad) or ``"speed"`` (rad/s).
-        time_s, data, fmu, neural_fmu: arrays of shape (T,).
+        signal: the target signal (label and unit of the axis and legends).
+        time_s: (T,) s; data, fmu, neural_fmu: (T,) in the signal's unit.
+        zooms: zoomed intervals (t_start_s, t_end_s).
     """
 
     maneuver: str
-    quantity: str
+    signal: Any
     time_s: np.ndarray
     data: np.ndarray
     fmu: np.ndarray
@@ -96,15 +102,10 @@ def decimate_minmax(time_s: np.ndarray, values: np.ndarray, max_points: int) -> 
     return time_s[index], values[index]
 
 
-def _loss_label(name: str, errors: dict[str, float], quantity: str) -> str:
-    unit, unit_sq = QUANTITY_UNITS[quantity]
-    return (f"{name} [MAE {format_error(errors[f'{quantity}_mae'], unit)}, "
-            f"MSE {format_error(errors[f'{quantity}_mse'], unit_sq)}]")
-
-
-def _errors(simulated: np.ndarray, data: np.ndarray, quantity: str) -> dict[str, float]:
+def _loss_label(name: str, simulated: np.ndarray, data: np.ndarray, unit: str) -> str:
     diff = np.asarray(simulated, float) - np.asarray(data, float)
-    return {f"{quantity}_mae": float(np.mean(np.abs(diff))), f"{quantity}_mse": float(np.mean(diff ** 2))}
+    mae, mse = float(np.mean(np.abs(diff))), float(np.mean(diff ** 2))
+    return f"{name} [MAE {format_error(mae, unit or '-')}, MSE {format_error(mse, squared_unit(unit))}]"
 
 
 def _style(options: PlotOptions) -> dict:
@@ -126,20 +127,19 @@ def _draw_lines(ax: plt.Axes, traj: Trajectories, mask: np.ndarray, options: Plo
     for values, style, name in ((traj.data, DATA_STYLE, None), (traj.fmu, FMU_STYLE, "FMU"),
                                 (traj.neural_fmu, NEURAL_STYLE, "neural FMU")):
         x, y = decimate_minmax(t, values[mask], options.max_points)
-        label = style.get("label") if name is None else _loss_label(
-            name, _errors(values[mask], traj.data[mask], traj.quantity), traj.quantity)
+        label = style.get("label") if name is None else _loss_label(name, values[mask], traj.data[mask],
+                                                                    traj.signal.unit)
         # the data as a broad light band underneath, so that it stays visible where a model covers it
         ax.plot(x, y, color=style["color"], lw=options.line_width if name else options.line_width * 3.0,
                 alpha=0.85 if name else 0.35, label=label, zorder=3 if name else 2)
-    unit = QUANTITY_UNITS[traj.quantity][0]
     ax.set_xlabel("time t [s]")
-    ax.set_ylabel(f"{QUANTITY_LABELS[traj.quantity]} [{unit}]")
+    ax.set_ylabel(traj.signal.display())
     ax.legend(loc="best")
 
 
 def plot_trajectory(traj: Trajectories, path: str | Path, options: PlotOptions = PlotOptions(),
                     title: str | None = None) -> Path:
-    """Whole trajectory of one quantity: data, FMU and neural FMU (paper Figs. 9, 11, 13, 15).
+    """Whole trajectory of one target signal: data, FMU and neural FMU (paper Figs. 9, 11, 13, 15).
 
     The zoomed intervals of ``traj.zooms`` are shaded. Legends give MAE and MSE over the whole
     trajectory in square brackets.
@@ -152,19 +152,19 @@ def plot_trajectory(traj: Trajectories, path: str | Path, options: PlotOptions =
             ax.axvspan(start, end, color="gold", alpha=0.25, lw=0, label="zoomed interval" if index == 0 else None)
         if traj.zooms:
             ax.legend(loc="best")
-        ax.set_title(title or f"{traj.maneuver}: {QUANTITY_LABELS[traj.quantity]}, whole trajectory (open loop)")
+        ax.set_title(title or f"{traj.maneuver}: {traj.signal.label}, whole trajectory (open loop)")
         return _save(fig, path, options)
 
 
 def plot_zooms(traj: Trajectories, path: str | Path, options: PlotOptions = PlotOptions(),
                title: str | None = None) -> Path:
-    """Zoomed intervals ``traj.zooms`` of one quantity, one panel each (paper Figs. 10, 12, 14, 16).
+    """Zoomed intervals ``traj.zooms`` of one target signal, one panel each (paper Figs. 10, 12, 14, 16).
 
     Legends give MAE and MSE over each interval in square brackets.
     """
     _check(traj)
     if not traj.zooms:
-        raise ValueError(f"{traj.maneuver} {traj.quantity}: no zoom interval to draw")
+        raise ValueError(f"{traj.maneuver} {traj.signal.name}: no zoom interval to draw")
     with plt.rc_context(_style(options)):
         rows = len(traj.zooms)
         fig, axes = plt.subplots(rows, 1, figsize=(options.width_in, options.height_in * rows), squeeze=False)
@@ -173,57 +173,64 @@ def plot_zooms(traj: Trajectories, path: str | Path, options: PlotOptions = Plot
             if not mask.any():
                 raise ValueError(f"{traj.maneuver}: zoom interval [{start}, {end}] s holds no sample")
             _draw_lines(ax, traj, mask, options)
-            ax.set_title(title or f"{traj.maneuver}: {QUANTITY_LABELS[traj.quantity]}, "
+            ax.set_title(title or f"{traj.maneuver}: {traj.signal.label}, "
                                   f"{start:.3f} s to {end:.3f} s (open loop)")
         return _save(fig, path, options)
 
 
-def plot_time_offset(time_s: np.ndarray, speed_data_rad_s: np.ndarray, speed_fmu_rad_s: np.ndarray,
-                     path: str | Path, speed_fmu_delayed_rad_s: np.ndarray | None = None,
-                     input_delay_s: float | None = None, maneuver: str = "",
-                     options: PlotOptions = PlotOptions()) -> Path:
-    """Speed data against the FMU on a short window, showing the time shift (paper Fig. 6).
+def plot_time_offset(time_s: np.ndarray, signals: Sequence[Any], data: np.ndarray, fmu: np.ndarray,
+                     path: str | Path, fmu_delayed: np.ndarray | None = None, input_delay_s: float | None = None,
+                     maneuver: str = "", options: PlotOptions = PlotOptions()) -> Path:
+    """Target signals against the FMU on a short window, showing the time shift (paper Fig. 6).
 
-    Top: the speeds; bottom: FMU minus data, where a shift of a few samples is visible at any speed.
+    Per target signal two panels: the values, and FMU minus data (where a shift of a few samples shows).
 
     Args:
-        time_s: time grid of the window (T,), s.
-        speed_data_rad_s, speed_fmu_rad_s: measured and simulated speed (T,), rad/s; the FMU starts from
-            the measured state at the window's start and sees the inputs as logged.
-        speed_fmu_delayed_rad_s: the FMU with the estimated input delay ``input_delay_s`` (s), drawn
-            dashed when given.
+        time_s: (T,) time grid of the window, s.
+        signals: (n_t,) the target signals (labels, units).
+        data, fmu: (T, n_t) measured and simulated targets; the FMU starts from the measured state at the
+            window's start and sees the inputs as logged.
+        fmu_delayed: (T, n_t) the FMU with the estimated input delay ``input_delay_s`` (s), drawn dashed.
     """
     time_s = np.asarray(time_s, float)
-    data_speed = np.asarray(speed_data_rad_s, float)
-    curves = [("FMU, inputs as logged", np.asarray(speed_fmu_rad_s, float), FMU_STYLE["color"], "-")]
-    if speed_fmu_delayed_rad_s is not None:
+    data = np.asarray(data, float).reshape(time_s.size, -1)
+    n_t = len(signals)
+    if data.shape[1] != n_t:
+        raise ValueError(f"time-offset figure: {n_t} signals but data of shape {data.shape}")
+    curves = [("FMU, inputs as logged", np.asarray(fmu, float).reshape(time_s.size, n_t), FMU_STYLE["color"], "-")]
+    if fmu_delayed is not None:
         curves.append((f"FMU, inputs delayed by the estimated Δt = {input_delay_s * 1e6:.1f} µs",
-                       np.asarray(speed_fmu_delayed_rad_s, float), "tab:orange", "--"))
+                       np.asarray(fmu_delayed, float).reshape(time_s.size, n_t), "tab:orange", "--"))
     with plt.rc_context(_style(options)):
-        fig, (ax, ax_err) = plt.subplots(2, 1, sharex=True, figsize=(options.width_in, options.height_in * 1.6),
-                                         gridspec_kw={"height_ratios": [2, 1]})
+        fig, axes = plt.subplots(2 * n_t, 1, sharex=True, squeeze=False,
+                                 figsize=(options.width_in, options.height_in * 1.6 * n_t),
+                                 gridspec_kw={"height_ratios": [2, 1] * n_t})
         t_ms = (time_s - time_s[0]) * 1e3
-        ax.plot(t_ms, data_speed, color="black", lw=options.line_width * 3.0, alpha=0.35, label="data")
-        for label, values, color, style in curves:
-            mse = format_error(float(np.mean((values - data_speed) ** 2)), "(rad/s)²")
-            ax.plot(t_ms, values, color=color, ls=style, lw=options.line_width, label=f"{label} [MSE {mse}]")
-            ax_err.plot(t_ms, values - data_speed, color=color, ls=style, lw=options.line_width)
-        ax_err.axhline(0.0, color="black", lw=0.8, alpha=0.5)
-        ax.set_ylabel(f"{QUANTITY_LABELS['speed']} [rad/s]")
-        ax.set_title(f"{maneuver + ': ' if maneuver else ''}time offset between data and model "
-                     "(FMU started from the measured state)")
-        ax.legend(loc="best")
-        ax_err.set_xlabel(f"time t − {time_s[0]:.4f} s [ms]")
-        ax_err.set_ylabel("FMU − data [rad/s]")
+        for k, signal in enumerate(signals):
+            ax, ax_err = axes[2 * k, 0], axes[2 * k + 1, 0]
+            ax.plot(t_ms, data[:, k], color="black", lw=options.line_width * 3.0, alpha=0.35, label="data")
+            for label, values, color, style in curves:
+                mse = format_error(float(np.mean((values[:, k] - data[:, k]) ** 2)), squared_unit(signal.unit))
+                ax.plot(t_ms, values[:, k], color=color, ls=style, lw=options.line_width,
+                        label=f"{label} [MSE {mse}]")
+                ax_err.plot(t_ms, values[:, k] - data[:, k], color=color, ls=style, lw=options.line_width)
+            ax_err.axhline(0.0, color="black", lw=0.8, alpha=0.5)
+            ax.set_ylabel(signal.display())
+            ax.set_title(f"{maneuver + ': ' if maneuver else ''}{signal.label}: time offset between data and model "
+                         "(FMU started from the measured state)")
+            ax.legend(loc="best")
+            ax_err.set_ylabel(f"FMU − data [{signal.unit or '-'}]")
+        axes[-1, 0].set_xlabel(f"time t − {time_s[0]:.4f} s [ms]")
         return _save(fig, path, options)
 
 
 def _check(traj: Trajectories) -> None:
-    if traj.quantity not in QUANTITY_UNITS:
-        raise ValueError(f"quantity must be one of {sorted(QUANTITY_UNITS)}, got {traj.quantity!r}")
+    for attribute in ("name", "label", "unit"):
+        if not hasattr(traj.signal, attribute):
+            raise ValueError(f"{traj.maneuver}: the signal must have name, label and unit, got {traj.signal!r}")
     shapes = {np.shape(a) for a in (traj.time_s, traj.data, traj.fmu, traj.neural_fmu)}
     if len(shapes) != 1:
-        raise ValueError(f"{traj.maneuver} {traj.quantity}: time, data, FMU and neural FMU differ in shape {shapes}")
+        raise ValueError(f"{traj.maneuver} {traj.signal.name}: time, data, FMU and neural FMU differ in shape {shapes}")
 
 
 def _bracket_colors(brackets: Sequence[int]) -> dict[int, tuple]:

@@ -1,17 +1,23 @@
 """Error measures between simulated and measured trajectories, and improvement factors.
 
-All errors are in SI units: angle MAE in rad, angle MSE in rad^2, speed MAE in rad/s,
-speed MSE in (rad/s)^2.
+Errors are per target signal, in the signal's model unit: ``<signal>_mae`` (unit),
+``<signal>_mse`` (unit squared), ``<signal>_rmse`` (unit).
 """
 
 from __future__ import annotations
 
 import math
+from typing import Sequence
 
 import numpy as np
 
-#: Keys of every metrics object, in the order they are written.
-METRIC_KEYS = ("angle_mae", "angle_mse", "speed_mae", "speed_mse")
+#: The error measures of each target signal, in the order they are written (``<signal>_<measure>``).
+MEASURES = ("mae", "mse", "rmse")
+
+
+def metric_keys(signals: Sequence[str]) -> list[str]:
+    """Keys of a metrics object for the target ``signals``: ``<signal>_<measure>``, signal by signal."""
+    return [f"{signal}_{measure}" for signal in signals for measure in MEASURES]
 
 
 def mae(simulated: np.ndarray, measured: np.ndarray) -> float:
@@ -26,33 +32,38 @@ def mse(simulated: np.ndarray, measured: np.ndarray) -> float:
     return float(np.mean((simulated - measured) ** 2))
 
 
-def trajectory_errors(angle_sim_rad: np.ndarray, speed_sim_rad_s: np.ndarray,
-                      angle_data_rad: np.ndarray, speed_data_rad_s: np.ndarray) -> dict[str, float]:
-    """Angle and speed MAE and MSE of one simulated trajectory against the data.
+def trajectory_errors(simulated: np.ndarray, measured: np.ndarray, signals: Sequence[str]) -> dict[str, float]:
+    """MAE, MSE and RMSE of one simulated trajectory against the data, per target signal.
 
     Args:
-        angle_sim_rad, speed_sim_rad_s: simulated angle (rad) and speed (rad/s), shape (T,).
-        angle_data_rad, speed_data_rad_s: measured angle and speed on the same grid, shape (T,).
+        simulated, measured: (T, n_t) target signals (model units), or (T,) for a single signal.
+        signals: (n_t,) names of the target signals (columns).
 
     Returns:
-        ``{"angle_mae", "angle_mse", "speed_mae", "speed_mse"}`` as floats (SI units).
+        ``{"<signal>_mae", "<signal>_mse", "<signal>_rmse", ...}`` in :func:`metric_keys` order.
     """
-    return {
-        "angle_mae": mae(angle_sim_rad, angle_data_rad),
-        "angle_mse": mse(angle_sim_rad, angle_data_rad),
-        "speed_mae": mae(speed_sim_rad_s, speed_data_rad_s),
-        "speed_mse": mse(speed_sim_rad_s, speed_data_rad_s),
-    }
+    simulated = np.asarray(simulated, dtype=float).reshape(np.shape(simulated)[0], -1)
+    measured = np.asarray(measured, dtype=float).reshape(np.shape(measured)[0], -1)
+    if simulated.shape[1] != len(signals) or measured.shape[1] != len(signals):
+        raise ValueError(f"trajectory_errors: {len(signals)} signals {list(signals)} but arrays of shape "
+                         f"{simulated.shape} and {measured.shape}")
+    errors: dict[str, float] = {}
+    for k, signal in enumerate(signals):
+        square = mse(simulated[:, k], measured[:, k])
+        errors[f"{signal}_mae"] = mae(simulated[:, k], measured[:, k])
+        errors[f"{signal}_mse"] = square
+        errors[f"{signal}_rmse"] = math.sqrt(square)
+    return errors
 
 
 def improvement_factors(reference: dict[str, float], candidate: dict[str, float]) -> dict[str, float | None]:
-    """Improvement of ``candidate`` over ``reference``: reference error / candidate error per key.
+    """Improvement of ``candidate`` over ``reference``: reference error / candidate error per key of ``reference``.
 
     A factor of 4 means the candidate's error is four times smaller. When the candidate's error is
     zero the factor is unbounded and written as ``None`` (JSON null), since JSON has no infinity.
     """
     factors: dict[str, float | None] = {}
-    for key in METRIC_KEYS:
+    for key in reference:
         ref, cand = float(reference[key]), float(candidate[key])
         if cand > 0.0:
             factors[key] = ref / cand

@@ -1,10 +1,11 @@
 """The time offset between data and model (paper Fig. 6).
 
-On a short window where the measured speed changes fast, the FMU is started from the measured
-state at the window's start and driven by the logged inputs; a constant time offset between the
-logged inputs and states then shows as a shift between the simulated and the measured speed.
-The offset is estimated as the input delay u(t + dt) (the neural FMU's convention) whose
-simulation fits the measured speed best, over sub-sample delays.
+On a short window where the measured target states change fast, the FMU is started from the
+measured state at the window's start and driven by the logged inputs; a constant time offset
+between the logged inputs and states then shows as a shift between the simulated and the
+measured targets. The offset is estimated as the input delay u(t + dt) (the neural FMU's
+convention) whose simulation fits the targets best, over sub-sample delays. Targets are compared
+normalised by their spread over the maneuver, so signals of different units add up.
 """
 
 from __future__ import annotations
@@ -22,22 +23,31 @@ from hybridfmu.io import write_json_atomic, write_parquet_atomic
 LOG = logging.getLogger(__name__)
 
 
-def steepest_window(time_s: np.ndarray, speed_rad_s: np.ndarray, length_s: float) -> tuple[float, float]:
-    """Window of ``length_s`` over which the measured speed changes most, |ω(t_end) - ω(t_start)|.
+def steepest_window(time_s: np.ndarray, targets: np.ndarray, length_s: float,
+                    scales: np.ndarray | None = None) -> tuple[float, float]:
+    """Window of ``length_s`` over which the measured targets change most: sum_k |y_k(t_end) - y_k(t_start)| / s_k.
 
     Args:
         time_s: uniform time grid (T,), s.
-        speed_rad_s: measured speed (T,), rad/s.
+        targets: measured target signals (T, n_t) or (T,), model units.
         length_s: window length, s.
+        scales: (n_t,) spreads the changes are divided by (default: each target's std over ``targets``).
 
     Returns:
         (t_start_s, t_end_s).
     """
     n = window_samples(time_s, length_s)
-    speed = np.asarray(speed_rad_s, dtype=float)
-    change = np.abs(speed[n:] - speed[:-n])
+    values = np.asarray(targets, dtype=float).reshape(np.shape(targets)[0], -1)
+    scales = normalising_scales(values) if scales is None else np.asarray(scales, dtype=float)
+    change = (np.abs(values[n:] - values[:-n]) / scales).sum(axis=1)
     k = int(np.argmax(change))
     return float(time_s[k]), float(time_s[k + n])
+
+
+def normalising_scales(values: np.ndarray) -> np.ndarray:
+    """(n_t,) spread (std) of each column of ``values`` (T, n_t); 1 where a column is constant."""
+    spread = np.asarray(values, dtype=float).std(axis=0)
+    return np.where(spread > 0, spread, 1.0)
 
 
 def shift_inputs(u: np.ndarray, delay_s: float, step_s: float) -> np.ndarray:
@@ -55,55 +65,66 @@ def shift_inputs(u: np.ndarray, delay_s: float, step_s: float) -> np.ndarray:
     return (1.0 - fraction) * u[np.clip(lower, 0, last)] + fraction * u[np.clip(lower + 1, 0, last)]
 
 
-def estimate_input_delay_s(simulate, measured: np.ndarray, candidates_s: np.ndarray) -> tuple[float, np.ndarray]:
+def estimate_input_delay_s(simulate, measured: np.ndarray, candidates_s: np.ndarray,
+                           scales: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """The input delay whose simulation fits the measurement best (least squares), among ``candidates_s``.
 
     Args:
-        simulate: callable delay_s -> simulated quantity (T,).
-        measured: the measured quantity (T,).
+        simulate: callable delay_s -> simulated targets, same shape as ``measured``.
+        measured: the measured targets (T,) or (T, n_t).
         candidates_s: the delays to try (s); ties go to the smallest magnitude.
+        scales: (n_t,) the targets' spreads; the cost is sum_k mean((sim_k - data_k)^2) / s_k^2 (default 1).
 
     Returns:
-        (best delay in s, its simulated quantity (T,)).
+        (best delay in s, its simulated targets).
     """
+    measured = np.asarray(measured, dtype=float)
+    weights = 1.0 if scales is None else 1.0 / np.asarray(scales, dtype=float) ** 2
     best = (np.inf, 0.0, None)
     for delay_s in sorted(np.asarray(candidates_s, dtype=float), key=abs):
         simulated = simulate(float(delay_s))
-        cost = float(np.mean((simulated - measured) ** 2))
+        squared = ((simulated - measured) ** 2).reshape(measured.shape[0], -1).mean(axis=0)
+        cost = float(np.sum(squared * weights))
         if cost < best[0]:
             best = (cost, float(delay_s), simulated)
     return best[1], best[2]
 
 
-def run_time_offset(fmu_path: str | Path, data_path: str | Path, window_path: str | Path,
-                    summary_path: str | Path, options: dict[str, Any], fmu_parameters: dict[str, float] | None,
-                    signals_config: dict[str, Any] | None, maneuver: str, resolution: int = 20) -> dict[str, Any]:
-    """Simulate the FMU on the time-offset window and estimate the input delay (rule ``time_offset``).
+def run_time_offset(fmu_path: str | Path, calibration_path: str | Path | None, data_path: str | Path,
+                    window_path: str | Path, summary_path: str | Path, options: dict[str, Any], roles: Any,
+                    maneuvers: dict[str, Any] | None, maneuver: str, resolution: int = 20) -> dict[str, Any]:
+    """Simulate the calibrated FMU on the time-offset window and estimate the input delay (rule ``time_offset``).
 
-    The FMU starts from the measured state at the window's start and is driven by the logged inputs,
-    as logged (no delay) and with every candidate input delay u(t + dt) (grid of ``step / resolution``
-    within ``±max_lag_s``); the delay whose speed fits the data best is the estimate.
+    The FMU starts from the measured state at the window's start (unmeasured states: the FMU's baseline
+    from the calibrated initial values) and is driven by the logged inputs, as logged (no delay) and with
+    every candidate input delay u(t + dt) (grid of ``step / resolution`` within ``±max_lag_s``); the delay
+    whose normalised target states fit the data best is the estimate.
 
     Args:
         options: config ``evaluation.time_offset`` (``length_s``, ``t_start_s`` or None, ``max_lag_s``).
+        roles: :class:`hybridfmu.case.CaseRoles`; maneuvers: config ``maneuvers``; maneuver: its name.
 
-    Writes ``window_path`` (Parquet: ``time_s``, ``data_speed_rad_s``, ``fmu_speed_rad_s``,
-    ``fmu_delayed_speed_rad_s`` (with the estimated delay), ``data_angle_rad``, ``fmu_angle_rad``) and
-    ``summary_path`` (JSON: maneuver, window, ``input_delay_s``, speed MSE without and with it).
+    Writes ``window_path`` (Parquet: ``time_s`` and, per target signal, ``data_<signal>``, ``fmu_<signal>``,
+    ``fmu_delayed_<signal>`` (with the estimated delay)) and ``summary_path`` (JSON: maneuver, window,
+    ``signals``, ``scales`` (the normalising spreads), ``input_delay_s``, ``mse_without_delay`` and
+    ``mse_with_delay`` per target signal, ``cost_without_delay`` / ``cost_with_delay`` (normalised)).
     Returns the summary.
     """
-    from hybridfmu.evaluation.baseline import mechanical_states, read_maneuver, simulate_fmu_open_loop
-    from hybridfmu.fmu import load_fmu
+    from hybridfmu.evaluation.baseline import simulate_fmu_open_loop
+    from hybridfmu.training.measured import initial_state, load_calibrated_fmu, load_calibration, read_measured
 
     length_s = float(options.get("length_s", 0.02))
     max_lag_s = float(options.get("max_lag_s", 1e-3))
-    with load_fmu(fmu_path, parameters=dict(fmu_parameters or {})) as model:
-        state_names, input_names = list(model.state_names), list(model.input_names)
-        time_s, u, x_measured = read_maneuver(data_path, state_names, input_names, signals_config)
-        angle_state, speed_state = mechanical_states(signals_config)
-        angle_i, speed_i = state_names.index(angle_state), state_names.index(speed_state)
+    calibration = load_calibration(calibration_path)
+    with load_calibrated_fmu(fmu_path, calibration) as model:
+        state_names = list(model.state_names)
+        measured = read_measured(data_path, roles)
+        time_s, u = measured.time_s, measured.u
+        signals = measured.target_signals
+        target_index = [state_names.index(name) for name in measured.target_states]
+        scales = normalising_scales(measured.targets)
         if options.get("t_start_s") is None:
-            t_start_s, t_end_s = steepest_window(time_s, x_measured[:, speed_i], length_s)
+            t_start_s, t_end_s = steepest_window(time_s, measured.targets, length_s, scales)
             how = "auto"
         else:
             t_start_s, t_end_s = float(options["t_start_s"]), float(options["t_start_s"]) + length_s
@@ -117,9 +138,14 @@ def run_time_offset(fmu_path: str | Path, data_path: str | Path, window_path: st
             raise ValueError(f"time-offset window [{t_start_s}, {t_end_s}] s of {maneuver!r} holds {last - first} "
                              "samples; at least 3 are needed (config.evaluation.time_offset.length_s)")
         step_s = float(np.median(np.diff(time_s)))
-        # inputs from the whole maneuver, so a shifted window reads the samples around it
+        x_start = measured.x[first].copy()
+        if roles.unmeasured_states:  # the unmeasured states where the baseline from the calibration has them
+            x0 = initial_state(model, measured.x[0], roles, calibration, maneuver, maneuvers)
+            baseline = simulate_fmu_open_loop(model, time_s[:first + 1], u[:first + 1], x0,
+                                              label=f"{maneuver} up to the time-offset window")[0]
+            x_start = np.where(np.isfinite(x_start), x_start, baseline[-1])
         t = time_s[first:last]
-        data_speed = x_measured[first:last, speed_i]
+        data = measured.targets[first:last]
 
         margin = int(np.ceil(max_lag_s / step_s)) + 2
         lo, hi = max(first - margin, 0), min(last + margin, time_s.size)
@@ -127,22 +153,27 @@ def run_time_offset(fmu_path: str | Path, data_path: str | Path, window_path: st
 
         def simulate(delay_s: float) -> np.ndarray:
             shifted = shift_inputs(u_near, delay_s, step_s)[first - lo:last - lo]
-            return simulate_fmu_open_loop(model, t, shifted, x_measured[first], label=f"{maneuver} time-offset window")[0]
+            return simulate_fmu_open_loop(model, t, shifted, x_start, label=f"{maneuver} time-offset window")[0]
 
-        plain = simulate(0.0)
+        plain = simulate(0.0)[:, target_index]
         fine_s = step_s / resolution
         count = int(np.floor(max_lag_s / fine_s))
-        delay_s, _ = estimate_input_delay_s(lambda d: simulate(d)[:, speed_i], data_speed,
-                                            np.arange(-count, count + 1) * fine_s)
-        delayed = simulate(delay_s)
-    frame = pd.DataFrame({"time_s": t, "data_speed_rad_s": data_speed, "fmu_speed_rad_s": plain[:, speed_i],
-                          "fmu_delayed_speed_rad_s": delayed[:, speed_i],
-                          "data_angle_rad": x_measured[first:last, angle_i], "fmu_angle_rad": plain[:, angle_i]})
-    write_parquet_atomic(window_path, frame)
+        delay_s, delayed = estimate_input_delay_s(lambda d: simulate(d)[:, target_index], data,
+                                                  np.arange(-count, count + 1) * fine_s, scales)
+    columns: dict[str, np.ndarray] = {"time_s": t}
+    for k, signal in enumerate(signals):
+        columns.update({f"data_{signal}": data[:, k], f"fmu_{signal}": plain[:, k],
+                        f"fmu_delayed_{signal}": delayed[:, k]})
+    write_parquet_atomic(window_path, pd.DataFrame(columns))
+    mse_plain = ((plain - data) ** 2).mean(axis=0)
+    mse_delayed = ((delayed - data) ** 2).mean(axis=0)
     summary = {"maneuver": maneuver, "t_start_s": float(t[0]), "t_end_s": float(t[-1]), "window": how,
+               "signals": list(signals), "scales": dict(zip(signals, scales.tolist())),
                "input_delay_s": delay_s, "max_lag_s": max_lag_s,
-               "speed_mse_without_delay": float(np.mean((data_speed - plain[:, speed_i]) ** 2)),
-               "speed_mse_with_delay": float(np.mean((data_speed - delayed[:, speed_i]) ** 2)),
+               "mse_without_delay": dict(zip(signals, mse_plain.tolist())),
+               "mse_with_delay": dict(zip(signals, mse_delayed.tolist())),
+               "cost_without_delay": float(np.sum(mse_plain / scales ** 2)),
+               "cost_with_delay": float(np.sum(mse_delayed / scales ** 2)),
                "convention": "the FMU sees the logged inputs as u(t + input_delay_s), as the neural FMU's delay"}
     write_json_atomic(summary_path, summary)
     LOG.info("%s: time-offset window %.4f-%.4f s, estimated input delay %.3g s", maneuver, t[0], t[-1], delay_s)

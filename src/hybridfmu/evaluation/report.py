@@ -1,5 +1,6 @@
-"""The case report ``report.md``: improvement factors next to the paper's, hyperparameters,
-the learned input delay against the true one, and the figures."""
+"""The case report ``report.md``: improvement factors per target signal next to a reference's (the
+paper's, from config ``evaluation.reference``), hyperparameters, the learned input delay against the
+true one, and the figures. Labels and units come from the case's roles."""
 
 from __future__ import annotations
 
@@ -8,22 +9,32 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hybridfmu.evaluation.metrics import METRIC_KEYS
+from hybridfmu.evaluation.figures import squared_unit
 
-#: Improvement factors the paper reports (FMU error / neural FMU error), with the figure they come
-#: from: (role, metric key) -> (text, lower bound as float).
-PAPER_FACTORS: dict[tuple[str, str], tuple[str, float]] = {
-    ("validation", "angle_mae"): ("×4.6 (Figs. 9-10)", 4.6),
-    ("validation", "angle_mse"): ("×61 (Figs. 9-10)", 61.0),
-    ("test", "angle_mae"): ("×5.4 (Fig. 13)", 5.4),
-    ("test", "angle_mse"): ("×74 (Fig. 13)", 74.0),
-    ("test", "speed_mae"): ("×2 and more (Fig. 15)", 2.0),
-}
-#: The input delay the paper learned (s), for comparison.
-PAPER_DT_S = -1.995e-5
+#: Measures of the improvement table: key suffix -> (text, squared unit?).
+_MEASURE_TEXT = {"mae": ("MAE", False), "mse": ("MSE", True), "rmse": ("RMSE", False)}
 
-_METRIC_TEXT = {"angle_mae": ("angle", "MAE", "rad"), "angle_mse": ("angle", "MSE", "rad²"),
-                "speed_mae": ("speed", "MAE", "rad/s"), "speed_mse": ("speed", "MSE", "(rad/s)²")}
+
+def _signals_of(metrics: dict[str, Any]) -> list[str]:
+    """Target signals of a metrics object (field ``signals``, else read from the ``<signal>_mae`` keys)."""
+    if metrics.get("signals"):
+        return list(metrics["signals"])
+    return [key[:-4] for key in metrics["fmu"] if key.endswith("_mae")]
+
+
+def _unit(units: dict[str, str] | None, signal: str, measure: str) -> str:
+    unit = (units or {}).get(signal, "")
+    return squared_unit(unit) if _MEASURE_TEXT[measure][1] else (unit or "-")
+
+
+def reference_factors(reference: dict[str, Any] | None) -> dict[tuple[str, str], tuple[str, float]]:
+    """(role, metric key) -> (text, factor) of the reference's improvement factors (config
+    ``evaluation.reference.factors``: ``[{role, metric, factor, note}]``)."""
+    out = {}
+    for item in (reference or {}).get("factors", []) or []:
+        note = f" ({item['note']})" if item.get("note") else ""
+        out[(item["role"], item["metric"])] = (f"×{float(item['factor']):g}{note}", float(item["factor"]))
+    return out
 
 
 @dataclass(frozen=True)
@@ -51,51 +62,62 @@ def _gates_text(gates: Any) -> str:
     return str(gates)
 
 
-def improvement_table(metrics_by_role: dict[str, dict]) -> list[str]:
-    """Markdown table: for each role and metric, FMU error, neural FMU error, this run's factor and the paper's."""
-    lines = ["| data | quantity | measure | FMU | neural FMU | improvement (this run) | improvement (paper) |",
+def improvement_table(metrics_by_role: dict[str, dict], units: dict[str, str] | None = None,
+                      reference: dict[str, Any] | None = None) -> list[str]:
+    """Markdown table: per role, target signal and measure: FMU error, neural FMU error, this run's factor and
+    the reference's."""
+    name = (reference or {}).get("name", "reference")
+    factors = reference_factors(reference)
+    lines = [f"| data | signal | measure | FMU | neural FMU | improvement (this run) | improvement ({name}) |",
              "|---|---|---|---|---|---|---|"]
     for role, metrics in metrics_by_role.items():
-        for key in METRIC_KEYS:
-            quantity, measure, unit = _METRIC_TEXT[key]
-            paper = PAPER_FACTORS.get((role, key), ("not reported", None))[0]
-            factor = metrics["improvement"][key]
-            lines.append(f"| {role} | {quantity} | {measure} | {_number(metrics['fmu'][key])} {unit} | "
-                         f"{_number(metrics['neural_fmu'][key])} {unit} | ×{_number(factor)} | {paper} |")
+        for signal in _signals_of(metrics):
+            for measure, (text, _) in _MEASURE_TEXT.items():
+                key = f"{signal}_{measure}"
+                if key not in metrics["fmu"]:
+                    continue
+                unit = _unit(units, signal, measure)
+                ref = factors.get((role, key), ("not reported", None))[0]
+                lines.append(f"| {role} | {signal} | {text} | {_number(metrics['fmu'][key])} {unit} | "
+                             f"{_number(metrics['neural_fmu'][key])} {unit} | ×{_number(metrics['improvement'][key])} "
+                             f"| {ref} |")
     return lines
 
 
-def zoom_table(metrics_by_role: dict[str, dict]) -> list[str]:
-    """Markdown table of the zoomed intervals with the improvement of the quantity each was chosen for."""
+def zoom_table(metrics_by_role: dict[str, dict], units: dict[str, str] | None = None) -> list[str]:
+    """Markdown table of the zoomed intervals with the improvement of the signal each was chosen for."""
     lines = ["| data | maneuver | interval [s] | chosen for | how | FMU MAE | neural FMU MAE | improvement MAE | "
              "improvement MSE |", "|---|---|---|---|---|---|---|---|---|"]
     for role, metrics in metrics_by_role.items():
         for zoom in metrics.get("zooms", []):
-            q = zoom["quantity"]
-            unit = _METRIC_TEXT[f"{q}_mae"][2]
+            q = zoom["signal"]
+            unit = _unit(units, q, "mae")
+            how = zoom["source"] + (f" ({zoom['criterion']})" if zoom.get("criterion") else "")
             lines.append(
                 f"| {role} | {zoom['maneuver']} | {zoom['t_start_s']:.3f} – {zoom['t_end_s']:.3f} | {q} | "
-                f"{zoom['source']} | {_number(zoom['fmu'][f'{q}_mae'])} {unit} | "
+                f"{how} | {_number(zoom['fmu'][f'{q}_mae'])} {unit} | "
                 f"{_number(zoom['neural_fmu'][f'{q}_mae'])} {unit} | ×{_number(zoom['improvement'][f'{q}_mae'])} | "
                 f"×{_number(zoom['improvement'][f'{q}_mse'])} |")
     return lines
 
 
-def verdicts(metrics_by_role: dict[str, dict]) -> list[str]:
-    """One line per factor the paper reports: does this run reach it?"""
+def verdicts(metrics_by_role: dict[str, dict], reference: dict[str, Any] | None = None) -> list[str]:
+    """One line per factor the reference reports: does this run reach it?"""
+    name = (reference or {}).get("name", "reference")
     lines = []
-    for (role, key), (text, bound) in PAPER_FACTORS.items():
-        if role not in metrics_by_role:
+    for (role, key), (text, bound) in reference_factors(reference).items():
+        if role not in metrics_by_role or key not in metrics_by_role[role]["improvement"]:
             continue
         factor = metrics_by_role[role]["improvement"][key]
-        quantity, measure, _ = _METRIC_TEXT[key]
+        signal, _, measure = key.rpartition("_")
         reached = factor is None or factor >= bound
-        lines.append(f"- {role} {quantity} {measure}: ×{_number(factor)} against the paper's {text} — "
-                     f"{'reached' if reached else 'not reached'}.")
+        lines.append(f"- {role} {signal} {_MEASURE_TEXT.get(measure, (measure,))[0]}: ×{_number(factor)} against "
+                     f"the {name}'s {text} — {'reached' if reached else 'not reached'}.")
     return lines
 
 
-def delay_lines(dt_s: float | None, true_dt_s: float | None, truth_source: str | None) -> list[str]:
+def delay_lines(dt_s: float | None, true_dt_s: float | None, truth_source: str | None,
+                reference: dict[str, Any] | None = None) -> list[str]:
     """Lines on the learned input delay, against the ground truth when the case has one."""
     lines = []
     if dt_s is None:
@@ -107,7 +129,8 @@ def delay_lines(dt_s: float | None, true_dt_s: float | None, truth_source: str |
                      f"({true_dt_s * 1e6:.2f} µs); learned minus true: {error * 1e6:.2f} µs")
     else:
         lines.append("- the case has no ground truth for the time offset (no truth file beside the raw logs)")
-    lines.append(f"- paper: Δt ≈ {PAPER_DT_S:.4g} s")
+    if (reference or {}).get("input_delay_s") is not None:
+        lines.append(f"- {reference.get('name', 'reference')}: Δt ≈ {float(reference['input_delay_s']):.4g} s")
     return lines
 
 
@@ -121,7 +144,8 @@ def hyperparameter_lines(hyperparameters: dict[str, Any]) -> list[str]:
 
 def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: dict[str, Any],
                   best_summary: dict[str, Any], dt_s: float | None, gates: Any, true_dt_s: float | None,
-                  truth_source: str | None, figures: list[ReportFigure], mlflow_run: dict[str, Any] | None) -> str:
+                  truth_source: str | None, figures: list[ReportFigure], mlflow_run: dict[str, Any] | None,
+                  units: dict[str, str] | None = None, reference: dict[str, Any] | None = None) -> str:
     """The report as Markdown text.
 
     Args:
@@ -133,18 +157,21 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
         true_dt_s, truth_source: the true offset (s) and where it comes from, or None.
         figures: the figures, paths relative to the report.
         mlflow_run: ``{"tracking_uri", "experiment", "run_id"}`` of the evaluation run, or None.
+        units: target signal -> unit (``Signal.unit``) for the tables.
+        reference: config ``evaluation.reference`` (``name``, ``factors``, ``input_delay_s``, ``figures``).
     """
+    name = (reference or {}).get("name", "reference")
     out = [f"# Neural FMU against FMU — case `{case}`", "",
            "Open-loop simulations over the whole validation and test maneuvers, from their first sample "
-           "(recorded inputs, no controller), against the measurements. Improvement = FMU error / neural FMU "
-           "error; the factors the paper reports for its braking-system motor are given beside this run's.", "",
+           "(recorded inputs), against the measurements of the target signals. Improvement = FMU error / "
+           f"neural FMU error; the factors the {name} reports are given beside this run's where configured.", "",
            "## Improvement factors", ""]
-    out += improvement_table(metrics_by_role) + [""] + verdicts(metrics_by_role) + [""]
+    out += improvement_table(metrics_by_role, units, reference) + [""] + verdicts(metrics_by_role, reference) + [""]
     out += ["## Zoomed intervals", "",
             "Chosen where the FMU and the data part most, from the FMU's error alone (`auto`), or set in the "
             "config (`config`).", ""]
-    out += zoom_table(metrics_by_role) + [""]
-    out += ["## Learned input delay and gates", ""] + delay_lines(dt_s, true_dt_s, truth_source)
+    out += zoom_table(metrics_by_role, units) + [""]
+    out += ["## Learned input delay and gates", ""] + delay_lines(dt_s, true_dt_s, truth_source, reference)
     out += [f"- gates (ẋ = g_F·ẋ_FMU + g_A·ẋ_ANN): {_gates_text(gates)}", ""]
     out += ["## Best hyperparameters", ""]
     if best_summary:
@@ -160,18 +187,21 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
     return "\n".join(out)
 
 
-#: Paper figure numbers of the evaluation figures of the validation and the test maneuver.
-PAPER_FIGURES = {("validation", "angle"): 9, ("validation", "angle_zoom"): 10, ("validation", "speed"): 11,
-                 ("validation", "speed_zoom"): 12, ("test", "angle"): 13, ("test", "angle_zoom"): 14,
-                 ("test", "speed"): 15, ("test", "speed_zoom"): 16}
-_KIND_TEXT = {"angle": "rotor angle, whole trajectory", "angle_zoom": "rotor angle, zoomed intervals",
-              "speed": "rotor speed, whole trajectory", "speed_zoom": "rotor speed, zoomed intervals"}
+def figure_caption(name: str, maneuver_roles: dict[str, str], time_offset: dict[str, Any] | None,
+                   signal_labels: dict[str, str] | None = None, reference: dict[str, Any] | None = None) -> str:
+    """Caption of figure ``name`` (see ``plots.draw_all`` for the names).
 
-
-def figure_caption(name: str, maneuver_roles: dict[str, str], time_offset: dict[str, Any] | None) -> str:
-    """Caption of figure ``name`` (see ``plots.draw_all`` for the names)."""
+    Args:
+        signal_labels: target signal -> label (``Signal.label``).
+        reference: config ``evaluation.reference``; ``figures: {role: {kind: number}}`` names the reference's
+            figure for ``<role>`` and kind ``<signal>`` / ``<signal>_zoom``, and ``time_offset``.
+    """
+    reference = reference or {}
+    numbers = reference.get("figures", {}) or {}
+    ref_name = reference.get("name", "reference")
     if name == "time_offset":
-        text = "Time offset between data and model (cf. paper Fig. 6)"
+        number = numbers.get("time_offset")
+        text = "Time offset between data and model" + (f" (cf. {ref_name} Fig. {number})" if number else "")
         if time_offset:
             text += (f": maneuver '{time_offset['maneuver']}', {time_offset['t_start_s']:.4f}–"
                      f"{time_offset['t_end_s']:.4f} s; estimated input delay {time_offset['input_delay_s'] * 1e6:.1f} µs")
@@ -181,11 +211,12 @@ def figure_caption(name: str, maneuver_roles: dict[str, str], time_offset: dict[
     if name == "hyperband":
         return "Hyperband: validation objective of every trial at each rung against the resource, by bracket."
     for maneuver, role in maneuver_roles.items():
-        if name.startswith(f"{maneuver}_") and name[len(maneuver) + 1:] in _KIND_TEXT:
-            kind = name[len(maneuver) + 1:]
-            number = PAPER_FIGURES.get((role, kind))
-            paper = f" (cf. paper Fig. {number})" if number else ""
-            return f"{role.capitalize()} maneuver '{maneuver}': {_KIND_TEXT[kind]}, open loop{paper}."
+        for signal, label in (signal_labels or {}).items():
+            for kind, what in ((signal, "whole trajectory"), (f"{signal}_zoom", "zoomed intervals")):
+                if name == f"{maneuver}_{kind}":
+                    number = (numbers.get(role, {}) or {}).get(kind)
+                    cf = f" (cf. {ref_name} Fig. {number})" if number else ""
+                    return f"{role.capitalize()} maneuver '{maneuver}': {label}, {what}, open loop{cf}."
     return name
 
 
@@ -217,7 +248,8 @@ def true_input_delay(truth_paths: list[str]) -> tuple[float | None, str | None]:
 
 def write_report(report_path: str | Path, case: str, metrics_paths: list[str], best_path: str | Path,
                  run_path: str | Path, time_offset_summary_path: str | Path, figure_paths: dict[str, str],
-                 truth_paths: list[str], log_to_mlflow: bool = True) -> Path:
+                 truth_paths: list[str], roles: Any, reference: dict[str, Any] | None = None,
+                 log_to_mlflow: bool = True) -> Path:
     """Write ``report.md`` (figures linked relative to it) and add it and the figures to the evaluation's
     MLflow run.
 
@@ -226,6 +258,8 @@ def write_report(report_path: str | Path, case: str, metrics_paths: list[str], b
         time_offset_summary_path: the time-offset window's summary.
         figure_paths: figure name -> PNG path.
         truth_paths: ground-truth JSON files (may be empty: no "true" delay then).
+        roles: :class:`hybridfmu.case.CaseRoles` (labels and units of the target signals).
+        reference: config ``evaluation.reference`` (factors and figures to compare with), or None.
     """
     import os
 
@@ -241,17 +275,25 @@ def write_report(report_path: str | Path, case: str, metrics_paths: list[str], b
     true_dt_s, truth_source = true_input_delay(truth_paths)
     maneuver_roles = {m: role for role, metrics in metrics_by_role.items() for m in metrics.get("maneuvers", [])}
     folder = Path(report_path).parent
-    figures = [ReportFigure(os.path.relpath(path, folder), figure_caption(name, maneuver_roles, time_offset))
+    signals = {name: roles.signals[name] for name in roles.target_signals}
+    labels = {name: signal.label for name, signal in signals.items()}
+    units = {name: signal.unit for name, signal in signals.items()}
+    figures = [ReportFigure(os.path.relpath(path, folder),
+                            figure_caption(name, maneuver_roles, time_offset, labels, reference))
                for name, path in figure_paths.items()]
     best_facts = {key: summary[key] for key in ("trial_id", "bracket", "rung", "objective", "resource_s",
                                                 "mlflow_run_id") if summary.get(key) is not None}
     text = render_report(case, metrics_by_role, summary["hyperparameters"], best_facts, first.get("dt_s"),
-                         first.get("gates"), true_dt_s, truth_source, figures, run)
+                         first.get("gates"), true_dt_s, truth_source, figures, run, units, reference)
+    changes = ", ".join(
+        f"{signal} MSE {_number(time_offset['mse_without_delay'][signal])} → "
+        f"{_number(time_offset['mse_with_delay'][signal])} {squared_unit(units.get(signal, ''))}"
+        for signal in time_offset.get("signals", []))
     text += ("\n## Time offset seen from the FMU alone\n\n"
              f"Fitting an input delay to the FMU on a short window of '{time_offset['maneuver']}' "
-             f"({time_offset['t_start_s']:.4f}–{time_offset['t_end_s']:.4f} s) gives {time_offset['input_delay_s'] * 1e6:.1f} µs "
-             f"(speed MSE {time_offset['speed_mse_without_delay']:.3g} → {time_offset['speed_mse_with_delay']:.3g} (rad/s)²). "
-             "On one window the delay also absorbs the FMU's other errors there (friction, inertia), so this "
+             f"({time_offset['t_start_s']:.4f}–{time_offset['t_end_s']:.4f} s) gives "
+             f"{time_offset['input_delay_s'] * 1e6:.1f} µs ({changes}). "
+             "On one window the delay also absorbs the FMU's other errors there, so this "
              "estimate is indicative only; the neural FMU learns its delay together with the correction.\n")
     write_text_atomic(report_path, text)
     if log_to_mlflow:

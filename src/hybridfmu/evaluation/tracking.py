@@ -13,7 +13,6 @@ import logging
 from pathlib import Path
 from typing import Any, Iterable
 
-from hybridfmu.evaluation.metrics import METRIC_KEYS
 from hybridfmu.io import read_json, write_json_atomic
 
 LOG = logging.getLogger(__name__)
@@ -27,12 +26,12 @@ def resolve_tracking(mlflow_config: dict[str, Any] | None, results_dir: str | Pa
 
 
 def flat_metrics(metrics_by_role: dict[str, dict]) -> dict[str, float]:
-    """MLflow metric names -> values, e.g. ``test/neural_fmu/angle_mae``, ``test/improvement/angle_mse``."""
+    """MLflow metric names -> values, ``<role>/<model>/<signal>_<measure>``, e.g. ``test/neural_fmu/angle_mae``
+    (model: fmu, neural_fmu, improvement)."""
     flat: dict[str, float] = {}
     for role, metrics in metrics_by_role.items():
         for model in ("fmu", "neural_fmu", "improvement"):
-            for key in METRIC_KEYS:
-                value = metrics[model][key]
+            for key, value in metrics[model].items():
                 if value is not None:
                     flat[f"{role}/{model}/{key}"] = float(value)
     return flat

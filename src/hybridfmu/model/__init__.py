@@ -4,11 +4,10 @@ from .delay import InputDelay, SAMPLE_POSITIONS
 from .fmu_layer import FmuLayer
 from .gates import Gates
 from .mlp import TanhMLP
-from .motor_rhs import MotorParameters, MotorRhs
 from .neural_fmu import STATISTICS_KEYS, FusedDerivative, NeuralFmu
 from .shift_scale import ScaleShift, ShiftScale
 from .spec import EndStop, NeuralFmuSpec
 
-__all__ = ["InputDelay", "SAMPLE_POSITIONS", "FmuLayer", "Gates", "TanhMLP", "MotorParameters", "MotorRhs",
+__all__ = ["InputDelay", "SAMPLE_POSITIONS", "FmuLayer", "Gates", "TanhMLP",
            "STATISTICS_KEYS", "FusedDerivative", "NeuralFmu", "ScaleShift", "ShiftScale", "EndStop",
            "NeuralFmuSpec"]

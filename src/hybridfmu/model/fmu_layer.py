@@ -13,8 +13,8 @@ Rhs = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 class FmuLayer(nn.Module):
     """Wraps a differentiable right-hand side ``rhs(x (N, n_x), u (N, n_u)) -> (N, n_x)``.
 
-    Typically ``hybridfmu.fmu.FmuRhs(model)``; any callable with that signature works (e.g. the
-    pure-torch ``MotorRhs``). The layer has no parameters of its own.
+    Typically ``hybridfmu.fmu.FmuRhs(model)``; any callable with that signature works (e.g. a small
+    pure-torch right-hand side in the tests). The layer has no parameters of its own.
     """
 
     def __init__(self, rhs: Rhs, n_states: int, n_inputs: int) -> None:

@@ -38,7 +38,7 @@ def log_trial_rung(tracking: dict[str, str], search_id: str, result: dict[str, A
     """Log one rung of a configuration to its child run (found by tags, created at its first rung).
 
     Metrics (step = resource in ms of training data): ``train_loss`` per optimizer step; at every validation
-    ``val_objective``, ``val_loss``, ``val_angle_mae``, ``val_angle_mse``, ``val_speed_mae``, ``val_speed_mse``;
+    ``val_objective``, ``val_loss`` and ``val_<signal>_mae`` / ``_mse`` / ``_rmse`` per target signal;
     at the rung's end ``best_val_objective``, ``delay_s``, ``skipped_steps`` and the gates. Artifacts under ``rung<r>/``: ``model/state_dict.pt``,
     ``model/model_info.json`` (architecture, FMU path and hash) and ``training_curve.png``.
     ``history`` holds every step so far ([resource_s, loss, skipped, gradient norm]); steps up to
@@ -68,9 +68,8 @@ def log_trial_rung(tracking: dict[str, str], search_id: str, result: dict[str, A
         resource_s = validation.get("resource_s")
         if resource_s is None or resource_s <= since_resource_s:
             continue
-        for key in ("objective", "loss", "angle_mae", "angle_mse", "speed_mae", "speed_mse"):
-            if validation.get(key) is not None:
-                metrics.append((f"val_{key}", validation[key], int(round(1000 * resource_s))))
+        for key in validation_metric_keys(validation, with_loss=True):
+            metrics.append((f"val_{key}", validation[key], int(round(1000 * resource_s))))
     if result["objective"] is not None:
         metrics.append(("best_val_objective", result["objective"], step))
     metrics.append(("delay_s", result["delay_s"], step))
@@ -92,14 +91,26 @@ def log_trial_rung(tracking: dict[str, str], search_id: str, result: dict[str, A
     return run_id
 
 
+#: Suffixes of the per-signal error measures of a validation record (``<signal>_<measure>``).
+MEASURE_SUFFIXES = ("_mae", "_mse", "_rmse")
+
+
+def validation_metric_keys(validation: dict[str, Any], with_loss: bool) -> list[str]:
+    """Keys of a validation record logged as metrics: ``objective`` (and ``loss``), then every
+    ``<signal>_mae`` / ``_mse`` / ``_rmse``, skipping missing (None) values."""
+    keys = ["objective", "loss"] if with_loss else ["objective"]
+    keys += [key for key in validation if key.endswith(MEASURE_SUFFIXES)]
+    return [key for key in keys if validation.get(key) is not None]
+
+
 def finish_search(tracking: dict[str, str], best: dict[str, Any] | None, summary_path: str | Path) -> None:
     """Record the best trial on the parent run, attach the summary, and end the parent run."""
     tracker = Tracker(tracking["uri"])
     run_id = tracking["parent_run_id"]
     if best is not None:
         tags = {"best_trial": best["trial_id"], "best_run_id": best.get("mlflow_run_id") or ""}
-        metrics = [(f"best_val_{key}", value, 0) for key, value in best["validation"].items()
-                   if key in ("objective", "angle_mae", "angle_mse", "speed_mae", "speed_mse") and value is not None]
+        metrics = [(f"best_val_{key}", best["validation"][key], 0)
+                   for key in validation_metric_keys(best["validation"], with_loss=False)]
         tracker.log(run_id, metrics=metrics, tags=tags)
     tracker.log_artifact(run_id, summary_path)
     tracker.set_status(run_id, "FINISHED" if best is not None else "FAILED")

@@ -36,6 +36,9 @@ def model_spec(model_config: dict[str, Any], fmu_model: Any, sample_period_s: fl
         values = fmu_model.get_parameters(names)
         end_stop = EndStop(stop["state"], stop["rate_state"], float(values[names[0]]), float(values[names[1]]))
     ann = model_config["ann_inputs"]
+    if not model_config.get("corrected_states"):
+        raise ValueError(f"config.model.corrected_states: name the state(s) whose derivative the ANN corrects; "
+                         f"the FMU's states are {states}")
     return NeuralFmuSpec(
         state_names=states, input_names=inputs,
         corrected_states=_names(model_config["corrected_states"], states, "corrected_states"),

@@ -1,8 +1,8 @@
 """Maneuver arrays for training and validation: inputs, window initial states, targets, selected spans.
 
-Built once per case from the ingested data (``{RESULTS}/data/<maneuver>.parquet``), its selected
-segments (``{RESULTS}/segments/<maneuver>.json``) and the FMU (state and input names), and stored as a
-compressed ``.npz`` that every training job loads quickly.
+Built once per case from the ingested data (``{RESULTS}/data/<maneuver>.parquet``) read through the
+case's roles, its selected segments (``{RESULTS}/segments/<maneuver>.json``) and the calibrated FMU,
+and stored as a compressed ``.npz`` that every training job loads quickly.
 """
 
 from __future__ import annotations
@@ -26,11 +26,13 @@ class ManeuverArrays:
     Attributes:
         name: maneuver name.
         time_s: (T,) sample times (s), uniform step ``sample_period_s``.
-        u: (T, n_u) FMU inputs in FMU order (``input_names``).
+        u: (T, n_u) FMU inputs in FMU order (``input_names``), model units of their signals.
         x_init: (T, n_x) states to start a window or segment from (measured where measured, the FMU's
-            baseline open loop elsewhere), FMU order (``state_names``).
-        angle, speed: (T,) measured angle (rad) and speed (rad/s): the loss targets.
+            baseline open loop, started from the calibrated initial values, elsewhere), FMU order.
+        targets: (T, n_t) measured target states (the loss and metric targets), order ``target_states``.
         spans: (S, 2) int64 index ranges [start, end) of the selected segments.
+        state_names, input_names: the FMU's states and inputs.
+        target_states: FMU names of the targets; target_signals: their signals (name the metrics).
         measured_states: names of the states whose ``x_init`` comes from measurements.
     """
 
@@ -38,18 +40,37 @@ class ManeuverArrays:
     time_s: np.ndarray
     u: np.ndarray
     x_init: np.ndarray
-    angle: np.ndarray
-    speed: np.ndarray
+    targets: np.ndarray
     spans: np.ndarray
     state_names: list[str]
     input_names: list[str]
-    angle_state: str
-    speed_state: str
+    target_states: list[str]
+    target_signals: list[str]
     measured_states: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        t = np.shape(self.time_s)[0]
+        expected = {"u": (t, len(self.input_names)), "x_init": (t, len(self.state_names)),
+                    "targets": (t, len(self.target_states))}
+        for key, shape in expected.items():
+            if np.shape(getattr(self, key)) != shape:
+                raise ValueError(f"maneuver {self.name}: {key} has shape {np.shape(getattr(self, key))}, "
+                                 f"expected {shape}")
+        if len(self.target_signals) != len(self.target_states):
+            raise ValueError(f"maneuver {self.name}: {len(self.target_signals)} target signals for "
+                             f"{len(self.target_states)} target states")
+        unknown = [name for name in self.target_states if name not in self.state_names]
+        if unknown:
+            raise ValueError(f"maneuver {self.name}: target state(s) {unknown} are not FMU states {self.state_names}")
 
     @property
     def sample_period_s(self) -> float:
         return float((self.time_s[-1] - self.time_s[0]) / (self.time_s.size - 1))
+
+    @property
+    def target_index(self) -> list[int]:
+        """Positions of the target states in the state vector."""
+        return [self.state_names.index(name) for name in self.target_states]
 
     def span_mask(self) -> np.ndarray:
         """(T,) bool, True inside the selected segments."""
@@ -62,9 +83,11 @@ class ManeuverArrays:
         """Write atomically as ``.npz``."""
         with atomic_path(path, suffix=".npz") as tmp:
             np.savez_compressed(
-                tmp, name=self.name, time_s=self.time_s, u=self.u, x_init=self.x_init, angle=self.angle,
-                speed=self.speed, spans=self.spans, state_names=np.array(self.state_names),
-                input_names=np.array(self.input_names), angle_state=self.angle_state, speed_state=self.speed_state,
+                tmp, name=self.name, time_s=self.time_s, u=self.u, x_init=self.x_init, targets=self.targets,
+                spans=self.spans, state_names=np.array(self.state_names, dtype=str),
+                input_names=np.array(self.input_names, dtype=str),
+                target_states=np.array(self.target_states, dtype=str),
+                target_signals=np.array(self.target_signals, dtype=str),
                 measured_states=np.array(self.measured_states, dtype=str))
         return Path(path)
 
@@ -74,15 +97,17 @@ class ManeuverArrays:
         if not path.is_file():
             raise FileNotFoundError(f"{path}: prepared maneuver arrays do not exist (rule hpo_prepare)")
         with np.load(path, allow_pickle=False) as data:
-            missing = [key for key in ("time_s", "u", "x_init", "angle", "speed", "spans") if key not in data]
+            missing = [key for key in ("time_s", "u", "x_init", "targets", "spans", "state_names", "input_names",
+                                       "target_states", "target_signals") if key not in data]
             if missing:
-                raise ValueError(f"{path}: field(s) {missing} missing; expected prepared maneuver arrays")
-            return cls(name=str(data["name"]), time_s=data["time_s"], u=data["u"], x_init=data["x_init"],
-                       angle=data["angle"], speed=data["speed"], spans=data["spans"].astype(np.int64).reshape(-1, 2),
-                       state_names=[str(s) for s in data["state_names"]],
-                       input_names=[str(s) for s in data["input_names"]], angle_state=str(data["angle_state"]),
-                       speed_state=str(data["speed_state"]),
-                       measured_states=[str(s) for s in data["measured_states"]])
+                raise ValueError(f"{path}: field(s) {missing} missing; expected prepared maneuver arrays "
+                                 "(rerun rule hpo_prepare)")
+            names = {key: [str(s) for s in data[key]] for key in ("state_names", "input_names", "target_states",
+                                                                  "target_signals", "measured_states")
+                     if key in data}
+            return cls(name=str(data["name"]), time_s=data["time_s"], u=data["u"].reshape(data["time_s"].size, -1),
+                       x_init=data["x_init"], targets=data["targets"].reshape(data["time_s"].size, -1),
+                       spans=data["spans"].astype(np.int64).reshape(-1, 2), **names)
 
 
 def spans_to_indices(time_s: np.ndarray, spans_s: list[list[float]], source: str = "segments") -> np.ndarray:
@@ -111,59 +136,54 @@ def check_uniform_grid(time_s: np.ndarray, source: str) -> float:
 
 
 def build_maneuver_arrays(name: str, data_path: str | Path, segments_path: str | Path, fmu_model: Any,
-                          signals_config: dict[str, Any] | None, baseline_path: str | Path | None = None,
-                          ) -> ManeuverArrays:
+                          roles: Any, calibration: Any = None, maneuvers: dict[str, Any] | None = None,
+                          baseline_path: str | Path | None = None) -> ManeuverArrays:
     """Read one maneuver's ingested data and segments and return its arrays.
 
-    States that the ``signals`` section cannot provide from measurements are taken from the FMU's
-    baseline open loop: ``baseline_path`` (columns time_s + FMU state names) if it exists, else simulated
-    here with ``simulate_open_loop`` from the first sample.
+    Args:
+        name: maneuver name.
+        data_path, segments_path: ``{RESULTS}/data/<name>.parquet`` and ``{RESULTS}/segments/<name>.json``.
+        fmu_model: the loaded (calibrated) FMU.
+        roles: :class:`hybridfmu.case.CaseRoles`.
+        calibration: :class:`hybridfmu.calibration.result.Calibration` (unmeasured initial states); None = empty.
+        maneuvers: config ``maneuvers`` (``initial_states_from``).
+        baseline_path: the FMU's baseline open loop of this maneuver (columns ``time_s`` + FMU states).
+
+    States that are not measured are taken from the FMU's baseline open loop: ``baseline_path`` if it
+    exists, else simulated here from the first sample (measured states, calibrated unmeasured ones).
     """
-    import pandas as pd
-
     from hybridfmu.data.segments import read_segments
-    from hybridfmu.data.settings import section_settings
-    from hybridfmu.data.signals import input_array, state_array, time_array
+    from hybridfmu.training.measured import initial_state, load_calibration, read_measured
 
-    data_path = Path(data_path)
-    if not data_path.is_file():
-        raise FileNotFoundError(f"{data_path}: ingested data do not exist (rule ingest)")
-    frame = pd.read_parquet(data_path)
-    signals = section_settings(signals_config, "signals")
+    calibration = calibration if calibration is not None else load_calibration(None)
     state_names, input_names = list(fmu_model.state_names), list(fmu_model.input_names)
-    time_s = time_array(frame)
+    if state_names != list(roles.state_names) or input_names != list(roles.input_names):
+        raise ValueError(f"FMU states {state_names} / inputs {input_names} differ from the case roles' "
+                         f"{roles.state_names} / {roles.input_names}")
+    measured = read_measured(data_path, roles)
+    time_s = measured.time_s
     check_uniform_grid(time_s, str(data_path))
-    u = input_array(frame, signals, input_names)
-    measurable = set(signals["measured_states"])
-    if all(column in frame.columns for column in signals["phase_currents"]):
-        measurable |= set(signals["current_states"])
-    measured = [state for state in state_names if state in measurable]
-    x_init = np.full((time_s.size, len(state_names)), np.nan)
-    if measured:
-        x_init[:, [state_names.index(s) for s in measured]] = state_array(frame, signals, measured)
-    missing = [state for state in state_names if state not in measurable]
+    x_init = measured.x.copy()
+    missing = list(roles.unmeasured_states)
     if missing:
-        baseline = _baseline_states(fmu_model, time_s, u, x_init, baseline_path, str(data_path))
+        x0 = initial_state(fmu_model, measured.x[0], roles, calibration, name, maneuvers)
+        baseline = _baseline_states(fmu_model, time_s, measured.u, x0, baseline_path, str(data_path))
         for state in missing:
             x_init[:, state_names.index(state)] = baseline[:, state_names.index(state)]
         LOG.info("%s: states %s are not measured; windows start from the FMU's baseline open loop", name, missing)
-    for key in ("angle_state", "speed_state"):
-        if signals[key] not in signals["measured_states"]:
-            raise ValueError(f"config.signals.{key}: {signals[key]!r} must be a measured state (it is a loss target)")
-    angle = x_init[:, state_names.index(signals["angle_state"])].copy()
-    speed = x_init[:, state_names.index(signals["speed_state"])].copy()
-    if not np.all(np.isfinite(x_init)) or not np.all(np.isfinite(u)):
+    if not np.all(np.isfinite(x_init)) or not np.all(np.isfinite(measured.u)):
         raise ValueError(f"{data_path}: non-finite values in the states or inputs")
     record = read_segments(segments_path)
     spans = spans_to_indices(time_s, record["spans_s"], str(segments_path))
     if spans.size == 0:
         raise ValueError(f"{segments_path}: field 'spans_s' selects no samples; training needs at least one segment")
-    return ManeuverArrays(name=name, time_s=time_s, u=u, x_init=x_init, angle=angle, speed=speed, spans=spans,
-                          state_names=state_names, input_names=input_names, angle_state=signals["angle_state"],
-                          speed_state=signals["speed_state"], measured_states=measured)
+    return ManeuverArrays(name=name, time_s=time_s, u=measured.u, x_init=x_init, targets=measured.targets,
+                          spans=spans, state_names=state_names, input_names=input_names,
+                          target_states=measured.target_states, target_signals=measured.target_signals,
+                          measured_states=measured.measured_states)
 
 
-def _baseline_states(fmu_model, time_s, u, x_measured, baseline_path, source) -> np.ndarray:
+def _baseline_states(fmu_model, time_s, u, x0, baseline_path, source) -> np.ndarray:
     import pandas as pd
 
     state_names = list(fmu_model.state_names)
@@ -177,6 +197,5 @@ def _baseline_states(fmu_model, time_s, u, x_measured, baseline_path, source) ->
         return frame[state_names].to_numpy(dtype=np.float64)
     from hybridfmu.fmu import simulate_open_loop
 
-    x0 = np.where(np.isfinite(x_measured[0]), x_measured[0], np.asarray(fmu_model.initial_states, dtype=float))
     LOG.info("%s: no baseline file; simulating the FMU open loop for the unmeasured states", source)
     return simulate_open_loop(fmu_model, time_s, u, x0).states

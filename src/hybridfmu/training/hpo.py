@@ -37,25 +37,30 @@ def role_maneuver(config: dict[str, Any], role: str, chosen: str = "") -> str:
     raise ValueError(f"config.maneuvers: no maneuver with role {role!r} (training needs one)")
 
 
-def prepare_training_data(*, fmu_path: str | Path, fmu_parameters: dict[str, float] | None,
-                          signals_config: dict[str, Any] | None, maneuvers: dict[str, str],
+def prepare_training_data(*, fmu_path: str | Path, calibration_path: str | Path | None, roles: Any,
+                          maneuvers: dict[str, str], maneuvers_config: dict[str, Any] | None,
                           data_paths: dict[str, str], segments_paths: dict[str, str],
                           baseline_paths: dict[str, str | None], array_paths: dict[str, str],
                           statistics_path: str | Path) -> dict[str, Any]:
     """Arrays of the train and validation maneuvers, and the training data statistics.
 
     Args:
+        fmu_path, calibration_path: the FMU and its calibration (parameters, unmeasured initial states);
+            None = the FMU as configured.
+        roles: :class:`hybridfmu.case.CaseRoles` of the case.
         maneuvers: role ("train", "validation") -> maneuver name; the other dicts are keyed by role.
+        maneuvers_config: config ``maneuvers`` (``initial_states_from`` of the calibration).
         baseline_paths: the FMU baseline per role, used only for states that are not measured (may be None
             or missing, then the FMU is simulated here).
     """
-    from hybridfmu.fmu import load_fmu
+    from hybridfmu.training.measured import load_calibrated_fmu, load_calibration
 
-    fmu_model = load_fmu(fmu_path, parameters=fmu_parameters or None)
+    calibration = load_calibration(calibration_path)
+    fmu_model = load_calibrated_fmu(fmu_path, calibration)
     arrays = {}
     for role, name in maneuvers.items():
-        arrays[role] = build_maneuver_arrays(name, data_paths[role], segments_paths[role], fmu_model, signals_config,
-                                             baseline_paths.get(role))
+        arrays[role] = build_maneuver_arrays(name, data_paths[role], segments_paths[role], fmu_model, roles,
+                                             calibration, maneuvers_config, baseline_paths.get(role))
         kept = int((arrays[role].spans[:, 1] - arrays[role].spans[:, 0]).sum())
         LOG.info("%s (%s): %d samples, %d segments with %d samples (%.3g s)", name, role, arrays[role].time_s.size,
                  len(arrays[role].spans), kept, kept * arrays[role].sample_period_s)
@@ -66,6 +71,21 @@ def prepare_training_data(*, fmu_path: str | Path, fmu_parameters: dict[str, flo
     return statistics
 
 
+def check_target_weights(hpo_config: dict[str, Any], roles: Any) -> None:
+    """Every ``w_<state>`` of the search space and the objective names a target state of the case.
+
+    Raises:
+        ValueError: naming the config field and the case's target states.
+    """
+    targets = list(roles.target_states)
+    for where, names in (("config.hpo.search_space", hpo_config.get("search_space", {})),
+                         ("config.hpo.objective", hpo_config.get("objective", {}))):
+        for name in names:
+            if name.startswith("w_") and name[2:] not in targets:
+                raise ValueError(f"{where}.{name}: {name[2:]!r} is not a target state; expected w_<state> for one "
+                                 f"of config.roles.targets {targets}")
+
+
 def search_id(case: str, seed: int, sections: dict[str, Any]) -> str:
     """Stable id of a search: hash of the case, the master seed and the sections that define it."""
     text = json.dumps({"case": case, "seed": seed, **sections}, sort_keys=True, default=str)
@@ -74,10 +94,15 @@ def search_id(case: str, seed: int, sections: dict[str, Any]) -> str:
 
 def plan_search(*, case: str, seed: int, hpo_config: dict[str, Any], training_config: dict[str, Any],
                 model_config: dict[str, Any], plan_path: str | Path, tracking_uri: str | None,
-                experiment: str | None) -> dict[str, Any]:
+                experiment: str | None, roles: Any = None) -> dict[str, Any]:
     """Write the search plan (brackets, rungs, sampled configurations) and create the MLflow parent run
-    (skipped when ``tracking_uri`` is None)."""
-    identifier = search_id(case, seed, {"hpo": hpo_config, "training": training_config, "model": model_config})
+    (skipped when ``tracking_uri`` is None). With ``roles`` the target weights ``w_<state>`` of the search
+    space and the objective are checked against the case's target states."""
+    sections = {"hpo": hpo_config, "training": training_config, "model": model_config}
+    if roles is not None:
+        check_target_weights(hpo_config, roles)
+        sections["targets"] = dict(roles.target_weights)
+    identifier = search_id(case, seed, sections)
     plan = search_plan(hpo_config, training_config, seed, identifier)
     if tracking_uri:
         from hybridfmu.tracking.search import start_search

@@ -13,14 +13,14 @@ from typing import Any
 
 import numpy as np
 
-#: The paper's search space (Sec. 3.2); the windows per step come from ``training.batch_windows``.
+#: The paper's search space (Sec. 3.2) without its target weight; the windows per step come from
+#: ``training.batch_windows``, a target weight ``w_<state>`` from the case (config/paper.yaml).
 PAPER_SEARCH_SPACE: dict[str, dict[str, Any]] = {
     "lr": {"distribution": "loguniform", "low": 1e-6, "high": 1e-4},
     "beta1": {"distribution": "choice", "values": [0.99, 0.9]},
     "beta2": {"distribution": "choice", "values": [0.9999, 0.999, 0.99]},
     "window_s": {"distribution": "uniform", "low": 0.01, "high": 0.1},
     "loss": {"distribution": "choice", "values": ["MAE", "MSE"]},
-    "w_speed": {"distribution": "uniform", "low": 0.0, "high": 1.0},
     "width": {"distribution": "choice", "values": [8, 16, 32]},
     "depth": {"distribution": "choice", "values": [2, 3, 4]},
     "gate_opening": {"distribution": "uniform", "low": 0.0, "high": 0.5},

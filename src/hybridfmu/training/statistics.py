@@ -13,9 +13,9 @@ def data_statistics(arrays: ManeuverArrays, fmu_model: Any, max_rows: int = 100_
     """Means and spreads over the selected segments of a maneuver.
 
     Returns a JSON-able dict: ``x_mean``, ``x_std`` (states, FMU order), ``u_mean``, ``u_std`` (inputs),
-    ``xdot_mean``, ``xdot_std`` (the FMU's derivatives at the measured states and inputs), ``angle_std``
-    (rad) and ``speed_std`` (rad/s) (the loss scales), ``n_rows`` (samples used; evenly thinned to at
-    most ``max_rows``).
+    ``xdot_mean``, ``xdot_std`` (the FMU's derivatives at the measured states and inputs), ``target_std``
+    (the loss scales: one spread per target state, order ``target_states``, in the target's unit),
+    ``target_states``, ``target_signals``, ``n_rows`` (samples used; evenly thinned to at most ``max_rows``).
     """
     index = np.flatnonzero(arrays.span_mask())
     if index.size == 0:
@@ -30,10 +30,12 @@ def data_statistics(arrays: ManeuverArrays, fmu_model: Any, max_rows: int = 100_
     stats = {
         "x_mean": x.mean(0), "x_std": x.std(0), "u_mean": u.mean(0), "u_std": u.std(0),
         "xdot_mean": xdot.mean(0), "xdot_std": xdot.std(0),
-        "angle_std": float(arrays.angle[index].std()), "speed_std": float(arrays.speed[index].std()),
+        "target_std": arrays.targets[index].std(0), "target_states": list(arrays.target_states),
+        "target_signals": list(arrays.target_signals),
         "n_rows": int(index.size), "state_names": arrays.state_names, "input_names": arrays.input_names,
     }
-    for key in ("angle_std", "speed_std"):
-        if not stats[key] > 0:
-            raise ValueError(f"maneuver {arrays.name}: {key} is {stats[key]}; the loss needs a spread > 0")
+    for name, spread in zip(arrays.target_signals, stats["target_std"]):
+        if not spread > 0:
+            raise ValueError(f"maneuver {arrays.name}: target {name!r} has spread {spread} in the selected "
+                             "segments; the loss needs a spread > 0")
     return {key: value.tolist() if isinstance(value, np.ndarray) else value for key, value in stats.items()}

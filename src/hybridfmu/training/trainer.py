@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -18,44 +18,51 @@ import torch
 from hybridfmu.model.neural_fmu import NeuralFmu
 from hybridfmu.progress import Progress
 from hybridfmu.training.data import ManeuverArrays
-from hybridfmu.training.losses import weighted_loss
+from hybridfmu.training.losses import weight_overrides, weighted_loss
 from hybridfmu.training.solver import rollout
 from hybridfmu.training.windows import WindowSampler, delay_padding
 
 LOG = logging.getLogger(__name__)
 
-HYPERPARAMETER_NAMES = ("lr", "beta1", "beta2", "window_s", "loss", "w_speed", "width", "depth", "gate_opening",
-                        "batch_windows")
+#: Hyperparameters every configuration has; target weights ``w_<state>`` are optional extras.
+HYPERPARAMETER_NAMES = ("lr", "beta1", "beta2", "window_s", "loss", "width", "depth", "gate_opening", "batch_windows")
 
 
 @dataclass(frozen=True)
 class Hyperparameters:
     """One configuration of the search: Adam (lr, beta1, beta2), window length (s), loss kind (MAE/MSE),
-    speed weight, MLP width and depth, initial ANN gate, windows per step."""
+    MLP width and depth, initial ANN gate, windows per step, and target weights set by the search
+    (``target_weights``: state -> weight, from entries ``w_<state>``; the case's roles share the rest)."""
 
     lr: float
     beta1: float
     beta2: float
     window_s: float
     loss: str
-    w_speed: float
     width: int
     depth: int
     gate_opening: float
     batch_windows: int
+    target_weights: dict[str, float] = field(default_factory=dict)
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "Hyperparameters":
         missing = [name for name in HYPERPARAMETER_NAMES if name not in values]
         if missing:
             raise ValueError(f"hyperparameters: missing {missing}")
+        unknown = [name for name in values if name not in HYPERPARAMETER_NAMES and not name.startswith("w_")]
+        if unknown:
+            raise ValueError(f"hyperparameters: unknown {unknown}; expected {list(HYPERPARAMETER_NAMES)} and "
+                             "target weights w_<state>")
         return cls(lr=float(values["lr"]), beta1=float(values["beta1"]), beta2=float(values["beta2"]),
-                   window_s=float(values["window_s"]), loss=str(values["loss"]), w_speed=float(values["w_speed"]),
-                   width=int(values["width"]), depth=int(values["depth"]),
-                   gate_opening=float(values["gate_opening"]), batch_windows=int(values["batch_windows"]))
+                   window_s=float(values["window_s"]), loss=str(values["loss"]), width=int(values["width"]),
+                   depth=int(values["depth"]), gate_opening=float(values["gate_opening"]),
+                   batch_windows=int(values["batch_windows"]), target_weights=weight_overrides(values))
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        values = asdict(self)
+        values.update({f"w_{state}": weight for state, weight in values.pop("target_weights").items()})
+        return values
 
 
 @dataclass(frozen=True)
@@ -78,21 +85,30 @@ class Trainer:
         model: the neural FMU.
         arrays: the training maneuver.
         hyper: the configuration.
-        scales: ``{"angle_std": rad, "speed_std": rad/s}`` loss scales.
+        statistics: the training data statistics; ``target_std`` (n_t,) are the loss scales.
         settings: skip rules.
         seed: seed of the window sampler.
+        weights: target state -> loss weight (e.g. ``roles.weights_with(hyper.target_weights)``), for every
+            target of ``arrays``.
     """
 
-    def __init__(self, model: NeuralFmu, arrays: ManeuverArrays, hyper: Hyperparameters, scales: dict[str, float],
-                 settings: TrainerSettings, seed: int) -> None:
+    def __init__(self, model: NeuralFmu, arrays: ManeuverArrays, hyper: Hyperparameters, statistics: dict[str, Any],
+                 settings: TrainerSettings, seed: int, weights: dict[str, float]) -> None:
         spec = model.spec
         self.model, self.hyper, self.settings = model, hyper, settings
-        self.scales = {"angle_std": float(scales["angle_std"]), "speed_std": float(scales["speed_std"])}
+        missing = [name for name in arrays.target_states if name not in weights]
+        if missing:
+            raise ValueError(f"Trainer: no loss weight for target state(s) {missing}")
+        self.weights = [float(weights[name]) for name in arrays.target_states]
+        self.scales = [float(value) for value in statistics["target_std"]]
+        if len(self.scales) != len(arrays.target_states):
+            raise ValueError(f"Trainer: {len(self.scales)} target scales in the statistics for targets "
+                             f"{arrays.target_states}; rerun rule hpo_prepare")
         self.h = spec.sample_period_s
         self.n_steps = max(1, int(round(hyper.window_s / self.h)))
         self.sampler = WindowSampler(arrays, self.n_steps, delay_padding(self.h, spec.delay_min_s, spec.delay_max_s))
-        self.i_angle = spec.state_names.index(arrays.angle_state)
-        self.i_speed = spec.state_names.index(arrays.speed_state)
+        self.target_index = torch.as_tensor([spec.state_names.index(name) for name in arrays.target_states],
+                                            dtype=torch.long)
         self.optimizer = torch.optim.Adam(model.parameters(), lr=hyper.lr, betas=(hyper.beta1, hyper.beta2))
         self.rng = np.random.Generator(np.random.PCG64(seed))
         self.used_samples = 0
@@ -120,9 +136,8 @@ class Trainer:
         if states is None:
             loss = torch.tensor(math.nan, dtype=torch.float64)
         else:
-            loss = weighted_loss(states[:, 1:, self.i_angle] - batch.angle[:, 1:],
-                                 states[:, 1:, self.i_speed] - batch.speed[:, 1:], self.hyper.loss,
-                                 self.hyper.w_speed, self.scales["angle_std"], self.scales["speed_std"])
+            errors = states[:, 1:].index_select(2, self.target_index) - batch.targets[:, 1:]
+            loss = weighted_loss(errors, self.hyper.loss, self.weights, self.scales)
         loss_value = float(loss.detach())
         grad_norm = math.nan
         if math.isfinite(loss_value):

@@ -23,6 +23,7 @@ from hybridfmu.io import atomic_path, read_json, write_json_atomic
 from hybridfmu.progress import Progress
 from hybridfmu.training.build import build_neural_fmu, model_spec
 from hybridfmu.training.data import ManeuverArrays
+from hybridfmu.training.losses import objective_from_config
 from hybridfmu.training.plan import plan_entry
 from hybridfmu.training.trainer import Hyperparameters, Trainer, TrainerSettings, TrialDiverged
 from hybridfmu.training.validation import validate
@@ -78,8 +79,9 @@ def validation_points(start_s: float, target_s: float, every_s: float | None) ->
 
 def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_index: int,
                    train_arrays_path: str | Path, validation_arrays_path: str | Path, statistics_path: str | Path,
-                   fmu_path: str | Path, fmu_parameters: dict[str, float] | None, model_config: dict[str, Any],
-                   training_config: dict[str, Any], previous_checkpoint: str | Path | None,
+                   fmu_path: str | Path, calibration_path: str | Path | None, roles: Any,
+                   model_config: dict[str, Any], training_config: dict[str, Any],
+                   previous_checkpoint: str | Path | None,
                    checkpoint_path: str | Path, result_path: str | Path, track: bool = True) -> dict[str, Any]:
     """Train configuration ``config_index`` of ``bracket`` up to the resource of ``rung`` and validate it.
 
@@ -91,7 +93,10 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
     Args:
         plan_path: the search plan (``hpo/plan.json``; also names the MLflow parent run).
         train_arrays_path, validation_arrays_path, statistics_path: outputs of ``prepare_training_data``.
-        fmu_path, fmu_parameters: the FMU and parameter overrides.
+        fmu_path, calibration_path: the FMU and the calibration result whose parameters it is loaded with
+            (None: the FMU as configured, for tests).
+        roles: :class:`hybridfmu.case.CaseRoles` of the case (target weights: the trial's ``w_<state>``
+            override the configured ones, as does the plan's objective).
         model_config, training_config: validated ``model`` and ``training`` sections.
         previous_checkpoint: the previous rung's checkpoint (None for rung 0).
         checkpoint_path, result_path: outputs (written atomically, also for a failed trial).
@@ -100,7 +105,8 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
     Returns:
         The result record (also written to ``result_path``).
     """
-    from hybridfmu.fmu import FmuRhs, load_fmu
+    from hybridfmu.fmu import FmuRhs
+    from hybridfmu.training.measured import load_calibrated_fmu, load_calibration
 
     wall_start = time.perf_counter()
     plan = read_json(plan_path)
@@ -110,7 +116,9 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
     train = ManeuverArrays.load(train_arrays_path)
     valid = ManeuverArrays.load(validation_arrays_path)
     statistics = read_json(statistics_path)
-    fmu_model = load_fmu(fmu_path, parameters=fmu_parameters or None)
+    weights = roles.weights_with(hyper.target_weights)
+    objective = objective_from_config(plan["objective"], roles)
+    fmu_model = load_calibrated_fmu(fmu_path, load_calibration(calibration_path))
     spec = model_spec(model_config, fmu_model, train.sample_period_s, hyper.width, hyper.depth, hyper.gate_opening)
     model = build_neural_fmu(FmuRhs(fmu_model), spec, statistics, entry["seed"])
     settings = TrainerSettings(max_skipped_steps=int(training_config["max_skipped_steps"]),
@@ -136,7 +144,7 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
     LOG.info("trial %s rung %d: %s, train to %.4g s of data", trial_id, rung, entry["hyperparameters"],
              entry["resource_s"])
     try:
-        trainer = Trainer(model, train, hyper, statistics, settings, entry["seed"])
+        trainer = Trainer(model, train, hyper, statistics, settings, entry["seed"], weights)
         if previous_checkpoint:
             trainer.load_state_dict(previous["trainer"])
         start_resource_s = trainer.resource_used_s
@@ -146,12 +154,14 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
             for target_s in validation_points(start_resource_s, entry["resource_s"],
                                               training_config.get("validation_every_s")):
                 trainer.train_until(target_s, progress)
-                metrics = validate(model, valid, hyper.loss, hyper.w_speed, plan["objective"], statistics)
+                metrics = validate(model, valid, hyper.loss, weights, objective, statistics)
                 metrics.update(resource_s=trainer.resource_used_s, rung=rung)
                 validations.append(metrics)
-                LOG.info("trial %s: validation at %.4g s of data: objective %.4g, angle MAE %.4g rad, speed MAE "
-                         "%.4g rad/s", trial_id, trainer.resource_used_s, metrics["objective"], metrics["angle_mae"],
-                         metrics["speed_mae"])
+                LOG.info("trial %s: validation at %.4g s of data: objective %.4g, %s", trial_id,
+                         trainer.resource_used_s, metrics["objective"],
+                         ", ".join(f"{signal} MAE {metrics[f'{signal}_mae']:.4g} "
+                                   f"{roles.signals[signal].unit if signal in roles.signals else ''}".rstrip()
+                                   for signal in valid.target_signals))
                 if metrics["finite"] and metrics["objective"] < best.get("objective", math.inf):
                     best = dict(metrics)
                     best_model = {key: value.clone() for key, value in model.state_dict().items()}
@@ -178,7 +188,9 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
         "checkpoint": str(checkpoint_path), "last_rung": rung == entry["last_rung"],
         "curve": _curve(trainer.history if trainer else [], int(training_config.get("curve_points", 200))),
         "validations": [{key: _finite_or_none(value) for key, value in v.items()} for v in validations],
-        "fmu": {"path": str(fmu_path), "sha256": file_sha256(fmu_path)},
+        "fmu": {"path": str(fmu_path), "sha256": file_sha256(fmu_path),
+                "calibration": str(calibration_path) if calibration_path else None},
+        "target_weights": weights, "objective_weights": objective.weights,
     }
     checkpoint = {
         "format": CHECKPOINT_FORMAT, "status": status, "reason": reason, "bracket": bracket, "rung": rung,

@@ -10,7 +10,7 @@ import torch
 
 from hybridfmu.model.neural_fmu import NeuralFmu
 from hybridfmu.training.data import ManeuverArrays
-from hybridfmu.training.losses import error_measures, weighted_loss
+from hybridfmu.training.losses import MEASURES, Objective, error_measures, weighted_loss
 from hybridfmu.training.solver import rollout
 from hybridfmu.training.windows import delay_padding
 
@@ -34,32 +34,36 @@ def simulate_segments(model: NeuralFmu, arrays: ManeuverArrays) -> tuple[torch.T
     return states, mask
 
 
-def validate(model: NeuralFmu, arrays: ManeuverArrays, loss_kind: str, w_speed: float,
-             objective: dict[str, Any], scales: dict[str, float]) -> dict[str, float]:
+def validate(model: NeuralFmu, arrays: ManeuverArrays, loss_kind: str, weights: dict[str, float],
+             objective: Objective, statistics: dict[str, Any]) -> dict[str, float]:
     """Open-loop error over the selected segments of ``arrays``.
 
-    Returns ``loss`` (the trial's own weighted loss), ``objective`` (the search's common selection
-    measure: ``objective["loss"]``, ``objective["w_speed"]``), angle/speed MAE and MSE (rad, rad/s),
-    and ``finite`` (1.0, or 0.0 when the simulation diverged; then loss and objective are inf).
+    Args:
+        model: the neural FMU; arrays: the validation maneuver.
+        loss_kind, weights: the trial's own loss (kind, target state -> weight).
+        objective: the search's common selection measure (:class:`Objective`).
+        statistics: training data statistics (``target_std``: the loss scales).
+
+    Returns:
+        ``loss`` (the trial's own weighted loss), ``objective``, ``<signal>_mae``, ``<signal>_mse``,
+        ``<signal>_rmse`` per target signal (units of the signal), and ``finite`` (1.0, or 0.0 when the
+        simulation diverged; then every value is inf).
     """
     states, mask = simulate_segments(model, arrays)
     mask = mask.clone()
     mask[:, 0] = False  # the initial state is given, not predicted
     steps = torch.arange(states.shape[1])
     index = (torch.as_tensor(arrays.spans[:, 0])[:, None] + steps[None, :]).clamp(0, arrays.time_s.size - 1)
-    angle = torch.from_numpy(arrays.angle)[index]
-    speed = torch.from_numpy(arrays.speed)[index]
-    i_angle, i_speed = arrays.state_names.index(arrays.angle_state), arrays.state_names.index(arrays.speed_state)
-    angle_error = states[:, :, i_angle] - angle
-    speed_error = states[:, :, i_speed] - speed
-    finite = bool(torch.isfinite(angle_error[mask]).all() and torch.isfinite(speed_error[mask]).all())
-    if not finite:
-        return {"loss": math.inf, "objective": math.inf, "angle_mae": math.inf, "angle_mse": math.inf,
-                "speed_mae": math.inf, "speed_mse": math.inf, "finite": 0.0}
-    metrics = error_measures(angle_error, speed_error, mask)
-    metrics["loss"] = float(weighted_loss(angle_error, speed_error, loss_kind, w_speed, scales["angle_std"],
-                                          scales["speed_std"], mask))
-    metrics["objective"] = float(weighted_loss(angle_error, speed_error, objective["loss"], objective["w_speed"],
-                                               scales["angle_std"], scales["speed_std"], mask))
+    targets = torch.from_numpy(np.ascontiguousarray(arrays.targets))[index]  # (S, n + 1, n_t)
+    errors = states.index_select(2, torch.as_tensor(arrays.target_index, dtype=torch.long)) - targets
+    scales = [float(value) for value in statistics["target_std"]]
+    if not bool(torch.isfinite(errors[mask]).all()):
+        names = [f"{signal}_{measure}" for signal in arrays.target_signals for measure in MEASURES]
+        return {"loss": math.inf, "objective": math.inf, **{name: math.inf for name in names}, "finite": 0.0}
+    metrics = error_measures(errors, arrays.target_signals, mask)
+    metrics["loss"] = float(weighted_loss(errors, loss_kind, [weights[n] for n in arrays.target_states], scales,
+                                          mask))
+    metrics["objective"] = float(weighted_loss(errors, objective.loss,
+                                               [objective.weights[n] for n in arrays.target_states], scales, mask))
     metrics["finite"] = 1.0
     return metrics

@@ -15,17 +15,16 @@ from hybridfmu.training.data import ManeuverArrays
 class WindowBatch:
     """B windows of n steps. ``u_seq`` (B, n + 2 pad + 1, n_u) reaches ``pad`` samples beyond both ends
     of each window (for the input delay); the window's first instant is ``u_seq[:, start_index]``.
-    ``x0`` (B, n_x) initial states; ``angle``, ``speed`` (B, n + 1) measured targets (rad, rad/s)."""
+    ``x0`` (B, n_x) initial states; ``targets`` (B, n + 1, n_t) measured target states (their units)."""
 
     u_seq: torch.Tensor
     start_index: int
     x0: torch.Tensor
-    angle: torch.Tensor
-    speed: torch.Tensor
+    targets: torch.Tensor
 
     @property
     def n_steps(self) -> int:
-        return self.angle.shape[1] - 1
+        return self.targets.shape[1] - 1
 
 
 def delay_padding(sample_period_s: float, delay_min_s: float, delay_max_s: float) -> int:
@@ -62,8 +61,7 @@ class WindowSampler:
         self.n_positions = int(self._cumulative[-1])
         self._u = torch.from_numpy(np.ascontiguousarray(arrays.u))
         self._x = torch.from_numpy(np.ascontiguousarray(arrays.x_init))
-        self._angle = torch.from_numpy(np.ascontiguousarray(arrays.angle))
-        self._speed = torch.from_numpy(np.ascontiguousarray(arrays.speed))
+        self._targets = torch.from_numpy(np.ascontiguousarray(arrays.targets))
         self._offsets = torch.arange(-self.pad, self.n_steps + self.pad + 1)
         self._steps = torch.arange(self.n_steps + 1)
 
@@ -79,4 +77,4 @@ class WindowSampler:
         index = (starts_t[:, None] + self._offsets[None, :]).clamp(0, self._u.shape[0] - 1)
         steps = starts_t[:, None] + self._steps[None, :]
         return WindowBatch(u_seq=self._u[index], start_index=self.pad, x0=self._x[starts_t],
-                           angle=self._angle[steps], speed=self._speed[steps])
+                           targets=self._targets[steps])
