@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from hybridfmu.bench.emulate import emulate_bench
+from hybridfmu.case import case_roles
 from hybridfmu.data.ingest import ingest_log
 from hybridfmu.data.signals import input_array, state_array, time_array
 from hybridfmu.fmu import load_fmu, simulate_open_loop
@@ -28,11 +29,12 @@ def angle_error_counts(tmp_path, ipbmotor_fmu, config) -> tuple[np.ndarray, floa
     mdf = tmp_path / "quick.mf4"
     emulate_bench(config, "quick", mdf, tmp_path / "quick.truth.json", duration_s=0.8,
                   check_spread_of_maneuvers=False)
-    frame = ingest_log(mdf, config["ingest"])
+    frame = ingest_log(mdf, config)
+    roles = case_roles(config)
     with load_fmu(ipbmotor_fmu) as model:
         time_s = time_array(frame)
-        u = input_array(frame, config["signals"], model.input_names)
-        x = state_array(frame, config["signals"], model.state_names)
+        u = input_array(frame, roles)
+        x = state_array(frame, roles, model.state_names)
         result = simulate_open_loop(model, time_s, u, x[0])
     theta = model.state_names.index("theta")
     omega = model.state_names.index("omega")

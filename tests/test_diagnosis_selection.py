@@ -1,87 +1,106 @@
-"""Sparse selection: the true effect is found among all candidates, two effects are both found, and a
-residual of pure noise names nothing."""
+"""The diagnosis names a known effect added to a small model's derivatives, and nothing when none is."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
 
-from hybridfmu.diagnosis.effects import EFFECTS, effect_options
-from hybridfmu.diagnosis.selection import (DesignCache, SelectionSettings, bic, bootstrap_coefficients,
-                                           drop_one_scores, select_group)
-from test_diagnosis_effects import fit_data, synthetic  # noqa: F401  (fixture)
-
-OPTIONS = effect_options({"effects": {"cogging_orders": [6, 12, 24]}})
-NOISE = np.array([800.0, 800.0, 0.0, 40.0])
+from diagnosis_models import MassSpringDamper, msd_maneuvers, msd_problem
+from hybridfmu.diagnosis.run import run_diagnosis
 
 
-def run_selection(inputs, layout, truth: np.ndarray, seed: int = 3):
-    data = fit_data(inputs, truth, np.random.default_rng(seed), NOISE)
-    cache = DesignCache([data], OPTIONS)
-    out = {}
-    for group in ("mechanical", "electrical"):
-        out[group] = select_group(cache, group, layout.groups[group], list(EFFECTS.values()), ["synthetic"], OPTIONS,
-                                  layout, SelectionSettings())
-    return cache, out
+def _extra(func):
+    """An additive term in the velocity equation: (N, 2) rows -> (N, 2)."""
+    return lambda x, u: np.stack([np.zeros(len(x)), func(x, u)], axis=1)
 
 
-def term(inputs, name, setting, coef):
-    return EFFECTS[name].correction(inputs, np.array(coef), setting, OPTIONS)
+def _names(result):
+    return [c["effect"] for c in result["which"]["chosen"]]
 
 
-@pytest.mark.parametrize("name,setting,coef", [
-    ("coulomb_friction", {"stribeck_velocity_rad_s": 5.0}, [0.04, 0.02]),
-    ("load_dependent_friction", {"asymmetric": 0.0}, [0.08]),
-    ("inertia_mismatch", {}, [-0.08]),
-    ("inverter_deadtime", {"current_scale_a": 0.5}, [0.01]),
-    ("channel_time_offset", {"offset_s": -4e-5}, []),
-])
-def test_selection_finds_the_true_effect_among_all(synthetic, name, setting, coef):  # noqa: F811
-    _, _, layout, inputs = synthetic
-    _, out = run_selection(inputs, layout, term(inputs, name, setting, coef))
-    group = EFFECTS[name].group
-    other = "electrical" if group == "mechanical" else "mechanical"
-    assert [t.effect.name for t in out[group].terms] == [name]
-    assert out[other].terms == []
-    assert out[group].steps[0].chosen == name
+def _param(result, name):
+    return {p["name"]: p["value"] for p in result["which"]["chosen"][0]["parameters"]}[name]
 
 
-def test_two_effects_are_both_found_and_ranked(synthetic):  # noqa: F811
-    _, _, layout, inputs = synthetic
-    truth = term(inputs, "coulomb_friction", {"stribeck_velocity_rad_s": 3.0}, [0.05, 0.0]) \
-        + term(inputs, "cogging", {"order": 24.0, "harmonics": 2.0}, [0.02, 0.008, 0.0, 0.0])
-    cache, out = run_selection(inputs, layout, truth)
-    names = [t.effect.name for t in out["mechanical"].terms]
-    assert set(names) == {"coulomb_friction", "cogging"}
-    scores = drop_one_scores(cache, out["mechanical"], ["synthetic"])
-    assert scores["coulomb_friction"] > scores["cogging"] > 0
-    cogging = next(t for t in out["mechanical"].terms if t.effect.name == "cogging")
-    # order 12 with two harmonics contains order 24 as well: the amplitudes name the orders
-    params = {p["name"]: p["value"] for p in cogging.effect.physical(
-        cogging.coef, np.zeros((len(cogging.coef),) * 2), cogging.setting, {}, layout, OPTIONS, {})}
-    assert params["amplitude_24_nm"] == pytest.approx(np.hypot(0.02, 0.008), rel=0.1)
-    assert all(v < 0.002 for k, v in params.items() if k.startswith("amplitude_") and k != "amplitude_24_nm")
+CASES = {
+    "viscous": (_extra(lambda x, u: -0.3 * x[:, 1]), {"parameters": ["m"]}, "viscous(v)",
+                ("coefficient", 0.3)),
+    "coulomb": (_extra(lambda x, u: -0.4 * np.tanh(x[:, 1] / 0.005)), {}, "coulomb(v)", ("coulomb_level", 0.4)),
+    "periodic": (_extra(lambda x, u: 0.6 * np.sin(2 * math.pi * 3 * x[:, 0] / 1.0)),
+                 {"periodic": {"x": 1.0}, "effects": {"periodic_max_order": 5}}, "periodic(x)", ("order", 3)),
+    "saturation": (_extra(lambda x, u: 3.0 * np.maximum(x[:, 0] - 0.3, 0.0)), {"parameters": ["m"]},
+                   "saturation_above(x)", ("threshold", 0.3)),
+}
 
 
-def test_noise_only_names_nothing(synthetic):  # noqa: F811
-    _, _, layout, inputs = synthetic
-    _, out = run_selection(inputs, layout, np.zeros_like(inputs.x), seed=11)
-    assert out["mechanical"].terms == [] and out["electrical"].terms == []
-    assert out["mechanical"].steps[0].chosen is None
-    assert "below" in out["mechanical"].steps[0].reason or "noise" in out["mechanical"].steps[0].reason
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_a_known_effect_is_named_alone_with_its_parameter(case):
+    extra, diagnosis, name, (parameter, value) = CASES[case]
+    problem, model = msd_problem(**diagnosis)
+    result = run_diagnosis(problem, model, msd_maneuvers(extra, duration_s=20.0), open_loop=False)
+    assert _names(result) == [name]
+    assert _param(result, parameter) == pytest.approx(value, rel=0.1, abs=0.02)
+    assert result["which"]["chosen"][0]["equation"] == "v"
+    assert result["where"]["carrier"] == "v"
 
 
-def test_bootstrap_spread_is_close_to_the_regression_error(synthetic):  # noqa: F811
-    _, _, layout, inputs = synthetic
-    cache, out = run_selection(inputs, layout, term(inputs, "viscous_friction", {}, [1e-4]))
-    selection = out["mechanical"]
-    draws = bootstrap_coefficients(cache, selection.terms, selection.rows, ["synthetic"], 100, seed=0)
-    se_boot = float(np.std(draws[0][:, 0], ddof=1))
-    se_reg = float(np.sqrt(selection.fit.cov[0, 0]))
-    assert 0.3 < se_boot / se_reg < 3.0
-    assert selection.terms[0].coef[0] == pytest.approx(1e-4, rel=0.1)
+def test_a_parameter_error_is_named_with_its_relative_size():
+    problem, model = msd_problem()
+    measured = msd_maneuvers(None, duration_s=20.0, truth_model=MassSpringDamper(m=1.1))
+    result = run_diagnosis(problem, model, measured, open_loop=False)
+    assert _names(result) == ["parameter(m)"]
+    # first order in the relative error: f_true = f / 1.1 = f (1 - 0.091)
+    assert _param(result, "relative_error") == pytest.approx(0.1 / 1.1, rel=0.1)
 
 
-def test_bic_prefers_fewer_parameters_for_the_same_fit():
-    assert bic(10.0, 1000, 1) < bic(10.0, 1000, 2)
-    assert bic(5.0, 1000, 2) < bic(10.0, 1000, 1)
+def test_an_input_time_offset_is_named_with_its_size():
+    problem, model = msd_problem(parameters=[])
+    measured = msd_maneuvers(None, duration_s=20.0, input_delay_s=0.03)
+    result = run_diagnosis(problem, model, measured, open_loop=False)
+    assert _names(result) == ["time_offset(F)"]
+    assert _param(result, "offset_s") == pytest.approx(0.03, rel=0.2)
+
+
+def test_nothing_is_named_when_the_model_is_right():
+    problem, model = msd_problem()
+    result = run_diagnosis(problem, model, msd_maneuvers(None, noise=(2e-4, 2e-3), duration_s=20.0))
+    assert _names(result) == []
+    assert result["where"]["states"]["v"]["ratio_to_noise"] < 1.5
+    assert result["how_far"]["shrink_factor"] == pytest.approx(1.0)
+
+
+def test_how_far_shrinks_the_open_loop_gap_on_the_test_maneuver():
+    extra = _extra(lambda x, u: -0.4 * np.tanh(x[:, 1] / 0.005))
+    problem, model = msd_problem()
+    result = run_diagnosis(problem, model, msd_maneuvers(extra, duration_s=20.0))
+    far = result["how_far"]
+    assert [s["model"] for s in far["steps"]] == ["FMU", "+ coulomb(v) (dv/dt)"]
+    for key in ("position_rmse", "position_mae", "velocity_rmse", "velocity_mae"):
+        assert far["after"][key] < 0.1 * far["before"][key]
+    assert far["shrink_factor"] > 10
+
+
+def test_unmeasured_states_come_from_the_simulation_and_are_reported():
+    """Velocity unmeasured: the position equation dx/dt = v depends on it; a force gain error in the
+    velocity equation then shows in the position equation only through the simulated velocity."""
+    from dataclasses import replace
+
+    from diagnosis_models import msd_roles
+    from hybridfmu.diagnosis.problem import build_problem, diagnosis_settings
+
+    roles = msd_roles()
+    roles = replace(roles, states={"x": "position"}, target_weights={"x": 1.0})
+    model = MassSpringDamper()
+    settings = diagnosis_settings({"diagnosis": {"kernel_s": 0.09, "selection": {"bootstrap_samples": 0}}})
+    problem = build_problem(roles, model, settings, model.get_parameters())
+    measured = msd_maneuvers(None, duration_s=10.0)
+    for m in measured.values():
+        m.x[:, 1] = np.nan
+        m.x0_unmeasured = {"v": 0.0}
+    result = run_diagnosis(problem, model, measured, open_loop=False)
+    assert problem.unmeasured == [1] and problem.equations == [0]
+    assert result["where"]["states"]["x"]["depends_on_unmeasured"] == ["v"]
+    assert np.all(np.isfinite(result["prepared"]["train"].measured.x[:, 1]))
+    assert _names(result) == []

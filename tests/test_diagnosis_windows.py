@@ -34,37 +34,3 @@ def test_windows_side_by_side_equal_one_by_one_including_end_stops(ipbmotor_fmu)
             one = simulate(model, simulate_open_loop, time_s[piece], u[piece], x0[w], corr)
             np.testing.assert_allclose(batch[w], one, rtol=1e-9, atol=1e-9)
     assert np.min(batch[1, :, 2]) == 0.0  # the stop was reached and handled
-
-
-
-def test_neural_windows_side_by_side_equal_one_by_one():
-    import torch
-
-    from hybridfmu.diagnosis.run import neural_windows
-    from hybridfmu.model import EndStop, MotorRhs, NeuralFmu, NeuralFmuSpec
-    from hybridfmu.training.inference import simulate_neural_fmu
-
-    torch.manual_seed(3)
-    h_s = 1e-4
-    spec = NeuralFmuSpec(state_names=MotorRhs.state_names, input_names=MotorRhs.input_names,
-                         corrected_states=["omega"], ann_states=MotorRhs.state_names, ann_inputs=MotorRhs.input_names,
-                         ann_derivatives=MotorRhs.state_names, sample_period_s=h_s, width=8, depth=2, gate_opening=0.3,
-                         delay_min_s=-5e-4, delay_max_s=5e-4, delay_init_s=1.7e-4, ann_output_init="random",
-                         end_stop=EndStop("theta", "omega", 0.0, 60.0))
-    stats = dict(x_mean=[0.0, 10.0, 30.0, 0.0], x_std=[5.0, 30.0, 10.0, 100.0],
-                 u_mean=[0.5, 0.5, 0.5, 12.0, 0.5], u_std=[0.1, 0.1, 0.1, 0.1, 0.3],
-                 xdot_mean=[0.0, 0.0, 0.0, 0.0], xdot_std=[1e4, 1e4, 100.0, 1e3])
-    model = NeuralFmu(MotorRhs(), spec, stats).double()
-    rng = np.random.default_rng(0)
-    n = 500
-    time_s = np.arange(n) * h_s
-    u = np.column_stack([0.4 + 0.2 * rng.random((n, 3)), np.full(n, 12.0), np.full(n, 0.02)])
-    first = np.arange(0, n - 60, 60)
-    x0 = np.column_stack([rng.normal(0, 2, len(first)), rng.normal(0, 5, len(first)),
-                          np.linspace(0.01, 3.0, len(first)), np.linspace(-50, 50, len(first))])
-    batch = neural_windows(model, u, x0, first, 60)
-    for w, start in enumerate(first):
-        piece = slice(start, start + 61)
-        one = simulate_neural_fmu(model, time_s[piece], u[piece], x0[w])
-        np.testing.assert_allclose(batch[w], one, rtol=1e-10, atol=1e-10)
-    assert not np.allclose(batch[1], batch[2])

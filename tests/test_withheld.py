@@ -60,10 +60,11 @@ def test_small_withheld_check(tiny_config, ipbmotor_fmu, tmp_path):
         diagnoses.append(diagnosis)
         truths.append(truth)
     rows = withheld.summarise(names, diagnoses, truths, tmp_path / "summary.csv", tmp_path / "confusion.png",
-                              tmp_path / "summary.md")
+                              tmp_path / "summary.md", expected=tiny_config["withheld"]["expected"])
     by_case = {r["case"]: r for r in rows}
     friction = by_case["single_coulomb_friction"]
     assert friction["found_effects"].split(";")[0] == "coulomb_friction"
+    assert friction["named_effects"].split(";")[0] == "coulomb(omega)"
     assert friction["correct"] is True
     assert friction["shrink_factor"] >= 3.0
     assert by_case["none"]["found_effects"] == "none" and by_case["none"]["correct"] is True
@@ -87,19 +88,23 @@ def check_report_and_tracking(diagnosis_json: Path, tmp_path: Path) -> None:
     out = diagnosis_json.parent
     record = read_json(diagnosis_json)
     report = (out / "report.md").read_text()
-    for heading in ("## Where", "## Which", "## How far", "### 1. `coulomb_friction`"):
+    for heading in ("## Where", "## Which", "## How far", "### 1. `coulomb(omega)`"):
         assert heading in report
     figures = sorted(out.glob("*.png"))
     assert {p.name for p in figures} >= {"equation_error.png", "regions.png", "waterfall.png", "effects.png"}
-    assert record["where"]["equations"]["carrier"] == "mechanical"
-    assert record["which"]["chosen"][0]["stability"]["coulomb_torque_nm"]["relative_spread"] < 0.2
+    assert record["where"]["equations"]["carrier"] == "omega"
+    assert record["which"]["chosen"][0]["equation"] == "omega"
+    assert record["which"]["chosen"][0]["stability"]["coulomb_level"]["relative_spread"] < 0.2
+    after = record["how_far"]["after"]
+    assert {"angle_rmse", "angle_mae", "speed_rmse", "speed_mae"} <= set(after)
+    assert after["angle_rmse"] < record["how_far"]["before"]["angle_rmse"]
     config = {"case": "single_coulomb_friction", "results_dir": str(tmp_path), "mlflow": {}}
     run_id = log_to_mlflow(record, {"json": diagnosis_json, "report": out / "report.md", "figures": figures}, config)
     client = MlflowClient(f"sqlite:///{tmp_path.resolve()}/mlflow.db")
     run = client.get_run(run_id)
     assert run.data.tags["hybridfmu.role"] == "diagnosis"
-    assert run.data.metrics["gap/gap_before_rad"] == pytest.approx(record["how_far"]["gap_before_rad"])
-    assert run.data.params["found_effects"] == "coulomb_friction"
+    assert run.data.metrics["gap/gap_before"] == pytest.approx(record["how_far"]["gap_before"])
+    assert run.data.params["found_effects"] == "coulomb(omega)"
     assert "diagnosis/report.md" in {a.path for a in client.list_artifacts(run_id, "diagnosis")}
 
 
@@ -118,6 +123,20 @@ def test_case_configs_withhold_exactly_the_effect(tiny_config, ipbmotor_fmu):
     again = withheld.case_config(config, "pair_cogging__channel_time_offset", ipbmotor_fmu)
     assert again["bench"]["effects"] == case["bench"]["effects"]  # seeded draws
     assert withheld.case_config(config, "none", ipbmotor_fmu)["bench"]["effects"] == {}
+
+
+def test_named_effects_are_translated_through_the_expected_table():
+    expected = {"cogging": ["periodic(theta)"], "channel_time_offset": ["time_offset(*)"]}
+    record = {"which": {"found_effects": ["time_offset(d_a,d_b)", "periodic(theta)", "viscous(omega)"], "chosen": []},
+              "where": {"equations": {"states": {"omega": {"ratio_to_noise": 3.0}}}},
+              "how_far": {"gap_before": 0.3, "gap_after": 0.05}}
+    truth = {"effects": [{"name": "cogging", "parameters": {}}, {"name": "channel_time_offset", "parameters": {}}]}
+    row = withheld.case_row("pair_cogging__channel_time_offset", record, truth, expected)
+    assert row["found_effects"] == "channel_time_offset;cogging;viscous(omega)"
+    assert row["correct"] is True and row["shrink_factor"] == pytest.approx(6.0)
+    single = withheld.case_row("single_cogging", record, {"effects": truth["effects"][:1]}, expected)
+    assert single["correct"] is False  # the top-ranked named effect is not the withheld one
+    assert withheld.bench_effect_of("periodic(omega)", expected) is None
 
 
 def test_confusion_matrix_counts_detections_misses_and_spurious_names():

@@ -71,7 +71,8 @@ def test_every_stage_writes_its_outputs(tiny_run):
     for role in ("validation", "test"):
         metrics = json.loads((results / "metrics" / f"{role}.json").read_text())
         for model in ("fmu", "neural_fmu", "improvement"):
-            assert set(metrics[model]) == {"angle_mae", "angle_mse", "speed_mae", "speed_mse"}
+            assert set(metrics[model]) == {f"{signal}_{measure}" for signal in ("angle", "speed")
+                                           for measure in ("mae", "mse", "rmse")}
         assert metrics["fmu"]["angle_mae"] > 0 and metrics["neural_fmu"]["angle_mae"] > 0
         assert metrics["improvement"]["angle_mae"] == pytest.approx(
             metrics["fmu"]["angle_mae"] / metrics["neural_fmu"]["angle_mae"])
@@ -129,7 +130,7 @@ def test_changing_a_plot_option_reruns_only_plotting(tiny_run, tmp_path):
     configfile.write_text(yaml.safe_dump(changed, sort_keys=False))  # key order is part of Snakemake params
     output = snakemake(workdir, configfile, "-n", *evaluation_targets(workdir, results))
     assert planned_rules(output.stdout + output.stderr) == {"plot", "report"}
-    changed["evaluation"]["zoom"] = {**config["evaluation"].get("zoom", {}), "angle_length_s": 0.7}
+    changed["evaluation"]["zoom"] = {**config["evaluation"].get("zoom", {}), "length_s": {"angle": 0.7, "speed": 1.0}}
     configfile.write_text(yaml.safe_dump(changed, sort_keys=False))
     output = snakemake(workdir, configfile, "-n", *evaluation_targets(workdir, results))
     assert planned_rules(output.stdout + output.stderr) == {"evaluate", "plot", "report"}

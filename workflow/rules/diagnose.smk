@@ -1,6 +1,8 @@
-# Diagnosis of the sim-to-real gap (rule diagnose): where the gap lies (equation error per state,
-# operating regions, time), which candidate effect causes it (sparse selection with parameters and
-# uncertainty) and how far it shrinks on the test maneuver once the effects are added to the FMU.
+# Diagnosis of the sim-to-real gap (rule diagnose): where the gap lies (equation error per measured state,
+# operating regions, time), which candidate effect causes it (sparse selection among effects over the
+# case's roles, with parameters and uncertainty) and how far it shrinks on the test maneuver once the
+# effects are added to the calibrated FMU ({RESULTS}/calibration/calibration.json: parameters and
+# unmeasured initial states).
 # A case that trains a neural FMU (a `training` or `hpo` section) has the search's best model
 # {RESULTS}/hpo/best.json as an input, so the diagnosis always compares with it and runs once after
 # the search; a case without one is diagnosed without the comparison.
@@ -21,6 +23,7 @@ rule diagnose:
         fmu=fmu_path(),
         data=expand(f"{RESULTS}/data/{{maneuver}}.parquet", maneuver=MANEUVERS),
         segments=expand(f"{RESULTS}/segments/{{maneuver}}.json", maneuver=MANEUVERS),
+        calibration=f"{RESULTS}/calibration/calibration.json",
         best=DIAGNOSIS_BEST_JSON,
     output:
         json=f"{DIAGNOSIS}/diagnosis.json",
@@ -28,6 +31,11 @@ rule diagnose:
         figures=expand(f"{DIAGNOSIS}/{{figure}}.png", figure=DIAGNOSIS_FIGURES),
     params:
         maneuvers=MANEUVERS,
+        diagnosis=config.get("diagnosis", {}),
+        roles=config.get("roles", {}),
+        signals=config.get("signals", {}),
+        transforms=config.get("transforms", []),
+        model=config.get("model", {}),
     log:
         f"{RESULTS}/logs/diagnose/diagnose.log",
     benchmark:

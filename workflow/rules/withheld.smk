@@ -101,6 +101,7 @@ rule withheld_summary:
         markdown=f"{WITHHELD}/summary.md",
     params:
         cases=WITHHELD_CASES,
+        expected=config.get("withheld", {}).get("expected", {}),
     log:
         f"{WITHHELD}/logs/withheld_summary/withheld_summary.log",
     script:

@@ -5,4 +5,5 @@ from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 summarise(list(snakemake.params.cases), list(snakemake.input.diagnoses), list(snakemake.input.truths),
-          snakemake.output.csv, snakemake.output.confusion, snakemake.output.markdown)
+          snakemake.output.csv, snakemake.output.confusion, snakemake.output.markdown,
+          expected=dict(snakemake.params.expected))

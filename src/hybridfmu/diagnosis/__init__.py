@@ -1,11 +1,13 @@
 """Diagnosis of the sim-to-real gap: where it lies, which unmodelled effect causes it, how far it shrinks.
 
-Modules: ``derivatives`` (weak-form derivatives and kernels), ``residual`` (equation error per
-state), ``layout`` (where the motor's quantities sit in the model), ``prepare`` (measured
-maneuvers -> equation error and fitting data), ``effects`` (candidate-effect library),
-``selection`` (fitting, sparse selection, uncertainty, stability), ``regions`` (residual over
-operating regions and time), ``corrected_model`` (chosen effects as explicit corrections,
-open-loop re-simulation), ``report`` (diagnosis.json, report.md, figures), ``run`` (the
-``diagnose`` entry point), ``withheld`` (the withheld-effect check), ``synthetic`` (a NumPy
-model of the equations and synthetic trajectories for tests).
+The core knows no machine: it works on the case's roles (measured/unmeasured states, inputs, signals
+with units and labels) and any Model-Exchange FMU. Modules: ``problem`` (the case in roles, settings),
+``derivatives`` (weak-form derivatives and kernels), ``residual`` (equation error per state),
+``prepare`` (ingested maneuvers -> equation error and fitting data), ``effects`` (the effect interface),
+``library`` (candidate effects over roles), ``selection`` (fitting, sparse selection, uncertainty),
+``regions`` (residual over operating regions and time), ``corrected_model`` (chosen effects added to the
+model, open-loop re-simulation), ``neural`` (comparison with the trained neural FMU), ``report``
+(diagnosis.json, report.md, MLflow), ``figures``, ``run`` (``analyse``, ``run_diagnosis``), ``withheld``
+(the withheld-effect check). Case plugins with machine knowledge live in modules named after the
+machine (``effects_motor``) and are loaded only when a case config lists them in ``diagnosis.plugins``.
 """

@@ -1,184 +1,72 @@
-"""The chosen effects as explicit correction terms of the model, and open-loop re-simulation.
+"""The chosen effects added to the model, and open-loop re-simulation against the measurements.
 
-``EffectCorrection`` sums the fitted terms of the chosen effects; it is passed to
-``hybridfmu.fmu.simulate_open_loop`` as ``correction`` (called with one state and input row
-per Runge-Kutta stage). Terms that need model quantities (e.g. the modelled acceleration for an
-inertia error) evaluate them with a second model instance, so the simulation's own instance
-is never re-entered. Effects that shift the inputs in time (a channel time offset) act on the
-logged inputs before the simulation.
+A :class:`CorrectedModel` gathers the fitted terms by the way each adds itself to the model
+(:mod:`hybridfmu.diagnosis.effects`): additive derivative terms (the ``correction`` callable given
+to ``simulate_open_loop``, called with one state and input row per Runge-Kutta stage), modified
+logged inputs (gain, offset, time shift; where several equations chose an effect of the same input,
+the higher-ranked one is applied), and corrected model parameters (set on the simulating instance
+for the simulation, restored afterwards). Terms that need model derivatives evaluate them with a
+second model instance (``helper``), so the simulation's own instance is never re-entered.
 
-Open-loop errors are reported two ways: over the whole maneuver from the measured initial
-state (the motor is driven by logged duties computed from the measured angle, so a simulated
-angle that drifts away makes the motor lose synchronism and the error explodes), and as the
-mean error of short windows, each restarted from the measured state (``window_s``), which
-measures how fast the model departs from the data without the loss of synchronism.
+Open-loop errors are reported per target signal over the whole maneuver (from the measured initial
+state, unmeasured states from the calibration) and, when ``window_s`` is set, as the mean error of
+short windows each restarted from the measured state.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from hybridfmu.diagnosis.derivatives import odd_window, savgol_smooth
-from hybridfmu.diagnosis.effects import EffectInputs
-from hybridfmu.diagnosis.layout import MotorLayout
+from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.selection import Term
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
 
-class EffectCorrection:
-    """Callable (x (N, n_x), u (N, n_u)) -> (N, n_x): the sum of the fitted effect terms.
-
-    Args:
-        terms: fitted terms (effect, setting, coefficients).
-        layout: motor layout.
-        options: effect options.
-        helper_model: model instance used for terms that need model derivatives (may be None
-            when no term needs it).
-    """
-
-    def __init__(self, terms: list[Term], layout: MotorLayout, options: dict[str, Any], helper_model: Any = None):
-        self.terms = [t for t in terms if t.effect.input_shift_s(t.setting) == 0.0 or len(t.coef)]
-        self.layout = layout
-        self.options = options
-        self.helper_model = helper_model
-        self._torques, self._rows, self._fast, self._general = [], [], [], []
-        for term in self.terms:
-            scalar = term.effect.scalar_torque(term.coef, term.setting, options)
-            if scalar is not None:
-                self._torques.append(scalar)
-                continue
-            rows = term.effect.scalar_rows(term.coef, term.setting, options, layout)
-            if rows is not None:
-                self._rows.append(rows)
-                continue
-            fast = term.effect.fast_correction(term.coef, term.setting, options, layout, helper_model) \
-                if helper_model is not None else None
-            if fast is not None:
-                self._fast.append(fast)
-            else:
-                self._general.append(term)
-        self._inv_inertia = 1.0 / layout.inertia_kg_m2 if layout.inertia_kg_m2 else 0.0
-        self._load = layout.tau_load
-
-    def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        if not self._fast and not self._general and np.size(x) == self.layout.n_x:
-            return self._one_row(x, u)
-        x = np.asarray(x, dtype=float).reshape(-1, self.layout.n_x)
-        u = np.asarray(u, dtype=float).reshape(-1, self.layout.n_u)
-        out = np.zeros_like(x)
-        if self._torques:
-            lay = self.layout
-            if x.shape[0] == 1:  # one row per Runge-Kutta stage: plain floats are much faster
-                theta, omega = float(x[0, lay.theta]), float(x[0, lay.omega])
-                load = float(u[0, self._load]) if self._load is not None else 0.0
-                out[0, lay.omega] = sum(f(theta, omega, load) for f in self._torques) * self._inv_inertia
-            else:
-                for row in range(x.shape[0]):
-                    load = float(u[row, self._load]) if self._load is not None else 0.0
-                    out[row, lay.omega] = sum(f(float(x[row, lay.theta]), float(x[row, lay.omega]), load)
-                                              for f in self._torques) * self._inv_inertia
-        if self._rows:
-            for row in range(x.shape[0]):
-                x_row, u_row = x[row].tolist(), u[row].tolist()
-                for func in self._rows:
-                    for index, value in func(x_row, u_row):
-                        out[row, index] += value
-        for fast in self._fast:
-            out += fast(x, u)
-        if self._general:
-            inputs = EffectInputs(self.layout, x, u, model=self.helper_model)
-            for term in self._general:
-                out += term.effect.correction(inputs, term.coef, term.setting, self.options)
-        return out
-
-    def _one_row(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``__call__`` for one state row (the simulation loop's calls), in plain floats: (1, n_x)."""
-        lay = self.layout
-        x_row = np.ravel(x).tolist()
-        u_row = np.ravel(u).tolist()
-        out = [0.0] * lay.n_x
-        if self._torques:
-            theta, omega = x_row[lay.theta], x_row[lay.omega]
-            load = u_row[self._load] if self._load is not None else 0.0
-            out[lay.omega] = sum(f(theta, omega, load) for f in self._torques) * self._inv_inertia
-        for func in self._rows:
-            for index, value in func(x_row, u_row):
-                out[index] += value
-        return np.array([out])
-
-    def batch(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """The same sum for many rows at once, vectorised over the rows: (N, n_x), (N, n_u) -> (N, n_x).
-
-        Every term is evaluated by its array form (``fast_correction`` with the helper model, else
-        ``correction`` in simulation mode) instead of the per-row scalar forms that ``__call__``
-        uses for the one-row calls of the simulation loop.
-        """
-        x = np.asarray(x, dtype=float).reshape(-1, self.layout.n_x)
-        u = np.asarray(u, dtype=float).reshape(-1, self.layout.n_u)
-        out = np.zeros_like(x)
-        inputs = EffectInputs(self.layout, x, u, model=self.helper_model)
-        for term in self.terms:
-            fast = term.effect.fast_correction(term.coef, term.setting, self.options, self.layout,
-                                               self.helper_model) if self.helper_model is not None else None
-            if fast is not None:
-                out += fast(x, u)
-            else:
-                out += term.effect.correction(inputs, term.coef, term.setting, self.options)
-        return out
-
-
-def input_shift_s(terms: list[Term]) -> float:
-    """Total time (s) by which the chosen terms shift the inputs."""
-    return float(sum(t.effect.input_shift_s(t.setting) for t in terms))
-
-
-def shift_inputs(u: np.ndarray, offset_s: float, dt_s: float, columns: np.ndarray | None = None) -> np.ndarray:
-    """Inputs seen ``offset_s`` later, held per sample: u(t + offset) averaged over each step.
-
-    ``u`` (N, n_u) -> (N, n_u); ``columns`` (n_u,) bool selects the shifted inputs (default all).
-    Beyond the ends the first/last sample is held.
-    """
-    if offset_s == 0.0:
-        return np.array(u, dtype=float)
-    index = np.arange(len(u)) + offset_s / dt_s
-    base = np.floor(index)
-    frac = (index - base)[:, None]
-    lower = np.clip(base.astype(int), 0, len(u) - 1)
-    upper = np.clip(lower + 1, 0, len(u) - 1)
-    shifted = (1.0 - frac) * u[lower] + frac * u[upper]
-    if columns is not None:
-        shifted[:, ~columns] = u[:, ~columns]
-    return shifted
-
-
 @dataclass
-class OpenLoopErrors:
-    """Open-loop errors against the measurements (angle in rad, speed in rad/s)."""
+class RK4Result:
+    """Result of :func:`rk4_simulate`: ``states`` (T, n_x)."""
 
-    angle_mae_rad: float
-    angle_mse_rad2: float
-    speed_mae_rad_s: float
-    speed_mse_rad2_s2: float
-    window_angle_mae_rad: float
-    window_speed_mae_rad_s: float
-    n_windows: int
-
-    def as_dict(self) -> dict[str, float]:
-        return dict(self.__dict__)
+    states: np.ndarray
 
 
-def measured_initial_states(x: np.ndarray, layout: MotorLayout, dt_s: float, smoothing_s: float) -> np.ndarray:
-    """Low-noise measured states (N, n_x) to start simulations from (speed and currents smoothed)."""
-    states = np.array(x, dtype=float)
-    window = odd_window(smoothing_s, dt_s, minimum=5)
-    smooth_columns = [layout.omega] + [i for i in (layout.i_d, layout.i_q) if i is not None]
-    states[:, smooth_columns] = savgol_smooth(states[:, smooth_columns], window)
-    return states
+def rk4_simulate(model: Any, time_s: np.ndarray, u: np.ndarray, x0: np.ndarray,
+                 correction: Callable | None = None) -> RK4Result:
+    """Fixed-step RK4 (one step per sample, inputs held) for models that are no FMU (no events).
+
+    ``model.derivatives(x (1, n_x), u (1, n_u)) -> (1, n_x)``; ``correction`` as for ``simulate_open_loop``.
+    """
+    time_s = np.asarray(time_s, dtype=float)
+    u = np.asarray(u, dtype=float).reshape(len(time_s), -1)
+    states = np.empty((len(time_s), len(x0)))
+    x = np.asarray(x0, dtype=float).reshape(1, -1)
+    states[0] = x
+
+    def rhs(xs: np.ndarray, us: np.ndarray) -> np.ndarray:
+        f = np.asarray(model.derivatives(xs, us), dtype=float).reshape(1, -1)
+        return f + np.asarray(correction(xs, us), dtype=float).reshape(1, -1) if correction is not None else f
+
+    for k in range(len(time_s) - 1):
+        h, uk = time_s[k + 1] - time_s[k], u[k:k + 1]
+        k1 = rhs(x, uk)
+        k2 = rhs(x + 0.5 * h * k1, uk)
+        k3 = rhs(x + 0.5 * h * k2, uk)
+        k4 = rhs(x + h * k3, uk)
+        x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        states[k + 1] = x
+    return RK4Result(states)
+
+
+def simulator_for(model: Any) -> Callable:
+    """``hybridfmu.fmu.simulate_open_loop`` for an FMU, :func:`rk4_simulate` for any other model."""
+    from hybridfmu.fmu import FmuModel, simulate_open_loop
+
+    return simulate_open_loop if isinstance(model, FmuModel) else rk4_simulate
 
 
 def simulate(model: Any, simulate_fn: Callable, time_s: np.ndarray, u: np.ndarray, x0: np.ndarray,
@@ -192,17 +80,124 @@ def simulate(model: Any, simulate_fn: Callable, time_s: np.ndarray, u: np.ndarra
         return np.full((len(time_s), len(x0)), np.nan)
 
 
+def shift_inputs(u: np.ndarray, offset_s: float, dt_s: float, columns: list[int] | None = None) -> np.ndarray:
+    """Inputs seen ``offset_s`` later, held per sample (linear interpolation between samples).
+
+    ``u`` (N, n_u) -> (N, n_u); ``columns`` selects the shifted inputs (default all). Beyond the
+    ends the first/last sample is held.
+    """
+    u = np.array(u, dtype=float)
+    if offset_s == 0.0:
+        return u
+    index = np.arange(len(u)) + offset_s / dt_s
+    base = np.floor(index)
+    frac = (index - base)[:, None]
+    lower = np.clip(base.astype(int), 0, len(u) - 1)
+    upper = np.clip(lower + 1, 0, len(u) - 1)
+    shifted = (1.0 - frac) * u[lower] + frac * u[upper]
+    out = u.copy()
+    cols = list(range(u.shape[1])) if columns is None else list(columns)
+    out[:, cols] = shifted[:, cols]
+    return out
+
+
+class CorrectedModel:
+    """The chosen terms as changes of the model (module docstring).
+
+    Args:
+        terms: fitted terms in rank order.
+        problem: the problem (state and input counts).
+        helper: a second model instance for terms with a ``batch_function`` (may be None otherwise).
+    """
+
+    def __init__(self, terms: list[Term], problem: Problem, helper: Any = None) -> None:
+        self.n_x, self.n_u = problem.n_x, problem.n_u
+        self.rows: list[tuple[int, Callable]] = []
+        self.batches: list[tuple[int, Callable]] = []
+        self.parameters: dict[str, float] = {}
+        self.input_changes: dict[int, dict[str, Any]] = {}
+        self.notes: list[str] = []
+        for term in terms:
+            effect, coef, setting = term.effect, term.coef, term.setting
+            change = effect.parameter_change(coef, setting)
+            if change is not None:
+                name, value = change
+                if name in self.parameters:
+                    self.notes.append(f"{effect.name} in equation {effect.equation}: parameter {name} already "
+                                      "corrected by a higher-ranked term; not applied")
+                else:
+                    self.parameters[name] = value
+                continue
+            change = effect.input_change(coef, setting)
+            if change is not None:
+                columns = change["input"] if isinstance(change["input"], list) else [change["input"]]
+                if any(c in self.input_changes for c in columns):
+                    self.notes.append(f"{effect.name}: input(s) already changed by a higher-ranked term; not applied")
+                    continue
+                for c in columns:
+                    self.input_changes[c] = change
+                continue
+            row = effect.row_function(coef, setting)
+            if row is not None:
+                self.rows.append((effect.equation, row))
+                continue
+            batch = effect.batch_function(coef, setting, helper)
+            if batch is None:
+                raise ValueError(f"{effect.name}: the effect offers no way to be added to the model")
+            self.batches.append((effect.equation, batch))
+
+    @property
+    def has_correction(self) -> bool:
+        return bool(self.rows or self.batches)
+
+    def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Additive derivative terms: (N, n_x), (N, n_u) -> (N, n_x) (one row per RK stage in a simulation)."""
+        x = np.asarray(x, dtype=float).reshape(-1, self.n_x)
+        u = np.asarray(u, dtype=float).reshape(-1, self.n_u)
+        out = np.zeros_like(x)
+        if self.rows:
+            for r in range(x.shape[0]):
+                x_row, u_row = x[r].tolist(), u[r].tolist()
+                for equation, func in self.rows:
+                    out[r, equation] += func(x_row, u_row)
+        for equation, batch in self.batches:
+            out[:, equation] += batch(x, u)
+        return out
+
+    def correction(self) -> Callable | None:
+        return self if self.has_correction else None
+
+    def inputs(self, u: np.ndarray, dt_s: float) -> np.ndarray:
+        """The logged inputs (N, n_u) as the corrected model sees them."""
+        out = np.array(u, dtype=float)
+        for column, change in sorted(self.input_changes.items()):
+            shifted = shift_inputs(u, change["shift_s"], dt_s, [column]) if change["shift_s"] else out
+            out[:, column] = (1.0 + change["gain"]) * shifted[:, column] + change["offset"]
+        return out
+
+    @contextlib.contextmanager
+    def parameters_applied(self, model: Any) -> Iterator[None]:
+        """Within the block, ``model`` has the corrected parameters."""
+        if not self.parameters:
+            yield
+            return
+        previous = model.get_parameters(list(self.parameters))
+        model.set_parameters(self.parameters)
+        try:
+            yield
+        finally:
+            model.set_parameters(previous)
+
+
 def simulate_windows(model: Any, simulate_fn: Callable, time_s: np.ndarray, u: np.ndarray, x0: np.ndarray,
                      first: np.ndarray, n_steps: int, correction: Callable | None) -> np.ndarray:
     """Open-loop simulations of many windows side by side: (W, n_steps + 1, n_x) states.
 
-    Window w starts at sample ``first[w]`` from ``x0[w]`` (n_x,) and runs ``n_steps`` samples
-    of the grid ``time_s`` (T,) with the inputs ``u`` (T, n_u) held per sample. All windows
-    take the same fixed-step RK4 as ``simulate_fn`` (one step per sample, the correction added
-    at every stage) as one batch of vectorised model evaluations. Only windows whose event
-    indicators stay positive throughout (free motion between the end stops, no mode switch) and
-    whose states stay finite keep the batch result; every other window (starting at or reaching
-    an end stop, ...) is simulated again on its own with ``simulate_fn``, which handles the events.
+    Window w starts at sample ``first[w]`` from ``x0[w]`` (n_x,) and runs ``n_steps`` samples of the
+    grid ``time_s`` (T,) with the inputs ``u`` (T, n_u) held per sample, by the same fixed-step RK4 as
+    ``simulate_fn`` as one batch of vectorised model evaluations. Windows whose event indicators change
+    sign (end stops, mode switches) or whose states become non-finite are simulated again on their own
+    with ``simulate_fn``, which handles the events.
     """
     first = np.asarray(first, dtype=int)
     n_w, n_x = len(first), len(x0[0]) if len(first) else 0
@@ -214,14 +209,12 @@ def simulate_windows(model: Any, simulate_fn: Callable, time_s: np.ndarray, u: n
     n_z = int(getattr(model, "n_event_indicators", 0))
     clean = np.ones(n_w, dtype=bool)
     z0 = np.asarray(model.event_indicators(x, u[first]), dtype=float) > 0.0 if n_z else None
-    if n_z:  # a window starting on an indicator's boundary or beyond (e.g. at an end stop) needs the
-        clean &= np.all(z0, axis=1)  # simulator's initial event iteration (discrete mode)
-
-    batch = getattr(correction, "batch", correction)  # a plain callable takes (N, n_x), (N, n_u) rows
+    if n_z:
+        clean &= np.all(z0, axis=1)
 
     def rhs(states: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         f = np.asarray(model.derivatives(states, inputs), dtype=float)
-        return f + np.asarray(batch(states, inputs), dtype=float) if batch is not None else f
+        return f + np.asarray(correction(states, inputs), dtype=float) if correction is not None else f
 
     with np.errstate(all="ignore"):
         for j in range(n_steps):
@@ -235,58 +228,69 @@ def simulate_windows(model: Any, simulate_fn: Callable, time_s: np.ndarray, u: n
             x = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
             finite = np.all(np.isfinite(x), axis=1)
             clean &= finite
-            x[~finite] = x0[~finite]  # keeps the batch finite; the window is redone on its own
-            if n_z:  # sign changes along the step or with the next sample's inputs
+            x[~finite] = x0[~finite]
+            if n_z:
                 clean &= np.all((np.asarray(model.event_indicators(x, u_k), dtype=float) > 0.0) == z0, axis=1)
                 clean &= np.all((np.asarray(model.event_indicators(x, u[k + 1]), dtype=float) > 0.0) == z0, axis=1)
             out[:, j + 1] = x
     for w in np.flatnonzero(~clean):
         piece = slice(int(first[w]), int(first[w]) + n_steps + 1)
         out[w] = simulate(model, simulate_fn, time_s[piece], u[piece], np.asarray(x0[w]), correction)
-    LOGGER.debug("%d of %d windows simulated side by side, %d on their own", int(clean.sum()), n_w,
-                 int((~clean).sum()))
+    return out
+
+
+def target_errors(states: np.ndarray, x_meas: np.ndarray, problem: Problem) -> dict[str, float]:
+    """``<signal>_rmse`` and ``<signal>_mae`` (signal units) per target, and the normalised ``gap``:
+    the target-weighted MAE / std of the measured target."""
+    out: dict[str, float] = {}
+    gap = 0.0
+    for state, weight in problem.target_weights.items():
+        i = problem.state_names.index(state)
+        signal = problem.state_signal[state]
+        err = states[:, i] - x_meas[:, i]
+        finite = bool(np.all(np.isfinite(err)))
+        mae = float(np.mean(np.abs(err))) if finite else float("nan")
+        out[f"{signal}_rmse"] = float(np.sqrt(np.mean(err ** 2))) if finite else float("nan")
+        out[f"{signal}_mae"] = mae
+        scale = float(np.std(x_meas[:, i])) or 1.0
+        gap += weight * mae / scale
+    out["gap"] = gap
     return out
 
 
 def open_loop_errors(model: Any, simulate_fn: Callable, time_s: np.ndarray, x_meas: np.ndarray, u: np.ndarray,
-                     layout: MotorLayout, correction: Callable | None, window_s: float, smoothing_s: float,
-                     windows_mask: np.ndarray | None = None) -> tuple[OpenLoopErrors, np.ndarray]:
-    """Whole-maneuver and windowed open-loop errors of the (corrected) model.
+                     starts: np.ndarray, problem: Problem, corrected: CorrectedModel | None,
+                     window_s: float | None) -> tuple[dict[str, float], np.ndarray]:
+    """Whole-maneuver (and windowed) open-loop errors of the (corrected) model.
 
     Args:
-        model, simulate_fn: model instance and ``simulate_open_loop``.
-        time_s: (T,) grid; x_meas: (T, n_x) measured states; u: (T, n_u) inputs (already shifted).
-        correction: callable or None.
-        window_s: length of the restarted windows (s).
-        smoothing_s: smoothing of the measured start states (s).
-        windows_mask: (T,) bool; windows whose start lies in it are used (default all).
+        model, simulate_fn: the simulating instance and its simulator.
+        time_s: (T,) grid; x_meas: (T, n_x) measured states (unmeasured columns ignored); u: (T, n_u) logged inputs.
+        starts: (T, n_x) low-noise states to start from (unmeasured ones from the reference simulation).
+        corrected: the chosen effects, or None for the plain model.
+        window_s: length of the restarted windows (s), or None for none.
     Returns:
-        (errors, simulated states of the whole maneuver (T, n_x)).
+        (errors: ``<signal>_rmse``, ``<signal>_mae``, ``gap``, and ``window_<signal>_mae``, ``window_gap``
+        when windowed; simulated states of the whole maneuver (T, n_x)).
     """
     dt_s = float(np.median(np.diff(time_s)))
-    starts = measured_initial_states(x_meas, layout, dt_s, smoothing_s)
-    whole = simulate(model, simulate_fn, time_s, u, starts[0], correction)
-    angle_err = whole[:, layout.theta] - x_meas[:, layout.theta]
-    speed_err = whole[:, layout.omega] - starts[:, layout.omega]
-    n_win = max(int(round(window_s / dt_s)), 2)
-    first = np.array([start for start in range(0, len(time_s) - n_win, n_win)
-                      if windows_mask is None or windows_mask[start]], dtype=int)
-    windows = simulate_windows(model, simulate_fn, time_s, u, starts[first], first, n_win, correction)
-    angle_abs, speed_abs = [], []
-    for w, start in enumerate(first):
-        piece = slice(start, start + n_win + 1)
-        states = windows[w]
-        angle_abs.append(np.mean(np.abs(states[:, layout.theta] - x_meas[piece, layout.theta])))
-        speed_abs.append(np.mean(np.abs(states[:, layout.omega] - starts[piece, layout.omega])))
-
-    def finite_mean(values) -> float:
-        values = np.asarray(values, dtype=float)
-        return float(np.mean(values)) if values.size and np.all(np.isfinite(values)) else float("nan")
-
-    errors = OpenLoopErrors(
-        angle_mae_rad=finite_mean(np.abs(angle_err)), angle_mse_rad2=finite_mean(angle_err ** 2),
-        speed_mae_rad_s=finite_mean(np.abs(speed_err)), speed_mse_rad2_s2=finite_mean(speed_err ** 2),
-        window_angle_mae_rad=finite_mean(angle_abs), window_speed_mae_rad_s=finite_mean(speed_abs),
-        n_windows=len(angle_abs),
-    )
+    correction = corrected.correction() if corrected is not None else None
+    u_model = corrected.inputs(u, dt_s) if corrected is not None else u
+    context = corrected.parameters_applied(model) if corrected is not None else contextlib.nullcontext()
+    with context:
+        whole = simulate(model, simulate_fn, time_s, u_model, starts[0], correction)
+        errors = target_errors(whole, x_meas, problem)
+        if window_s:
+            n_win = max(int(round(window_s / dt_s)), 2)
+            first = np.arange(0, len(time_s) - n_win, n_win)
+            windows = simulate_windows(model, simulate_fn, time_s, u_model, starts[first], first, n_win, correction)
+            gap = 0.0
+            for state, weight in problem.target_weights.items():
+                i = problem.state_names.index(state)
+                values = [np.mean(np.abs(windows[w, :, i] - x_meas[s:s + n_win + 1, i])) for w, s in enumerate(first)]
+                mae = float(np.mean(values)) if values and np.all(np.isfinite(values)) else float("nan")
+                errors[f"window_{problem.state_signal[state]}_mae"] = mae
+                gap += weight * mae / (float(np.std(x_meas[:, i])) or 1.0)
+            errors["window_gap"] = gap
+            errors["n_windows"] = len(first)
     return errors, whole

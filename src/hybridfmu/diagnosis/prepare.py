@@ -1,10 +1,12 @@
 """From ingested maneuvers to the quantities the diagnosis works on.
 
-``load_maneuver`` reads one ingested maneuver and its segments into model-ordered arrays
-(speed state taken from the angle by a central difference when ``diagnosis.speed_source`` is
-``angle``: the logged speed of an observer lags during acceleration). ``prepare_maneuver``
-computes the equation error, the effect inputs along the data, the masks of usable samples
-(inside segments, away from end stops, not at standstill) and the fitting centres.
+``load_maneuver`` reads one ingested maneuver (``time_s`` and one column per signal, in the model
+unit) and its segments into model-ordered arrays through the case's roles; measured states named
+in ``diagnosis.state_from_derivative`` are replaced by the time derivative of another measured state
+(e.g. a speed from the angle: an observer's logged speed lags). Unmeasured states are filled from an
+open-loop simulation of the calibrated model (``fill_unmeasured``). ``prepare_maneuver`` computes the
+equation error, the effect inputs along the data, the masks of usable samples (inside segments, away
+from configured end stops, not at a configured standstill) and the fitting centres.
 """
 
 from __future__ import annotations
@@ -17,12 +19,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from hybridfmu.diagnosis.derivatives import interval_means, odd_window, savgol_derivative, savgol_smooth
+from hybridfmu.diagnosis.derivatives import (interval_means, odd_window, savgol_derivative, savgol_smooth,
+                                             white_noise_std)
 from hybridfmu.diagnosis.effects import EffectInputs
-from hybridfmu.diagnosis.layout import MotorLayout
+from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.residual import EquationError, equation_error, noise_floor_std
 from hybridfmu.diagnosis.selection import ManeuverFitData
-from hybridfmu.diagnosis.synthetic import dq_to_abc
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -33,9 +35,11 @@ class MeasuredManeuver:
 
     Attributes:
         name, role: maneuver name and role (train / validation / test).
-        time_s: (N,) uniform grid (s), starting at 0.
-        x: (N, n_x) measured states; u: (N, n_u) inputs.
+        time_s: (N,) uniform grid (s).
+        x: (N, n_x) states: measured columns from the data, unmeasured ones NaN until filled from a simulation.
+        u: (N, n_u) inputs (model units).
         spans_s: informative segments [[t_start_s, t_end_s], ...].
+        x0_unmeasured: unmeasured state -> initial value (calibration, else the model's start value).
         source: path of the ingested data (for messages).
     """
 
@@ -45,47 +49,93 @@ class MeasuredManeuver:
     x: np.ndarray
     u: np.ndarray
     spans_s: list[list[float]]
+    x0_unmeasured: dict[str, float] = field(default_factory=dict)
     source: str = ""
 
 
-def load_maneuver(name: str, role: str, data_path: str | Path, segments_path: str | Path | None, model: Any,
-                  config: dict[str, Any]) -> MeasuredManeuver:
-    """Read an ingested maneuver (Parquet) and its segments (JSON) into model-ordered arrays."""
+def _column(frame: pd.DataFrame, signal: str, path: Path, role: str) -> np.ndarray:
+    if signal not in frame.columns:
+        raise ValueError(f"{path}: no column {signal!r} (signal of {role}); the ingested data has "
+                         f"{list(frame.columns)}")
+    return frame[signal].to_numpy(dtype=np.float64)
+
+
+def frame_arrays(frame: pd.DataFrame, problem: Problem, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(time (N,), x (N, n_x) with NaN for unmeasured states, u (N, n_u)) of an ingested frame via the roles."""
+    time_s = _column(frame, "time_s", path, "time")
+    x = np.full((len(time_s), problem.n_x), np.nan)
+    for i in problem.measured:
+        name = problem.state_names[i]
+        x[:, i] = _column(frame, problem.state_signal[name], path, f"state {name}")
+    u = np.zeros((len(time_s), problem.n_u))
+    for k, name in enumerate(problem.input_names):
+        u[:, k] = _column(frame, problem.input_signal[name], path, f"input {name}")
+    return time_s, x, u
+
+
+def load_maneuver(name: str, role: str, data_path: str | Path, segments_path: str | Path | None,
+                  problem: Problem, x0_unmeasured: dict[str, float] | None = None) -> MeasuredManeuver:
+    """Read an ingested maneuver (Parquet) and its segments (JSON) into model-ordered arrays.
+
+    Raises:
+        FileNotFoundError: the data file does not exist.
+        ValueError: a column is missing or holds non-finite values (names the file).
+    """
     from hybridfmu.data.segments import read_segments
-    from hybridfmu.data.signals import input_array, state_array, time_array
 
     data_path = Path(data_path)
     if not data_path.is_file():
         raise FileNotFoundError(f"{data_path}: ingested data of maneuver {name!r} does not exist")
-    frame = pd.read_parquet(data_path)
-    signals = config.get("signals", {})
-    time_s = time_array(frame)
-    u = input_array(frame, signals, list(model.input_names))
-    x = state_array(frame, signals, list(model.state_names))
-    diagnosis = config.get("diagnosis", {})
-    speed_state = signals.get("speed_state", "omega")
-    angle_state = signals.get("angle_state", "theta")
-    if diagnosis.get("speed_source", "angle") == "angle":
-        theta = x[:, model.state_names.index(angle_state)]
-        x[:, model.state_names.index(speed_state)] = np.gradient(theta, time_s)
-    lags = diagnosis.get("input_lag_compensation_s", {}) or {}
-    for input_name, lag_s in lags.items():
-        if input_name not in model.input_names:
-            raise ValueError(f"config.diagnosis.input_lag_compensation_s.{input_name}: not a model input "
-                             f"{list(model.input_names)}")
+    time_s, x, u = frame_arrays(pd.read_parquet(data_path), problem, data_path)
+    settings = problem.settings
+    for state, source in (settings.get("state_from_derivative") or {}).items():
+        x[:, problem.state_names.index(state)] = np.gradient(x[:, problem.state_names.index(source)], time_s)
+    dt_s = float(np.median(np.diff(time_s)))
+    for input_name, lag_s in (settings.get("input_lag_compensation_s") or {}).items():
         if lag_s > 0:
-            j = model.input_names.index(input_name)
-            window = odd_window(float(diagnosis.get("lag_compensation_window_s", 0.004)),
-                                float(np.median(np.diff(time_s))), minimum=5)
-            u[:, j] = savgol_smooth(u[:, j], window) + float(lag_s) * savgol_derivative(
-                u[:, j], float(np.median(np.diff(time_s))), window)
-    spans = read_segments(segments_path)["spans_s"] if segments_path else [[float(time_s[0]), float(time_s[-1])]]
-    for column, values in (("inputs", u), ("states", x)):
+            j = problem.input_names.index(input_name)
+            window = odd_window(float(settings.get("lag_compensation_window_s") or 5 * dt_s), dt_s, minimum=5)
+            u[:, j] = savgol_smooth(u[:, j], window) + float(lag_s) * savgol_derivative(u[:, j], dt_s, window)
+    for what, values in (("inputs", u), ("measured states", x[:, problem.measured])):
         bad = ~np.isfinite(values)
         if bad.any():
-            raise ValueError(f"{data_path}: non-finite {column} at {int(bad.any(axis=1).sum())} samples")
+            raise ValueError(f"{data_path}: non-finite {what} at {int(bad.any(axis=1).sum())} samples")
+    spans = read_segments(segments_path)["spans_s"] if segments_path else [[float(time_s[0]), float(time_s[-1])]]
     return MeasuredManeuver(name=name, role=role, time_s=time_s, x=x, u=u, spans_s=[list(s) for s in spans],
-                            source=str(data_path))
+                            x0_unmeasured=dict(x0_unmeasured or {}), source=str(data_path))
+
+
+def start_states(meas: MeasuredManeuver, problem: Problem) -> np.ndarray:
+    """Low-noise states (N, n_x) to start simulations from: measured states smoothed, unmeasured ones
+    as filled (or their initial values in the first row when not yet filled)."""
+    states = np.array(meas.x, dtype=float)
+    dt_s = float(np.median(np.diff(meas.time_s)))
+    window = odd_window(float(problem.settings.get("smoothing_s") or 2.5 * dt_s), dt_s, minimum=5)
+    measured = problem.measured
+    states[:, measured] = savgol_smooth(states[:, measured], window)
+    for name, value in meas.x0_unmeasured.items():
+        i = problem.state_names.index(name)
+        if not np.isfinite(states[0, i]):
+            states[0, i] = value
+    return states
+
+
+def fill_unmeasured(meas: MeasuredManeuver, problem: Problem, model: Any, simulate_fn: Any) -> None:
+    """Unmeasured states of ``meas`` from an open-loop simulation of the (calibrated) model, in place.
+
+    The simulation starts from the smoothed measured states and the unmeasured initial values of the
+    calibration; it is the model's own prediction of what cannot be measured (stated in the report).
+    """
+    if not problem.unmeasured:
+        return
+    from hybridfmu.diagnosis.corrected_model import simulate
+
+    starts = start_states(meas, problem)
+    states = simulate(model, simulate_fn, meas.time_s, meas.u, starts[0], None)
+    if not np.all(np.isfinite(states[:, problem.unmeasured])):
+        raise ValueError(f"{meas.source}: the open-loop simulation of the unmeasured states "
+                         f"{[problem.state_names[i] for i in problem.unmeasured]} failed or diverged")
+    meas.x[:, problem.unmeasured] = states[:, problem.unmeasured]
 
 
 @dataclass
@@ -95,21 +145,30 @@ class PreparedManeuver:
     Attributes:
         measured: the measured maneuver.
         error: equation error.
-        inputs: effect inputs along the data (data mode).
-        omega_smooth: (M,) low-noise speed (rad/s) for nonlinear terms.
+        inputs: effect inputs along the data.
         masks: name -> (M,) bool: ``in_segment``, ``near_stop``, ``standstill``, ``usable``.
         fit: the fitting data (centres, target, noise).
         noise_floor: (n_x,) predicted noise std of the kernel-averaged equation error.
+        residual_filtered: (M, n_x) kernel-averaged equation error (NaN near the ends).
+        rate_filtered: (M, n_x) kernel-averaged measured derivative.
+        starts: (N, n_x) low-noise states to start simulations from (``start_states``).
     """
 
     measured: MeasuredManeuver
     error: EquationError
     inputs: EffectInputs
-    omega_smooth: np.ndarray
     masks: dict[str, np.ndarray]
     fit: ManeuverFitData
     noise_floor: np.ndarray
-    extras: dict[str, Any] = field(default_factory=dict)
+    residual_filtered: np.ndarray
+    rate_filtered: np.ndarray
+    starts: np.ndarray | None = None
+
+
+def kernel_samples(problem: Problem, dt_s: float) -> int:
+    """Length (odd, samples) of the Hann kernel: ``diagnosis.kernel_s``, default 9 samples."""
+    kernel_s = problem.settings.get("kernel_s")
+    return odd_window(float(kernel_s), dt_s) if kernel_s else 9
 
 
 def _blocks(time_s: np.ndarray, spans_s: list[list[float]], block_s: float) -> np.ndarray:
@@ -127,71 +186,61 @@ def _blocks(time_s: np.ndarray, spans_s: list[list[float]], block_s: float) -> n
     return ids
 
 
-def prepare_maneuver(meas: MeasuredManeuver, model: Any, layout: MotorLayout, settings: dict[str, Any],
-                     parameter_values: dict[str, float]) -> PreparedManeuver:
-    """Equation error, effect inputs, masks and fitting centres of one maneuver.
+def input_rates(u: np.ndarray, dt_s: float) -> np.ndarray:
+    """Centred rates (M, n_u) of inputs held per sample, one per interval: (u[k+1] - u[k-1]) / (2 dt)."""
+    padded = np.concatenate([u[:1], u], axis=0)
+    return (padded[2:] - padded[:-2]) / (2.0 * dt_s)
 
-    ``settings`` is the case's ``diagnosis`` section with defaults filled in (``kernel_s``,
-    ``smoothing_s``, ``standstill_rad_s``, ``end_stop_margin_rad``, ``bootstrap_block_s``).
-    """
+
+def prepare_maneuver(meas: MeasuredManeuver, model: Any, problem: Problem) -> PreparedManeuver:
+    """Equation error, effect inputs, masks and fitting centres of one maneuver (unmeasured states filled)."""
+    settings = problem.settings
     dt_s = float(np.median(np.diff(meas.time_s)))
-    kernel_n = odd_window(settings["kernel_s"], dt_s)
-    err = equation_error(model, meas.time_s, meas.x, meas.u, kernel_n, maneuver=meas.name,
-                         noise_mask=_span_mask(meas.time_s, meas.spans_s),
-                         one_step_states=layout.groups.get("electrical", []))
-    smooth_n = odd_window(settings["smoothing_s"], dt_s, minimum=5)
-    omega_smooth = interval_means(savgol_smooth(meas.x[:, layout.omega], smooth_n))
-    i_abc = None
-    if layout.i_d is not None and layout.i_q is not None and layout.pole_pairs:
-        i_dq = interval_means(savgol_smooth(meas.x[:, [layout.i_d, layout.i_q]], smooth_n))
-        i_abc = dq_to_abc(i_dq[:, 0], i_dq[:, 1], layout.pole_pairs * err.x[:, layout.theta])
-    u_all = meas.u
-
-    def shift(offset_s: float) -> np.ndarray:
-        # Inputs held over each interval, seen ``offset_s`` later: the mean of the held signal over
-        # [t_k + offset, t_k+1 + offset] = linear interpolation at the fractional sample k + offset/dt.
-        index = np.arange(len(u_all) - 1) + offset_s / dt_s
-        base = np.clip(np.floor(index).astype(int), 0, len(u_all) - 1)
-        frac = (index - np.floor(index))[:, None]
-        upper = np.clip(base + 1, 0, len(u_all) - 1)
-        return (1.0 - frac) * u_all[base] + frac * u_all[upper]
-
-    context = {}
-    if layout.u_dc is not None:
-        context["u_dc_mean_v"] = float(np.mean(meas.u[:, layout.u_dc]))
-    inputs = EffectInputs(layout, err.x, err.u, omega_rad_s=omega_smooth, i_abc_a=i_abc, f=err.f_model,
-                          dfdx=err.dfdx, dfdu=err.dfdu, shift=shift, context=context)
-    masks = _masks(err, meas, layout, omega_smooth, kernel_n, settings, parameter_values)
+    kernel_n = kernel_samples(problem, dt_s)
+    one_step = [problem.state_names.index(n) for n in settings.get("one_step_states") or []]
+    in_span = _span_mask(meas.time_s, meas.spans_s)
+    err = equation_error(model, meas.time_s, meas.x, meas.u, kernel_n, maneuver=meas.name, noise_mask=in_span,
+                         one_step_states=one_step)
+    smooth_n = odd_window(float(settings.get("smoothing_s") or max(kernel_n // 2, 5) * dt_s), dt_s, minimum=5)
+    x_smooth = interval_means(savgol_smooth(meas.x, smooth_n))
+    inputs = EffectInputs(err.x, err.u, x_smooth=x_smooth, f=err.f_model, dfdx=err.dfdx, dfdu=err.dfdu,
+                          du_dt=input_rates(meas.u, dt_s), model=model,
+                          parameter_step=float(settings["effects"].get("parameter_relative_step", 1e-5)),
+                          u_samples=meas.u, dt_s=dt_s)
+    masks = _masks(err, meas, problem, x_smooth, kernel_n)
     half = kernel_n // 2
     candidates = np.arange(half, len(err.time_s) - half, kernel_n)
     centres = candidates[masks["usable"][candidates]]
-    blocks = _blocks(err.time_s, meas.spans_s, settings["bootstrap_block_s"])
-    noise_x = noise_realisation(meas, layout, settings)
+    block_s = float(settings.get("bootstrap_block_s") or 20 * kernel_n * dt_s)
+    blocks = _blocks(err.time_s, meas.spans_s, block_s)
+    noise_x = noise_realisation(meas, problem)
     noise_floor = noise_floor_std(err, noise_x, centres if len(centres) > 10 else None)
     residual_f = err.filtered_residual()
     fit = ManeuverFitData(name=meas.name, inputs=inputs, kernel=err.kernel, centres=centres,
                           span_id=blocks[centres], target=residual_f[centres], noise_std=noise_floor)
     LOGGER.info("%s: %d fitting centres (%.0f %% of the maneuver usable), noise floor %s", meas.name,
                 len(centres), 100.0 * masks["usable"].mean(), np.array2string(noise_floor, precision=4))
-    return PreparedManeuver(measured=meas, error=err, inputs=inputs, omega_smooth=omega_smooth, masks=masks,
-                            fit=fit, noise_floor=noise_floor, extras={"residual_filtered": residual_f})
+    return PreparedManeuver(measured=meas, error=err, inputs=inputs, masks=masks, fit=fit, noise_floor=noise_floor,
+                            residual_filtered=residual_f, rate_filtered=err.filtered_rate(),
+                            starts=start_states(meas, problem))
 
 
-def noise_realisation(meas: MeasuredManeuver, layout: MotorLayout, settings: dict[str, Any]) -> np.ndarray:
+def noise_realisation(meas: MeasuredManeuver, problem: Problem) -> np.ndarray:
     """A seeded realisation (N, n_x) of the measurement noise on the states, processed like the states.
 
-    The white-noise level of every measured state is estimated from its third differences
-    inside the segments; a speed differentiated from the angle gets the differentiated angle
-    noise (so its correlation is right), other states white noise of their estimated level.
+    The white-noise level of every measured state is estimated from its third differences inside
+    the segments; a state differentiated from another (``state_from_derivative``) gets the
+    differentiated noise of its source; unmeasured states (simulated) get none.
     """
-    from hybridfmu.diagnosis.derivatives import white_noise_std
-
-    rng = np.random.default_rng(int(settings.get("seed", 0)))
+    rng = np.random.default_rng(int(problem.settings.get("seed", 0)))
     inside = _span_mask(meas.time_s, meas.spans_s)
-    sigma = np.atleast_1d(white_noise_std(meas.x, inside if inside.sum() > 10 else None))
-    noise = rng.standard_normal(meas.x.shape) * sigma
-    if settings.get("speed_source", "angle") == "angle":
-        noise[:, layout.omega] = np.gradient(noise[:, layout.theta], meas.time_s)
+    noise = np.zeros(meas.x.shape)
+    measured = problem.measured
+    sigma = np.atleast_1d(white_noise_std(meas.x[:, measured], inside if inside.sum() > 10 else None))
+    noise[:, measured] = rng.standard_normal((len(meas.time_s), len(measured))) * sigma
+    for state, source in (problem.settings.get("state_from_derivative") or {}).items():
+        noise[:, problem.state_names.index(state)] = np.gradient(noise[:, problem.state_names.index(source)],
+                                                                 meas.time_s)
     return noise
 
 
@@ -202,25 +251,31 @@ def _span_mask(time_s: np.ndarray, spans_s: list[list[float]]) -> np.ndarray:
     return mask
 
 
-def _masks(err: EquationError, meas: MeasuredManeuver, layout: MotorLayout, omega_smooth: np.ndarray,
-           kernel_n: int, settings: dict[str, Any], parameter_values: dict[str, float]) -> dict[str, np.ndarray]:
+def _masks(err: EquationError, meas: MeasuredManeuver, problem: Problem, x_smooth: np.ndarray,
+           kernel_n: int) -> dict[str, np.ndarray]:
     """Sample masks over the M intervals (a sample counts for the window around it)."""
     from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
+    settings = problem.settings
     in_segment = _span_mask(err.time_s, meas.spans_s)
-    theta = err.x[:, layout.theta]
-    margin = float(settings["end_stop_margin_rad"])
-    names = settings.get("variables", {})
-    theta_min = parameter_values.get(names.get("theta_min", "theta_min"))
-    theta_max = parameter_values.get(names.get("theta_max", "theta_max"))
-    near_stop = np.zeros(len(theta), dtype=bool)
-    if theta_min is not None:
-        near_stop |= theta <= theta_min + margin
-    if theta_max is not None:
-        near_stop |= theta >= theta_max - margin
-    near_stop = maximum_filter1d(near_stop.astype(np.uint8), kernel_n).astype(bool)
-    moving = np.abs(omega_smooth) > float(settings["standstill_rad_s"])
-    standstill = ~maximum_filter1d(moving.astype(np.uint8), kernel_n).astype(bool)
+    near_stop = np.zeros(len(err.time_s), dtype=bool)
+    stop = problem.end_stop
+    if stop:
+        i = stop["state"]
+        margin = settings.get("end_stop_margin")
+        margin = float(margin) if margin is not None else 0.01 * float(problem.spread[i] if problem.spread.size else 0.0)
+        value = err.x[:, i]
+        if stop.get("min") is not None:
+            near_stop |= value <= stop["min"] + margin
+        if stop.get("max") is not None:
+            near_stop |= value >= stop["max"] - margin
+        near_stop = maximum_filter1d(near_stop.astype(np.uint8), kernel_n).astype(bool)
+    standstill = np.zeros(len(err.time_s), dtype=bool)
+    still = settings.get("standstill")
+    if still:
+        i = problem.state_names.index(still["state"])
+        moving = np.abs(x_smooth[:, i]) > float(still.get("below", 0.0))
+        standstill = ~maximum_filter1d(moving.astype(np.uint8), kernel_n).astype(bool)
     whole_window = minimum_filter1d(in_segment.astype(np.uint8), kernel_n).astype(bool)
     usable = whole_window & ~near_stop & ~standstill
     return {"in_segment": in_segment, "near_stop": near_stop, "standstill": standstill, "usable": usable}

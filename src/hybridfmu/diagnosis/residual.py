@@ -2,11 +2,10 @@
 
 Inputs are held over each sampling interval (as in the open-loop simulation). Over the
 interval [t_k, t_k+1) the measurements changed at ``(x_k+1 - x_k) / dt``. The model's mean
-rate over the interval is, for the fast states (``one_step_states``, the dq currents), that
-of one classical Runge-Kutta step from the measured x_k with the held input u_k,
-``(Phi(x_k, u_k) - x_k) / dt`` (a quadrature over the sampled states would misjudge the held
-voltage vector, which turns by p*omega*dt in the rotor frame within a sample, and the kinks
-of the currents at every duty update); for the other states the trapezoid rule
+rate over the interval is, for fast states (``one_step_states``, e.g. currents driven by
+switched voltages), that of one classical Runge-Kutta step from the measured x_k with the held
+input u_k, ``(Phi(x_k, u_k) - x_k) / dt`` (a quadrature over the sampled states would misjudge
+dynamics much faster than the sampling); for the other states the trapezoid rule
 ``(f(x_k, u_k) + f(x_k+1, u_k)) / 2`` over the measured end states, so that an error of the
 fast states' equations cannot leak into the slow ones through the model's own prediction
 within the step. Their difference is the raw equation error; averaged with the Hann kernel of

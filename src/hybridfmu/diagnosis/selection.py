@@ -1,7 +1,6 @@
 """Fitting candidate effects to the equation error, sparse selection, uncertainty, stability.
 
-Per equation group (electrical: the dq current equations; mechanical: the speed equation)
-the kernel-averaged equation error ``y`` is sampled at centres one kernel length apart (so
+Per examined state equation the kernel-averaged equation error ``y`` is sampled at centres one kernel length apart (so
 the noise of neighbouring samples is nearly independent) inside the informative segments.
 Every effect's term is averaged with the same kernel at the same centres. Effects enter by
 stepwise forward selection: at each step every remaining candidate is fitted together with
@@ -9,10 +8,11 @@ those already chosen (linear least squares in its coefficients, grid search plus
 refinement in its nonlinear parameter) and the one with the lowest BIC enters if it lowers
 the BIC by ``min_bic_drop``, removes at least ``min_relative_improvement`` of the remaining
 residual sum of squares, explains a mean square of at least ``min_explained_to_noise`` times the
-noise floor's variance and at least ``min_share_of_initial`` of the group's initial residual
+noise floor's variance and at least ``min_share_of_initial`` of the equation's initial residual
 energy (an effect much weaker than the measurement noise, or than the gap it is part of, is of no
 practical consequence even when a long record makes it statistically significant), and the
-remaining residual is still above the noise floor.
+remaining residual is still above the noise floor. Parameter errors below ``parameter_tolerance``
+never enter.
 Standard errors come from the regression and from a bootstrap over segments; the
 chosen set is refitted on every fitting maneuver alone to show its stability.
 """
@@ -66,13 +66,16 @@ class SelectionSettings:
     min_share_of_initial: float = 0.001
     parameter_tolerance: float = 0.005
     noise_margin: float = 0.10
-    max_effects_per_group: int = 3
+    max_effects_per_equation: int = 3
     bootstrap_samples: int = 200
     refine_iterations: int = 30
 
     @classmethod
     def from_config(cls, section: dict[str, Any] | None) -> "SelectionSettings":
         section = section or {}
+        section = dict(section)
+        if "max_effects_per_group" in section:  # the name before equations were examined one by one
+            section.setdefault("max_effects_per_equation", section.pop("max_effects_per_group"))
         known = {k: v for k, v in section.items() if k in cls.__dataclass_fields__}
         return cls(**known)
 
@@ -82,51 +85,41 @@ def _setting_key(setting: dict[str, float]) -> tuple:
 
 
 class DesignCache:
-    """Kernel-averaged effect terms at the fitting centres, cached per (effect, setting, maneuver)."""
+    """Kernel-averaged effect regressors at the fitting centres, cached per (effect, setting, maneuver)."""
 
-    def __init__(self, maneuvers: list[ManeuverFitData], options: dict[str, Any]) -> None:
+    def __init__(self, maneuvers: list[ManeuverFitData]) -> None:
         self.maneuvers = {m.name: m for m in maneuvers}
-        self.options = options
-        self._cache: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        self._cache: dict[tuple, np.ndarray] = {}
 
-    def _one(self, effect: Effect, setting: dict[str, float], rows: list[int], name: str):
-        key = (effect.name, _setting_key(setting), tuple(rows), name)
+    def _one(self, effect: Effect, setting: dict[str, float], name: str) -> np.ndarray:
+        key = (effect.name, effect.equation, _setting_key(setting), name)
         if key not in self._cache:
             data = self.maneuvers[name]
-            n_coef = len(effect.coefficient_names(setting))
-            regressors, fixed = effect.terms(data.inputs, setting, self.options)
-            k = len(data.centres)
-            if regressors is not None and n_coef:
-                design = smooth_at(regressors[:, rows, :], data.kernel, data.centres).reshape(k * len(rows), n_coef)
-            else:
-                design = np.zeros((k * len(rows), 0))
-            if fixed is not None:
-                offset = smooth_at(fixed[:, rows], data.kernel, data.centres).reshape(k * len(rows))
-            else:
-                offset = np.zeros(k * len(rows))
-            self._cache[key] = (design, offset)
+            regressors = np.asarray(effect.regressors(data.inputs, setting), dtype=float)
+            if regressors.ndim != 2 or regressors.shape[0] != data.inputs.n:
+                raise ValueError(f"{effect.name}: regressors of shape {regressors.shape}, expected "
+                                 f"({data.inputs.n}, n_coef)")
+            design = smooth_at(regressors, data.kernel, data.centres) if len(data.centres) else \
+                np.zeros((0, regressors.shape[1]))
+            design[~np.isfinite(design)] = 0.0
+            self._cache[key] = design
         return self._cache[key]
 
-    def design(self, effect: Effect, setting: dict[str, float], rows: list[int],
-               names: list[str]) -> tuple[np.ndarray, np.ndarray]:
-        """Stacked (n, n_coef) regressors and (n,) fixed part over the maneuvers ``names``."""
-        parts = [self._one(effect, setting, rows, name) for name in names]
-        return np.concatenate([p[0] for p in parts], axis=0), np.concatenate([p[1] for p in parts])
+    def design(self, effect: Effect, setting: dict[str, float], names: list[str]) -> np.ndarray:
+        """Stacked (n, n_coef) kernel-averaged regressors over the maneuvers ``names``."""
+        return np.concatenate([self._one(effect, setting, name) for name in names], axis=0)
 
-    def target(self, rows: list[int], names: list[str]) -> np.ndarray:
-        return np.concatenate([self.maneuvers[n].target[:, rows].reshape(-1) for n in names])
+    def target(self, equation: int, names: list[str]) -> np.ndarray:
+        """(n,) kernel-averaged equation error of state ``equation`` at the centres of ``names``."""
+        return np.concatenate([self.maneuvers[n].target[:, equation] for n in names])
 
-    def groups_of_rows(self, rows: list[int], names: list[str]) -> np.ndarray:
-        """Bootstrap group (maneuver, segment) of every stacked row."""
-        ids = []
-        for j, name in enumerate(names):
-            data = self.maneuvers[name]
-            ids.append(np.repeat(data.span_id + 1000 * j, len(rows)))
-        return np.concatenate(ids)
+    def groups_of_rows(self, names: list[str]) -> np.ndarray:
+        """Bootstrap group (maneuver, segment block) of every stacked row."""
+        return np.concatenate([self.maneuvers[n].span_id + 100000 * j for j, n in enumerate(names)])
 
-    def noise_variance(self, rows: list[int], names: list[str]) -> float:
+    def noise_variance(self, equation: int, names: list[str]) -> float:
         """Mean predicted noise variance per stacked row."""
-        values = [np.mean(self.maneuvers[n].noise_std[rows] ** 2) * len(self.maneuvers[n].centres) for n in names]
+        values = [self.maneuvers[n].noise_std[equation] ** 2 * len(self.maneuvers[n].centres) for n in names]
         count = sum(len(self.maneuvers[n].centres) for n in names)
         return float(sum(values) / max(count, 1))
 
@@ -160,25 +153,24 @@ class LinearFit:
     residual: np.ndarray
 
 
-def stacked_design(cache: DesignCache, terms: list[Term], rows: list[int],
+def stacked_design(cache: DesignCache, terms: list[Term], equation: int,
                    names: list[str]) -> tuple[np.ndarray, np.ndarray, list[int]]:
-    """The equation error less the terms' fixed offsets (M,), their design columns side by side
-    (M, sum of sizes), and the number of columns of each term."""
-    y = cache.target(rows, names)
+    """The equation error (n,), the terms' design columns side by side (n, sum of sizes), and the
+    number of columns of each term."""
+    y = cache.target(equation, names)
     designs, sizes = [], []
     for term in terms:
-        design, offset = cache.design(term.effect, term.setting, rows, names)
-        y = y - offset
+        design = cache.design(term.effect, term.setting, names)
         designs.append(design)
         sizes.append(design.shape[1])
     design = np.concatenate(designs, axis=1) if designs else np.zeros((len(y), 0))
     return y, design, sizes
 
 
-def fit_terms(cache: DesignCache, terms: list[Term], rows: list[int], names: list[str],
+def fit_terms(cache: DesignCache, terms: list[Term], equation: int, names: list[str],
               row_mask: np.ndarray | None = None) -> LinearFit:
-    """Fit the coefficients of ``terms`` (settings fixed) to the equation error."""
-    y, design, sizes = stacked_design(cache, terms, rows, names)
+    """Fit the coefficients of ``terms`` (settings fixed) to the equation error of state ``equation``."""
+    y, design, sizes = stacked_design(cache, terms, equation, names)
     if row_mask is not None:
         y, design = y[row_mask], design[row_mask]
     n = len(y)
@@ -207,10 +199,10 @@ def bic(rss: float, n: int, k: int) -> float:
 
 
 def _refine(cache: DesignCache, active: list[Term], effect: Effect, best: dict[str, float], grid_values: list[float],
-            rows: list[int], names: list[str], options: dict[str, Any], layout, iterations: int):
+            equation: int, names: list[str], iterations: int):
     """Refine the continuous parameter of ``effect`` around the best grid value; return (setting, rss, se)."""
     param = effect.continuous
-    bounds = effect.bounds(options, layout)
+    bounds = effect.bounds()
     centre = best[param]
     if param is None or bounds is None or centre == 0.0 and effect.log_scale:
         return best, None, {}
@@ -223,12 +215,13 @@ def _refine(cache: DesignCache, active: list[Term], effect: Effect, best: dict[s
     def rss_at(z: float) -> float:
         setting = dict(best)
         setting[param] = float(transform[1](z))
-        return fit_terms(cache, active + [Term(effect, setting)], rows, names).rss
+        return fit_terms(cache, active + [Term(effect, setting)], equation, names).rss
 
     if lower >= upper:
         return best, None, {}
     result = minimize_scalar(rss_at, bounds=(transform[0](lower), transform[0](upper)), method="bounded",
-                             options={"maxiter": iterations, "xatol": 1e-4 if effect.log_scale else 1e-9})
+                             options={"maxiter": iterations,
+                                      "xatol": 1e-4 if effect.log_scale else 1e-4 * (upper - lower)})
     z_opt = float(result.x)
     setting = dict(best)
     setting[param] = float(transform[1](z_opt))
@@ -236,7 +229,7 @@ def _refine(cache: DesignCache, active: list[Term], effect: Effect, best: dict[s
     # Profile standard error from the curvature of the residual sum of squares.
     step = 0.02 if effect.log_scale else max(abs(upper - lower) * 0.02, 1e-12)
     curvature = (rss_at(z_opt + step) - 2 * rss_opt + rss_at(z_opt - step)) / step ** 2
-    n = len(cache.target(rows, names))
+    n = len(cache.target(equation, names))
     se = {}
     if curvature > 0:
         z_se = math.sqrt(2.0 * rss_opt / (n * curvature))
@@ -244,22 +237,21 @@ def _refine(cache: DesignCache, active: list[Term], effect: Effect, best: dict[s
     return setting, rss_opt, se
 
 
-def best_setting(cache: DesignCache, active: list[Term], effect: Effect, rows: list[int], names: list[str],
-                 options: dict[str, Any], layout, iterations: int) -> tuple[Term, float, list[dict[str, Any]]]:
+def best_setting(cache: DesignCache, active: list[Term], effect: Effect, equation: int, names: list[str],
+                 iterations: int) -> tuple[Term, float, list[dict[str, Any]]]:
     """Best nonlinear setting of ``effect`` added to ``active``: (term, rss, profile over the grid)."""
-    grid = effect.grid(options, layout)
+    grid = effect.grid()
     profile = []
     best_rss, best = math.inf, grid[0]
     for setting in grid:
-        rss = fit_terms(cache, active + [Term(effect, setting)], rows, names).rss
+        rss = fit_terms(cache, active + [Term(effect, setting)], equation, names).rss
         profile.append({"setting": dict(setting), "rss": rss})
         if rss < best_rss:
             best_rss, best = rss, setting
     setting_se: dict[str, float] = {}
     if effect.continuous:
         grid_values = [g[effect.continuous] for g in grid]
-        refined, rss, setting_se = _refine(cache, active, effect, best, grid_values, rows, names, options, layout,
-                                           iterations)
+        refined, rss, setting_se = _refine(cache, active, effect, best, grid_values, equation, names, iterations)
         if rss is not None and rss <= best_rss:
             best, best_rss = refined, rss
     return Term(effect, dict(best), setting_se=setting_se), best_rss, profile
@@ -275,11 +267,10 @@ class SelectionStep:
 
 
 @dataclass
-class GroupSelection:
-    """Result of the selection in one equation group."""
+class EquationSelection:
+    """Result of the selection in one state equation."""
 
-    group: str
-    rows: list[int]
+    equation: int
     terms: list[Term]
     fit: LinearFit
     rss_none: float
@@ -288,29 +279,28 @@ class GroupSelection:
     steps: list[SelectionStep]
 
 
-def select_group(cache: DesignCache, group: str, rows: list[int], effects: list[Effect], names: list[str],
-                 options: dict[str, Any], layout, settings: SelectionSettings) -> GroupSelection:
-    """Stepwise forward selection among ``effects`` (all of ``group``) on the maneuvers ``names``."""
-    effects = [e for e in effects if e.group == group]
-    y = cache.target(rows, names)
+def select_equation(cache: DesignCache, equation: int, effects: list[Effect], names: list[str],
+                    settings: SelectionSettings, label: str = "") -> EquationSelection:
+    """Stepwise forward selection among ``effects`` (those of ``equation``) on the maneuvers ``names``."""
+    effects = [e for e in effects if e.equation == equation]
+    y = cache.target(equation, names)
     n = len(y)
-    noise_var = cache.noise_variance(rows, names)
+    noise_var = cache.noise_variance(equation, names)
     active: list[Term] = []
-    grid_sizes = {e.name: len(e.grid(options, layout)) for e in effects}
+    grid_sizes = {e.name: len(e.grid()) for e in effects}
     rss_cur = float(y @ y)
     rss_none = rss_cur
     bic_cur = bic(rss_cur, n, 0)
     steps: list[SelectionStep] = []
-    while len(active) < settings.max_effects_per_group:
+    while len(active) < settings.max_effects_per_equation and n > 0:
         remaining = [e for e in effects if e.name not in {t.effect.name for t in active}]
         if not remaining:
             break
         rows_info = []
         for effect in remaining:
-            term, rss, _ = best_setting(cache, active, effect, rows, names, options, layout,
-                                        settings.refine_iterations)
+            term, rss, _ = best_setting(cache, active, effect, equation, names, settings.refine_iterations)
             k = sum(count_parameters(t, grid_sizes[t.effect.name]) for t in active + [term])
-            fit = fit_terms(cache, active + [term], rows, names)
+            fit = fit_terms(cache, active + [term], equation, names)
             error = effect.relative_error(fit.coefs[-1]) if fit.coefs and len(fit.coefs[-1]) else None
             rows_info.append({"effect": effect.name, "setting": term.setting, "rss": rss,
                               "relative_improvement": (rss_cur - rss) / rss_cur if rss_cur > 0 else 0.0,
@@ -345,53 +335,52 @@ def select_group(cache: DesignCache, group: str, rows: list[int], effects: list[
         steps.append(SelectionStep(
             candidates=[{k: v for k, v in r.items() if k != "term"} for r in rows_info],
             chosen=best["effect"] if reason == "accepted" else None, reason=reason))
-        LOGGER.info("selection %s step %d: best %s (rel. improvement %.3f, BIC %.1f -> %.1f): %s", group,
+        LOGGER.info("selection %s step %d: best %s (rel. improvement %.3f, BIC %.1f -> %.1f): %s", label or equation,
                     len(steps), best["effect"], best["relative_improvement"], bic_cur, best["bic"], reason)
         if reason != "accepted":
             break
         active.append(best["term"])
         rss_cur, bic_cur = best["rss"], best["bic"]
-    active = _polish(cache, active, rows, names, options, layout, settings)
-    fit = fit_terms(cache, active, rows, names)
+    active = _polish(cache, active, equation, names, settings)
+    fit = fit_terms(cache, active, equation, names)
     for term, coef in zip(active, fit.coefs):
         term.coef = coef
-    return GroupSelection(group=group, rows=rows, terms=active, fit=fit, rss_none=rss_none, n=n,
-                          noise_variance=noise_var, steps=steps)
+    return EquationSelection(equation=equation, terms=active, fit=fit, rss_none=rss_none, n=n,
+                             noise_variance=noise_var, steps=steps)
 
 
-def _polish(cache, active: list[Term], rows, names, options, layout, settings) -> list[Term]:
+def _polish(cache, active: list[Term], equation: int, names, settings) -> list[Term]:
     """Re-optimise each term's nonlinear setting with the others present (one pass)."""
     if len(active) < 2:
         return active
     polished = list(active)
     for j, term in enumerate(polished):
-        if len(term.effect.grid(options, layout)) <= 1 and not term.effect.continuous:
+        if len(term.effect.grid()) <= 1 and not term.effect.continuous:
             continue
         others = polished[:j] + polished[j + 1:]
-        new_term, _, _ = best_setting(cache, others, term.effect, rows, names, options, layout,
-                                      settings.refine_iterations)
+        new_term, _, _ = best_setting(cache, others, term.effect, equation, names, settings.refine_iterations)
         polished[j] = new_term
     return polished
 
 
-def drop_one_scores(cache: DesignCache, selection: GroupSelection, names: list[str]) -> dict[str, float]:
+def drop_one_scores(cache: DesignCache, selection: EquationSelection, names: list[str]) -> dict[str, float]:
     """Increase of the RSS when each chosen term is dropped, in units of the final residual variance."""
     scores = {}
     final = selection.fit
     variance = final.rss / max(final.n - sum(len(c) for c in final.coefs), 1)
     for j, term in enumerate(selection.terms):
         others = selection.terms[:j] + selection.terms[j + 1:]
-        rss = fit_terms(cache, others, selection.rows, names).rss
+        rss = fit_terms(cache, others, selection.equation, names).rss
         scores[term.effect.name] = (rss - final.rss) / max(variance, 1e-300)
     return scores
 
 
-def bootstrap_coefficients(cache: DesignCache, terms: list[Term], rows: list[int], names: list[str],
+def bootstrap_coefficients(cache: DesignCache, terms: list[Term], equation: int, names: list[str],
                            samples: int, seed: int) -> list[np.ndarray]:
     """Coefficients of ``terms`` refitted on bootstrap resamples of the segments: (samples, n_coef) per term."""
     if not terms or samples <= 0:
         return [np.zeros((0, len(t.coef))) for t in terms]
-    groups = cache.groups_of_rows(rows, names)
+    groups = cache.groups_of_rows(names)
     unique = np.unique(groups)
     members = {g: np.flatnonzero(groups == g) for g in unique}
     rng = np.random.default_rng(seed)
@@ -401,13 +390,13 @@ def bootstrap_coefficients(cache: DesignCache, terms: list[Term], rows: list[int
         index = np.concatenate([members[g] for g in chosen])
         # Rows of segments drawn several times count several times (weights = counts).
         counts = np.bincount(index, minlength=len(groups))
-        for j, coef in enumerate(_fit_weighted(cache, terms, rows, names, counts)):
+        for j, coef in enumerate(_fit_weighted(cache, terms, equation, names, counts)):
             draws[j].append(coef)
     return [np.array(d) for d in draws]
 
 
-def _fit_weighted(cache: DesignCache, terms: list[Term], rows, names, counts: np.ndarray) -> list[np.ndarray]:
-    y, design, sizes = stacked_design(cache, terms, rows, names)
+def _fit_weighted(cache: DesignCache, terms: list[Term], equation: int, names, counts: np.ndarray) -> list[np.ndarray]:
+    y, design, sizes = stacked_design(cache, terms, equation, names)
     weights = np.sqrt(counts.astype(float))
     if design.shape[1] == 0:
         return [np.zeros(0) for _ in terms]

@@ -1,0 +1,566 @@
+"""The library of candidate effects over roles, built from the case config for each examined equation.
+
+For the equation of state i (x = a measured state, u = an input, p = a model parameter; every
+coefficient c is in the equation's unit per regressor unit):
+
+==========================  ============================================================  =================
+name                        term in dx_i/dt                                               nonlinear setting
+==========================  ============================================================  =================
+``viscous(x)``              -c x  (linear damping / stiffness)                            -
+``quadratic(x)``            -c x|x|                                                        -
+``polynomial(x)``           c_2 x^2 (+ c_3 x^3)                                            degree
+``coulomb(x)``              -(c + c_s exp(-(x/v_s)^2)) tanh(x/eps)                          v_s (grid, refined)
+``coulomb(x)*|u|``          -(c + c_a s) |u| s, s = tanh(x/eps)                             asymmetric on/off
+``periodic(x)``             sum_m a_m sin(m k 2 pi x/P) + b_m cos(m k 2 pi x/P)            order k in 1..N
+``saturation_above(x)``     c max(0, x - x_c)                                              x_c (grid, refined)
+``saturation_below(x)``     c max(0, x_c - x)                                              x_c (grid, refined)
+``input_gain(u)``           g (df_i/du) u                                                  -
+``input_offset(u)``         o (df_i/du)                                                    -
+``time_offset(u)``          c [f_i(x, u(t + s)) - f_i(x, u)]  (offset c s)                  s (grid, refined)
+``time_offset(u1,u2,..)``   the same with all inputs shifted together                      s (grid, refined)
+``parameter(p)``            r p (df_i/dp)  (relative parameter error r)                    -
+==========================  ============================================================  =================
+
+eps (the Coulomb smoothing) and the Stribeck grid are relative to the state's spread
+(``diagnosis.effects.coulomb_smoothing_relative``, ``stribeck_relative``); periodic terms exist
+for the states of ``diagnosis.periodic`` ({state: period}); saturation thresholds are searched
+over quantiles of the state. Input effects exist where df_i/du is nonzero along the data, parameter
+effects where p df_i/dp is (candidates: ``diagnosis.parameters`` or every model parameter).
+Case plugins (``diagnosis.plugins``: module names) add effects through their
+``plugin_effects(problem, equation, options, inputs)`` function.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import importlib
+import logging
+import math
+from typing import Any
+
+import numpy as np
+
+from hybridfmu.config import ConfigError
+from hybridfmu.diagnosis.effects import Effect, EffectInputs, linear_estimate, param, smooth_sign
+from hybridfmu.diagnosis.problem import Problem
+
+LOGGER = logging.getLogger("hybridfmu.diagnosis")
+
+
+def _per(a: str, b: str) -> str:
+    if not b or b in ("1", "dimensionless"):
+        return a
+    return f"{a}/({b})" if " " in b or "/" in b else f"{a}/{b}"
+
+
+# ----------------------------------------------------------------------------- state functions
+
+class StateEffect(Effect):
+    """An effect that is a function of one measured state ``variable`` (index)."""
+
+    def __init__(self, problem: Problem, equation: int, variable: int, kind: str, description: str, formula: str,
+                 coefficient_unit: str):
+        self.variable = variable
+        self.problem = problem
+        self.kind = kind
+        var = problem.state_names[variable]
+        super().__init__(f"{kind}({var})", equation, description, formula.replace("x", var), coefficient_unit)
+
+
+class Viscous(StateEffect):
+    def __init__(self, problem, equation, variable):
+        var = problem.state_names[variable]
+        super().__init__(problem, equation, variable, "viscous", f"linear damping / stiffness in {var}", "-c * x",
+                         _per(problem.rate_unit(equation), problem.unit(var)))
+
+    def regressors(self, inputs, setting):
+        return -inputs.x[:, [self.variable]]
+
+    def row_function(self, coef, setting):
+        c, j = float(coef[0]), self.variable
+        return lambda x, u: -c * x[j]
+
+
+class Quadratic(StateEffect):
+    def __init__(self, problem, equation, variable):
+        var = problem.state_names[variable]
+        super().__init__(problem, equation, variable, "quadratic", f"quadratic damping in {var}", "-c * x|x|",
+                         _per(problem.rate_unit(equation), f"({problem.unit(var) or '1'})^2"))
+
+    def regressors(self, inputs, setting):
+        v = inputs.x_smooth[:, self.variable]
+        return (-v * np.abs(v))[:, None]
+
+    def row_function(self, coef, setting):
+        c, j = float(coef[0]), self.variable
+        return lambda x, u: -c * x[j] * abs(x[j])
+
+
+class Polynomial(StateEffect):
+    def __init__(self, problem, equation, variable, degrees):
+        var = problem.state_names[variable]
+        super().__init__(problem, equation, variable, "polynomial", f"polynomial (stiffness) terms of {var}",
+                         "c_2 x^2 + c_3 x^3", problem.rate_unit(equation) + " per power of the state")
+        self.degrees = [int(d) for d in degrees]
+
+    def grid(self):
+        return [{"degree": float(d)} for d in self.degrees]
+
+    def coefficient_names(self, setting):
+        return [f"c_{k}" for k in range(2, int(setting["degree"]) + 1)]
+
+    def regressors(self, inputs, setting):
+        v = inputs.x_smooth[:, self.variable]
+        return np.stack([v ** k for k in range(2, int(setting["degree"]) + 1)], axis=1)
+
+    def row_function(self, coef, setting):
+        cs, j = [float(c) for c in coef], self.variable
+        return lambda x, u: sum(c * x[j] ** (k + 2) for k, c in enumerate(cs))
+
+
+class Coulomb(StateEffect):
+    continuous = "stribeck_velocity"
+    log_scale = True
+
+    def __init__(self, problem, equation, variable, options):
+        var = problem.state_names[variable]
+        super().__init__(problem, equation, variable, "coulomb",
+                         f"Coulomb friction in {var} with a Stribeck peak near {var} = 0",
+                         "-(c + c_s exp(-(x/v_s)^2)) tanh(x/eps)", problem.rate_unit(equation))
+        spread = float(problem.spread[variable]) or 1.0
+        self.eps = float(options["coulomb_smoothing_relative"]) * spread
+        self.velocities = [float(r) * spread for r in options["stribeck_relative"]]
+        self.state_unit = problem.unit(var)
+
+    def grid(self):
+        return [{"stribeck_velocity": 0.0}] + [{"stribeck_velocity": v} for v in self.velocities]
+
+    def bounds(self):
+        return (min(self.velocities), max(self.velocities)) if self.velocities else None
+
+    def coefficient_names(self, setting):
+        return ["coulomb_level", "stribeck_excess"] if setting.get("stribeck_velocity", 0.0) > 0 else ["coulomb_level"]
+
+    def regressors(self, inputs, setting):
+        v = inputs.x_smooth[:, self.variable]
+        sign = smooth_sign(v, self.eps)
+        columns = [-sign]
+        v_s = setting.get("stribeck_velocity", 0.0)
+        if v_s > 0:
+            columns.append(-sign * np.exp(-(v / v_s) ** 2))
+        return np.stack(columns, axis=1)
+
+    def row_function(self, coef, setting):
+        j, eps = self.variable, self.eps
+        c = float(coef[0])
+        c_s = float(coef[1]) if len(coef) > 1 else 0.0
+        v_s = setting.get("stribeck_velocity", 0.0)
+        inv = 1.0 / v_s if v_s > 0 else 0.0
+        return lambda x, u: -(c + c_s * math.exp(-(x[j] * inv) ** 2)) * math.tanh(x[j] / eps)
+
+    def physical(self, coef, cov, setting, setting_se):
+        unit = self.coefficient_unit
+        out = [param("coulomb_level", *linear_estimate(coef, cov, [1.0] + [0.0] * (len(coef) - 1)), unit,
+                     "Coulomb friction level (in the equation's unit)")]
+        if len(coef) > 1:
+            out.append(param("breakaway_level", *linear_estimate(coef, cov, [1.0, 1.0]), unit,
+                             "friction level at zero (Coulomb + Stribeck peak)"))
+            out.append(param("stribeck_velocity", setting["stribeck_velocity"], setting_se.get("stribeck_velocity"),
+                             self.state_unit, "Stribeck velocity"))
+        out.append(param("smoothing", self.eps, None, self.state_unit, "tanh smoothing of the sign (fixed)"))
+        return out
+
+
+class ScaledCoulomb(Effect):
+    """Coulomb friction of a state proportional to an input's magnitude (e.g. load-dependent friction)."""
+
+    kind = "scaled_coulomb"
+
+    def __init__(self, problem, equation, variable, input_index, options):
+        var, inp = problem.state_names[variable], problem.input_names[input_index]
+        super().__init__(f"coulomb({var})*|{inp}|", equation,
+                         f"friction in {var} proportional to |{inp}| (optionally different for {var} > 0 and < 0)",
+                         f"-(c + c_a s) |{inp}| s, s = tanh({var}/eps)",
+                         _per(problem.rate_unit(equation), problem.unit(inp)))
+        self.variable, self.input = variable, input_index
+        self.eps = float(options["coulomb_smoothing_relative"]) * (float(problem.spread[variable]) or 1.0)
+
+    def grid(self):
+        return [{"asymmetric": 0.0}, {"asymmetric": 1.0}]
+
+    def coefficient_names(self, setting):
+        return ["coefficient", "asymmetry"] if setting.get("asymmetric") else ["coefficient"]
+
+    def regressors(self, inputs, setting):
+        s = smooth_sign(inputs.x_smooth[:, self.variable], self.eps)
+        load = np.abs(inputs.u[:, self.input])
+        columns = [-load * s] + ([-load * s * s] if setting.get("asymmetric") else [])
+        return np.stack(columns, axis=1)
+
+    def row_function(self, coef, setting):
+        j, k, eps = self.variable, self.input, self.eps
+        c = float(coef[0])
+        c_a = float(coef[1]) if len(coef) > 1 else 0.0
+
+        def term(x, u):
+            s = math.tanh(x[j] / eps)
+            return -(c + c_a * s) * abs(u[k]) * s
+        return term
+
+    def physical(self, coef, cov, setting, setting_se):
+        unit = self.coefficient_unit
+        if len(coef) == 1:
+            return [param("coefficient", *linear_estimate(coef, cov, [1.0]), unit, "friction per unit of |input|")]
+        return [param("coefficient_positive", *linear_estimate(coef, cov, [1.0, 1.0]), unit,
+                      "friction per unit of |input| while the state is positive"),
+                param("coefficient_negative", *linear_estimate(coef, cov, [1.0, -1.0]), unit,
+                      "friction per unit of |input| while the state is negative")]
+
+
+class Periodic(StateEffect):
+    def __init__(self, problem, equation, variable, period, options):
+        var = problem.state_names[variable]
+        super().__init__(problem, equation, variable, "periodic",
+                         f"term periodic in {var} (period {period:g} {problem.unit(var)} / order)",
+                         "sum_m a_m sin(m k 2 pi x / P) + b_m cos(m k 2 pi x / P)", problem.rate_unit(equation))
+        self.period = float(period)
+        self.max_order = int(options["periodic_max_order"])
+        self.harmonics = int(options["periodic_harmonics"])
+
+    def grid(self):
+        return [{"order": float(k)} for k in range(1, self.max_order + 1)]
+
+    def coefficient_names(self, setting):
+        k = int(setting["order"])
+        return [f"{f}_{m * k}" for m in range(1, self.harmonics + 1) for f in ("sin", "cos")]
+
+    def _phases(self, values: np.ndarray, setting) -> list[np.ndarray]:
+        k = int(setting["order"])
+        return [2.0 * math.pi * m * k * values / self.period for m in range(1, self.harmonics + 1)]
+
+    def regressors(self, inputs, setting):
+        columns = []
+        for phase in self._phases(inputs.x[:, self.variable], setting):
+            columns += [np.sin(phase), np.cos(phase)]
+        return np.stack(columns, axis=1)
+
+    def row_function(self, coef, setting):
+        j, k, scale = self.variable, int(setting["order"]), 2.0 * math.pi / self.period
+        pairs = [(m * k * scale, float(coef[2 * (m - 1)]), float(coef[2 * (m - 1) + 1]))
+                 for m in range(1, self.harmonics + 1)]
+        return lambda x, u: sum(a * math.sin(w * x[j]) + b * math.cos(w * x[j]) for w, a, b in pairs)
+
+    def physical(self, coef, cov, setting, setting_se):
+        k = int(setting["order"])
+        out = [param("order", k, None, "-", f"periods per {self.period:g} {self.problem.unit(self.problem.state_names[self.variable])}")]
+        for m in range(1, self.harmonics + 1):
+            a, b = float(coef[2 * (m - 1)]), float(coef[2 * (m - 1) + 1])
+            amplitude = math.hypot(a, b)
+            block = cov[2 * (m - 1):2 * m, 2 * (m - 1):2 * m] if cov.size else np.zeros((2, 2))
+            grad = np.array([a, b]) / amplitude if amplitude > 0 else np.zeros(2)
+            se = float(np.sqrt(max(grad @ block @ grad, 0.0)))
+            out.append(param(f"amplitude_{m * k}", amplitude, se, self.coefficient_unit,
+                             f"amplitude of the harmonic of order {m * k}"))
+            out.append(param(f"phase_{m * k}", math.atan2(b, a), None, "rad", "phase (sin reference)"))
+        return out
+
+
+class Saturation(StateEffect):
+    continuous = "threshold"
+
+    def __init__(self, problem, equation, variable, side, options):
+        var = problem.state_names[variable]
+        formula = "c max(0, x - x_c)" if side == "above" else "c max(0, x_c - x)"
+        super().__init__(problem, equation, variable, f"saturation_{side}",
+                         f"term that sets in when {var} is {side} a threshold (saturation, dead zone)", formula,
+                         _per(problem.rate_unit(equation), problem.unit(var)))
+        self.side = side
+        levels = problem.quantiles.get(var)
+        qs = [float(q) for q in options["saturation_quantiles"]]
+        self.thresholds = sorted({float(np.interp(q, np.linspace(0, 1, len(levels)), levels)) for q in qs}) \
+            if levels is not None and len(levels) else []
+        self.state_unit = problem.unit(var)
+
+    def grid(self):
+        return [{"threshold": t} for t in self.thresholds]
+
+    def bounds(self):
+        return (self.thresholds[0], self.thresholds[-1]) if self.thresholds else None
+
+    def regressors(self, inputs, setting):
+        v = inputs.x_smooth[:, self.variable]
+        c = setting["threshold"]
+        return (np.maximum(v - c, 0.0) if self.side == "above" else np.maximum(c - v, 0.0))[:, None]
+
+    def row_function(self, coef, setting):
+        c0, j, t = float(coef[0]), self.variable, setting["threshold"]
+        if self.side == "above":
+            return lambda x, u: c0 * max(x[j] - t, 0.0)
+        return lambda x, u: c0 * max(t - x[j], 0.0)
+
+    def physical(self, coef, cov, setting, setting_se):
+        return [param("slope", *linear_estimate(coef, cov, [1.0]), self.coefficient_unit, "slope beyond the threshold"),
+                param("threshold", setting["threshold"], setting_se.get("threshold"), self.state_unit,
+                      f"threshold ({self.side})")]
+
+
+# ----------------------------------------------------------------------------- inputs
+
+class InputEffect(Effect):
+    def __init__(self, problem, equation, input_index, kind, description, formula, unit):
+        self.input = input_index
+        self.kind = kind
+        super().__init__(f"{kind}({problem.input_names[input_index]})", equation, description, formula, unit)
+
+    def _column(self, inputs: EffectInputs) -> np.ndarray:
+        if inputs.dfdu is None:
+            raise RuntimeError(f"{self.name}: the input Jacobian along the data is missing")
+        return inputs.dfdu[:, self.equation, self.input]
+
+
+class InputGain(InputEffect):
+    def __init__(self, problem, equation, input_index):
+        name = problem.input_names[input_index]
+        super().__init__(problem, equation, input_index, "input_gain", f"gain error of input {name}",
+                         f"g * (df/d{name}) * {name}; the model should see (1 + g) {name}", "-")
+
+    def coefficient_names(self, setting):
+        return ["relative_gain_error"]
+
+    def regressors(self, inputs, setting):
+        return (self._column(inputs) * inputs.u[:, self.input])[:, None]
+
+    def input_change(self, coef, setting):
+        return {"input": self.input, "gain": float(coef[0]), "offset": 0.0, "shift_s": 0.0}
+
+
+class InputOffset(InputEffect):
+    def __init__(self, problem, equation, input_index):
+        name = problem.input_names[input_index]
+        super().__init__(problem, equation, input_index, "input_offset", f"constant offset of input {name}",
+                         f"o * (df/d{name}); the model should see {name} + o", problem.unit(name))
+
+    def coefficient_names(self, setting):
+        return ["offset"]
+
+    def regressors(self, inputs, setting):
+        return self._column(inputs)[:, None]
+
+    def input_change(self, coef, setting):
+        return {"input": self.input, "gain": 0.0, "offset": float(coef[0]), "shift_s": 0.0}
+
+
+class TimeOffset(InputEffect):
+    """Inputs offset in time: the response of the equation to u(t + s) - u(t), s searched on a grid and
+    refined, times a scale c (c = 1 at the true offset; for small s the term is linear in c s)."""
+
+    continuous = "shift_s"
+
+    def __init__(self, problem, equation, input_index, max_offset_s, columns=None, name=None):
+        label = problem.input_names[input_index] if columns is None else ",".join(problem.input_names)
+        super().__init__(problem, equation, input_index, "time_offset",
+                         f"input(s) {label} offset in time against the states",
+                         "c * [f(x, u(t + s)) - f(x, u(t))]; the model should see u(t + c s)", "-")
+        if name:
+            self.name = name
+        self.columns = [input_index] if columns is None else list(columns)
+        self.max_offset_s = float(max_offset_s)
+
+    def grid(self):
+        steps = [self.max_offset_s * k / 6.0 for k in range(1, 7)]
+        return [{"shift_s": v} for v in sorted([-s for s in steps] + steps)]
+
+    def bounds(self):
+        return (-self.max_offset_s, self.max_offset_s)
+
+    def coefficient_names(self, setting):
+        return ["scale"]
+
+    def regressors(self, inputs, setting):
+        delta = np.zeros_like(inputs.u)
+        shifted = inputs.shifted_inputs(setting["shift_s"])
+        delta[:, self.columns] = shifted[:, self.columns] - inputs.u[:, self.columns]
+        return np.einsum("mj,mj->m", inputs.dfdu[:, self.equation, :], delta)[:, None]
+
+    def physical(self, coef, cov, setting, setting_se):
+        shift = float(setting["shift_s"])
+        c, se = linear_estimate(coef, cov, [1.0])
+        return [param("offset_s", c * shift, abs(shift) * se, "s",
+                      "time by which the inputs lead: the model should see u(t + offset)"),
+                param("scale", c, se, "-", f"scale of the shifted response (1 at the true offset; searched shift "
+                                           f"{shift:.4g} s)")]
+
+    def input_change(self, coef, setting):
+        return {"input": self.columns if len(self.columns) > 1 else self.columns[0], "gain": 0.0, "offset": 0.0,
+                "shift_s": float(coef[0]) * float(setting["shift_s"])}
+
+
+def time_offset_all(problem, equation, max_offset_s):
+    """``time_offset(u1,u2,...)``: all inputs offset together."""
+    return TimeOffset(problem, equation, 0, max_offset_s, columns=list(range(problem.n_u)),
+                      name=f"time_offset({','.join(problem.input_names)})")
+
+
+# ----------------------------------------------------------------------------- parameters
+
+class ParameterError(Effect):
+    kind = "parameter"
+
+    def __init__(self, problem, equation, parameter):
+        self.parameter = parameter
+        self.value = float(problem.parameter_values.get(parameter, 0.0))
+        super().__init__(f"parameter({parameter})", equation, f"model parameter {parameter} differs from its value",
+                         f"r * {parameter} * df/d{parameter}", "-")
+
+    def coefficient_names(self, setting):
+        return ["relative_error"]
+
+    def regressors(self, inputs, setting):
+        sens = inputs.sensitivity(self.parameter)
+        if sens is None:
+            return np.zeros((inputs.n, 1))
+        return sens[:, [self.equation]]
+
+    def relative_error(self, coef):
+        return float(coef[0])
+
+    def physical(self, coef, cov, setting, setting_se):
+        r, se = linear_estimate(coef, cov, [1.0])
+        return [param("relative_error", r, se, "-", f"({self.parameter}_true - {self.parameter}) / {self.parameter}"),
+                param("corrected_value", self.value * (1.0 + r), abs(self.value) * se, "",
+                      f"{self.parameter} implied by the fit (model value {self.value:g})")]
+
+    def parameter_change(self, coef, setting):
+        return self.parameter, self.value * (1.0 + float(coef[0]))
+
+
+# ----------------------------------------------------------------------------- building the library
+
+def _nonzero(values: np.ndarray | None, reference: float) -> bool:
+    if values is None:
+        return False
+    values = values[np.isfinite(values)]
+    return bool(values.size) and float(np.max(np.abs(values))) > 1e-9 * max(reference, 1e-300)
+
+
+def _matches(name: str, patterns: list[str]) -> bool:
+    return any(fnmatch.fnmatchcase(name, p) for p in patterns)
+
+
+def load_plugins(settings: dict[str, Any]) -> list[tuple[Any, dict[str, Any]]]:
+    """The case plugins (``diagnosis.plugins``) with their options (``diagnosis.plugin_options[module]``).
+
+    Raises:
+        ConfigError: a plugin cannot be imported or has no ``plugin_effects`` function.
+    """
+    out = []
+    for name in settings.get("plugins") or []:
+        try:
+            module = importlib.import_module(name)
+        except ImportError as err:
+            raise ConfigError(f"config.diagnosis.plugins: cannot import {name!r}: {err}") from None
+        if not hasattr(module, "plugin_effects"):
+            raise ConfigError(f"config.diagnosis.plugins: {name!r} has no function plugin_effects(problem, equation, "
+                              "options, inputs)")
+        out.append((module, dict((settings.get("plugin_options") or {}).get(name) or {})))
+    return out
+
+
+def build_library(problem: Problem, inputs: EffectInputs, model: Any) -> tuple[dict[int, list[Effect]], dict[str, str]]:
+    """Candidate effects for each examined equation, and why candidates were left out.
+
+    Args:
+        problem: the problem (spreads and quantiles set).
+        inputs: effect inputs along one fitting maneuver (to find nonzero input/parameter sensitivities).
+        model: the model (its parameter names).
+
+    Returns:
+        ({equation index: [effects]}, {"<effect> in d<state>/dt": reason}).
+    """
+    settings = problem.settings
+    options = settings["effects"]
+    kinds = set(options.get("kinds") or [])
+    unknown = kinds - set(DEFAULT_KINDS)
+    if unknown:
+        raise ConfigError(f"config.diagnosis.effects.kinds: unknown {sorted(unknown)}; expected some of {DEFAULT_KINDS}")
+    include = list(settings.get("candidates") or [])
+    exclude = list(settings.get("exclude") or [])
+    parameters = settings.get("parameters")
+    model_parameters = list(getattr(model, "parameter_names", []))
+    if parameters is not None:
+        missing = [p for p in parameters if p not in model_parameters]
+        if missing:
+            raise ConfigError(f"config.diagnosis.parameters: {missing} are not parameters of the model "
+                              f"{model_parameters}")
+    else:
+        parameters = model_parameters
+    plugins = load_plugins(settings)
+    from hybridfmu.diagnosis.prepare import kernel_samples
+
+    # largest input time offset searched: config, else one kernel length
+    max_offset_s = float(options.get("max_time_offset_s") or kernel_samples(problem, problem.dt_s) * problem.dt_s)
+    library: dict[int, list[Effect]] = {}
+    skipped: dict[str, str] = {}
+    rate_scale = np.max(np.abs(inputs.f), axis=0) if inputs.n else np.ones(problem.n_x)
+    for eq in problem.equations:
+        effects: list[Effect] = []
+        for j in problem.measured:
+            if "viscous" in kinds:
+                effects.append(Viscous(problem, eq, j))
+            if "quadratic" in kinds:
+                effects.append(Quadratic(problem, eq, j))
+            if "polynomial" in kinds and options.get("polynomial_degrees"):
+                effects.append(Polynomial(problem, eq, j, options["polynomial_degrees"]))
+            if "coulomb" in kinds:
+                effects.append(Coulomb(problem, eq, j, options))
+            if "saturation" in kinds:
+                effects += [Saturation(problem, eq, j, "above", options), Saturation(problem, eq, j, "below", options)]
+            if "periodic" in kinds and j in problem.periodic:
+                effects.append(Periodic(problem, eq, j, problem.periodic[j], options))
+            if "scaled_coulomb" in kinds:
+                effects += [ScaledCoulomb(problem, eq, j, k, options) for k in range(problem.n_u)]
+        active_inputs = []
+        for k, name in enumerate(problem.input_names):
+            column = inputs.dfdu[:, eq, k] if inputs.dfdu is not None else None
+            if not _nonzero(column * np.maximum(np.abs(inputs.u[:, k]), 1.0) if column is not None else None,
+                            float(rate_scale[eq])):
+                skipped[f"input effects of {name} in d{problem.state_names[eq]}/dt"] = \
+                    f"d(d{problem.state_names[eq]}/dt)/d{name} is zero along the data"
+                continue
+            active_inputs.append(k)
+            if "input_gain" in kinds:
+                effects.append(InputGain(problem, eq, k))
+            if "input_offset" in kinds:
+                effects.append(InputOffset(problem, eq, k))
+            if "time_offset" in kinds:
+                effects.append(TimeOffset(problem, eq, k, max_offset_s))
+        if "time_offset" in kinds and len(active_inputs) > 1:
+            effects.append(time_offset_all(problem, eq, max_offset_s))
+        if "parameter" in kinds:
+            for name in parameters:
+                sens = inputs.sensitivity(name)
+                if sens is None or not _nonzero(sens[:, eq], float(rate_scale[eq])):
+                    skipped[f"parameter({name}) in d{problem.state_names[eq]}/dt"] = \
+                        "no sensitivity along the data" if sens is not None else "the model rejects a perturbed value"
+                    continue
+                effects.append(ParameterError(problem, eq, name))
+        for module, plugin_options in plugins:
+            effects += list(module.plugin_effects(problem, eq, plugin_options, inputs))
+        kept = []
+        for effect in effects:
+            if include and not _matches(effect.name, include):
+                continue
+            if _matches(effect.name, exclude):
+                skipped[f"{effect.name} in d{problem.state_names[eq]}/dt"] = "excluded by config.diagnosis.exclude"
+                continue
+            if not effect.grid():
+                skipped[f"{effect.name} in d{problem.state_names[eq]}/dt"] = "empty grid of settings"
+                continue
+            kept.append(effect)
+        library[eq] = kept
+        LOGGER.info("equation d%s/dt: %d candidate effects", problem.state_names[eq], len(kept))
+    return library, skipped
+
+
+DEFAULT_KINDS = ["viscous", "quadratic", "polynomial", "coulomb", "scaled_coulomb", "periodic", "saturation",
+                 "input_gain", "input_offset", "time_offset", "parameter"]
