@@ -127,3 +127,18 @@ def test_two_training_processes_log_everything(tmp_path):
         assert {"rung1/model", "rung1/training_curve.png"} <= artifacts
         model_files = {a.path for a in client.list_artifacts(run_id, "rung1/model")}
         assert model_files == {"rung1/model/state_dict.pt", "rung1/model/model_info.json"}
+
+
+def test_keys_with_characters_mlflow_refuses_are_logged_under_a_safe_name(tmp_path):
+    from mlflow.tracking import MlflowClient
+
+    from hybridfmu.tracking.mlflow_store import Tracker, mlflow_key
+
+    assert mlflow_key("x2.parameter(k2).relative_error") == "x2.parameter_k2_.relative_error"
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    tracker = Tracker(uri)
+    run_id = tracker.call("create_run", tracker.experiment_id("keys")).info.run_id
+    tracker.log(run_id, params={"time_offset(u1,u2)": 1.0}, metrics=[("gap/coulomb(v)*|u|", 0.5, 0)])
+    logged = MlflowClient(tracking_uri=uri).get_run(run_id).data
+    assert logged.params == {"time_offset_u1_u2_": "1.0"}
+    assert logged.metrics == {"gap/coulomb_v___u_": 0.5}

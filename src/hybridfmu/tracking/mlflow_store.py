@@ -13,6 +13,7 @@ import contextlib
 import fcntl
 import logging
 import random
+import re
 import subprocess
 import time
 from pathlib import Path
@@ -75,6 +76,15 @@ def git_commit(directory: str | Path | None = None) -> str | None:
     except (OSError, subprocess.SubprocessError):
         return None
     return out.stdout.strip() or None if out.returncode == 0 else None
+
+
+_MLFLOW_KEY_INVALID = re.compile(r"[^A-Za-z0-9_\-. :/]")
+
+
+def mlflow_key(name: str) -> str:
+    """A param/metric/tag key MLflow accepts: characters other than letters, digits, ``_ - . : /`` and
+    spaces become ``_`` (effect names such as ``parameter(k2)`` or ``time_offset(u1,u2)`` carry others)."""
+    return _MLFLOW_KEY_INVALID.sub("_", str(name))[:250]
 
 
 class Tracker:
@@ -141,9 +151,9 @@ class Tracker:
         from mlflow.entities import Metric, Param, RunTag
 
         timestamp = int(time.time() * 1000)
-        params = [Param(k, str(v)[:6000]) for k, v in (params or {}).items()]
-        tags = [RunTag(k, str(v)[:5000]) for k, v in (tags or {}).items()]
-        metric_rows = [Metric(k, float(v), timestamp, int(step)) for k, v, step in (metrics or [])]
+        params = [Param(mlflow_key(k), str(v)[:6000]) for k, v in (params or {}).items()]
+        tags = [RunTag(mlflow_key(k), str(v)[:5000]) for k, v in (tags or {}).items()]
+        metric_rows = [Metric(mlflow_key(k), float(v), timestamp, int(step)) for k, v, step in (metrics or [])]
         for start in range(0, max(len(params), 1), 100):
             chunk = params[start:start + 100]
             if chunk or start == 0:
