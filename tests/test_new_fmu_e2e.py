@@ -81,3 +81,85 @@ def simulate_log(rng: np.random.Generator, duration_s: float) -> pd.DataFrame:
         "position_mm": np.asarray(positions) * 1e3 + rng.normal(0.0, 0.01, time_s.size),
         "velocity_mps": np.asarray(velocities) + rng.normal(0.0, 0.002, time_s.size),
     })
+
+
+def case_config(root: Path, fmu: Path, logs: dict[str, Path]) -> dict:
+    """The case config a user would write for this FMU and these logs (nothing else is needed)."""
+    return {
+        "case": "massspring",
+        "results_dir": str(root / "results"),
+        "seed": 5,
+        "fmu": {"source": "path", "model_name": "MassSpring", "path": str(fmu)},
+        "maneuvers": {name: {"role": name, "raw": str(path)} for name, path in logs.items()},
+        "signals": {
+            "force": {"channel": "force_n", "unit": "N", "label": "applied force"},
+            "position": {"channel": "position_mm", "unit": "mm", "label": "position"},
+            "velocity": {"channel": "velocity_mps", "unit": "m/s", "label": "velocity"},
+        },
+        "roles": {"inputs": {"force": "force"}, "states": {"x": "position", "v": "velocity"},
+                  "targets": {"x": 0.5, "v": 0.5}},
+        "ingest": {"rate_hz": RATE_HZ, "time": {"channel": "time_ms", "unit": "ms"}},
+        "model": {"corrected_states": ["v"], "end_stop": None,
+                  "input_delay": {"min_s": -0.004, "max_s": 0.004, "init_s": 0.0, "scale_s": 0.002}},
+        "training": {"batch_windows": 4, "validation_every_s": None},
+        "hpo": {"R": 3, "eta": 3, "max_resource_s": 60.0, "objective": {"loss": "MAE"},
+                "search_space": {
+                    "lr": {"distribution": "loguniform", "low": 3e-3, "high": 1e-2},
+                    "beta1": {"distribution": "fixed", "value": 0.9},
+                    "beta2": {"distribution": "fixed", "value": 0.999},
+                    "window_s": {"distribution": "uniform", "low": 0.2, "high": 0.5},
+                    "loss": {"distribution": "fixed", "value": "MAE"},
+                    "width": {"distribution": "fixed", "value": 16},
+                    "depth": {"distribution": "fixed", "value": 2},
+                    "gate_opening": {"distribution": "fixed", "value": 0.3}}},
+        "evaluation": {"zoom": {"length_s": 0.5, "criterion": "mse"},
+                       "time_offset": {"length_s": 0.5, "max_lag_s": 0.004}, "plot": {"dpi": 60}},
+        "diagnosis": {"kernel_s": 0.02, "smoothing_s": 0.01, "bootstrap_block_s": 0.5,
+                      "open_loop": {"window_s": 0.5}, "selection": {"bootstrap_samples": 20}},
+    }
+
+
+@pytest.fixture(scope="module")
+def mass_spring_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("mass_spring")
+    fmu = build_fmu_from_description(FIXTURE, root / "MassSpring.fmu")
+    rng = np.random.default_rng(3)
+    logs = {}
+    for name, duration_s in (("train", 6.0), ("validation", 4.0), ("test", 4.0)):
+        logs[name] = root / "logs" / f"{name}.csv"
+        logs[name].parent.mkdir(exist_ok=True)
+        simulate_log(rng, duration_s).to_csv(logs[name], index=False)
+    configfile = root / "massspring.yaml"
+    configfile.write_text(yaml.safe_dump(case_config(root, fmu, logs), sort_keys=False))
+    command = [sys.executable, "-m", "snakemake", "-j2", "--snakefile", str(REPO / "Snakefile"),
+               "--directory", str(root), "--configfile", str(configfile), "--nocolor"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    result = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=900, env=env)
+    assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-8000:]
+    return root / "results" / "massspring"
+
+
+def test_every_stage_runs_on_the_new_fmu(mass_spring_run):
+    results = mass_spring_run
+    frame = pd.read_parquet(results / "data" / "train.parquet")
+    assert list(frame.columns) == ["time_s", "force", "position", "velocity"]
+    # logged in mm, ingested in the FMU's declared unit (m)
+    assert 0.005 < frame["position"].abs().max() < 1.0
+    for name in ("calibration/calibration.json", "hpo/best.json", "report.md", "diagnosis/report.md",
+                 "figures/test_position.png", "figures/test_velocity.png"):
+        assert (results / name).is_file(), name
+
+
+def test_the_neural_fmu_beats_the_fmu_on_unseen_data(mass_spring_run):
+    metrics = json.loads((mass_spring_run / "metrics" / "test.json").read_text())
+    assert set(metrics["fmu"]) == {f"{s}_{m}" for s in ("position", "velocity") for m in ("mae", "mse", "rmse")}
+    assert metrics["neural_fmu"]["position_rmse"] < metrics["fmu"]["position_rmse"]
+    assert metrics["neural_fmu"]["velocity_rmse"] < metrics["fmu"]["velocity_rmse"]
+
+
+def test_the_diagnosis_finds_the_friction_the_fmu_lacks(mass_spring_run):
+    record = json.loads((mass_spring_run / "diagnosis" / "diagnosis.json").read_text())
+    found = record["which"]["found_effects"]
+    assert found and found[0].startswith("coulomb(v)"), found
+    far = record["how_far"]
+    assert far["after"]["position_rmse"] < 0.5 * far["before"]["position_rmse"]

@@ -550,7 +550,7 @@ def build_library(problem: Problem, inputs: EffectInputs, model: Any) -> tuple[d
         for effect in effects:
             if include and not _matches(effect.name, include):
                 continue
-            if _matches(effect.name, exclude):
+            if _matches(effect.name, exclude) or _matches(f"{problem.state_names[eq]}:{effect.name}", exclude):
                 skipped[f"{effect.name} in d{problem.state_names[eq]}/dt"] = "excluded by config.diagnosis.exclude"
                 continue
             if not effect.grid():

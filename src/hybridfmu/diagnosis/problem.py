@@ -41,7 +41,7 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "periodic": {},                   # state -> period (state units)
     "parameters": None,               # None: every model parameter with a nonzero sensitivity
     "candidates": [],                 # fnmatch patterns of effect names to try; empty: all
-    "exclude": [],                    # fnmatch patterns of effect names never tried
+    "exclude": [],                    # fnmatch patterns of effect names ("<state>:<pattern>": one equation)
     "effects": {},
     "plugins": [],
     "plugin_options": {},
