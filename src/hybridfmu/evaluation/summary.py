@@ -1,0 +1,119 @@
+"""The measured figures of one case's run, as the README quotes them, and the README's update from them.
+
+Rule ``summary`` renders ``{RESULTS}/summary.md`` from the run's own outputs: the open-loop test errors
+of the (calibrated) FMU, the neural FMU and the diagnosis-corrected FMU per target signal, and the
+improvement factors. ``python -m hybridfmu.evaluation.summary README.md results/<case> ...`` copies
+each case's ``summary.md`` into the README between the markers
+``<!-- measured:<case> -->`` and ``<!-- /measured:<case> -->``, so no measured number in the README is
+typed by hand.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+from hybridfmu.io import atomic_path, read_json
+
+
+def _number(value: Any) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    return f"{float(value):.4g}"
+
+
+def _factor(reference: Any, candidate: Any) -> str:
+    if reference is None or candidate in (None, 0):
+        return "–"
+    return f"×{float(reference) / float(candidate):.3g}"
+
+
+def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, Any] | None,
+                 units: dict[str, str]) -> str:
+    """Markdown lines quoting one run's test figures.
+
+    Args:
+        case: case name.
+        test_metrics: ``metrics/test.json`` (objects ``fmu`` and ``neural_fmu`` with ``<signal>_<measure>``,
+            list ``signals``).
+        diagnosis: ``diagnosis/diagnosis.json`` (``how_far.before/after`` with ``<signal>_rmse``), or None.
+        units: signal -> unit ("" for dimensionless).
+
+    Returns:
+        A table: one row per target signal and model with RMSE and MAE on the whole test record, and
+        the factor by which each model's RMSE is below the FMU's.
+    """
+    far = (diagnosis or {}).get("how_far") or {}
+    effects = ", ".join((diagnosis or {}).get("which", {}).get("found_effects", [])) or "none"
+    lines = [f"Case `{case}`, test maneuver(s) {', '.join(test_metrics.get('maneuvers', [])) or ''}, "
+             f"open loop over the whole record ({_number(test_metrics.get('duration_s'))} s):", "",
+             "| signal | model | RMSE | MAE | RMSE vs FMU |", "|---|---|---|---|---|"]
+    for signal in test_metrics["signals"]:
+        unit = f" {units.get(signal, '')}".rstrip()
+        fmu = test_metrics["fmu"]
+        rows = [("FMU", fmu), ("neural FMU", test_metrics["neural_fmu"])]
+        if far.get("after"):
+            rows.append((f"FMU + diagnosed effects ({effects})", far["after"]))
+        for label, values in rows:
+            rmse, mae = values.get(f"{signal}_rmse"), values.get(f"{signal}_mae")
+            lines.append(f"| {signal} | {label} | {_number(rmse)}{unit} | {_number(mae)}{unit} | "
+                         f"{_factor(fmu.get(f'{signal}_rmse'), rmse)} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_case_summary(out_path: str | Path, case: str, test_metrics_path: str | Path,
+                       diagnosis_path: str | Path | None, units: dict[str, str]) -> Path:
+    """Render :func:`case_summary` from the run's files and write it atomically."""
+    diagnosis = read_json(diagnosis_path) if diagnosis_path else None
+    text = case_summary(case, read_json(test_metrics_path), diagnosis, units)
+    with atomic_path(out_path) as tmp:
+        Path(tmp).write_text(text)
+    return Path(out_path)
+
+
+def replace_block(document: str, case: str, block: str) -> str:
+    """``document`` with the text between the case's markers replaced by ``block``.
+
+    Raises:
+        ValueError: the document has no (or an unterminated) block for ``case``.
+    """
+    start, end = f"<!-- measured:{case} -->", f"<!-- /measured:{case} -->"
+    pattern = re.compile(re.escape(start) + r".*?" + re.escape(end), re.DOTALL)
+    if not pattern.search(document):
+        raise ValueError(f"no block {start} ... {end} in the document; add both markers where the figures go")
+    return pattern.sub(lambda _: f"{start}\n{block.rstrip()}\n{end}", document, count=1)
+
+
+def update_readme(readme_path: str | Path, case_dirs: list[str | Path]) -> Path:
+    """Copy ``<case_dir>/summary.md`` of each case into the README's block of that case (atomic write).
+
+    Raises:
+        FileNotFoundError: a case has no ``summary.md`` (run its workflow first); names the file.
+    """
+    readme_path = Path(readme_path)
+    document = readme_path.read_text()
+    for case_dir in case_dirs:
+        case_dir = Path(case_dir)
+        summary = case_dir / "summary.md"
+        if not summary.is_file():
+            raise FileNotFoundError(f"{summary}: no summary of case {case_dir.name}; run its workflow first")
+        document = replace_block(document, case_dir.name, summary.read_text())
+    with atomic_path(readme_path) as tmp:
+        Path(tmp).write_text(document)
+    return readme_path
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="Copy the measured figures of finished runs into the README.")
+    parser.add_argument("readme", help="README.md")
+    parser.add_argument("case_dirs", nargs="+", help="results/<case> folders with a summary.md")
+    args = parser.parse_args(argv)
+    update_readme(args.readme, args.case_dirs)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

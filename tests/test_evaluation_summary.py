@@ -1,0 +1,41 @@
+"""The README's measured figures: rendered from a run's metrics and diagnosis, copied between markers."""
+
+import pytest
+
+from hybridfmu.evaluation.summary import case_summary, replace_block, update_readme
+
+TEST_METRICS = {"maneuvers": ["test"], "duration_s": 4092.0, "signals": ["level"],
+                "fmu": {"level_rmse": 0.76, "level_mae": 0.58}, "neural_fmu": {"level_rmse": 0.38, "level_mae": 0.3}}
+DIAGNOSIS = {"which": {"found_effects": ["saturation_above(x2)"]},
+             "how_far": {"before": {"level_rmse": 0.76}, "after": {"level_rmse": 0.19, "level_mae": 0.1}}}
+
+
+def test_summary_quotes_each_model_with_its_factor_against_the_fmu():
+    text = case_summary("tanks", TEST_METRICS, DIAGNOSIS, {"level": "V"})
+    assert "| level | FMU | 0.76 V | 0.58 V | ×1 |" in text
+    assert "| level | neural FMU | 0.38 V | 0.3 V | ×2 |" in text
+    assert "| level | FMU + diagnosed effects (saturation_above(x2)) | 0.19 V | 0.1 V | ×4 |" in text
+
+
+def test_summary_without_diagnosis_has_no_corrected_row():
+    text = case_summary("tanks", TEST_METRICS, None, {"level": "V"})
+    assert "diagnosed" not in text and text.count("| level |") == 2
+
+
+def test_readme_block_is_replaced_between_its_markers_only(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text("intro\n<!-- measured:tanks -->\nold 1.0\n<!-- /measured:tanks -->\nrest\n")
+    case_dir = tmp_path / "results" / "tanks"
+    case_dir.mkdir(parents=True)
+    (case_dir / "summary.md").write_text("new 2.0\n")
+    update_readme(readme, [case_dir])
+    assert readme.read_text() == "intro\n<!-- measured:tanks -->\nnew 2.0\n<!-- /measured:tanks -->\nrest\n"
+
+
+def test_missing_markers_and_missing_summary_are_named(tmp_path):
+    with pytest.raises(ValueError, match="measured:ipb"):
+        replace_block("no markers here", "ipb", "x")
+    readme = tmp_path / "README.md"
+    readme.write_text("<!-- measured:ipb -->\n<!-- /measured:ipb -->\n")
+    with pytest.raises(FileNotFoundError, match="summary.md"):
+        update_readme(readme, [tmp_path / "ipb"])

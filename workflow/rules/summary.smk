@@ -1,0 +1,20 @@
+# The run's measured test figures as the README quotes them (rule summary); copy them into the README
+# with `python -m hybridfmu.evaluation.summary README.md results/<case>`.
+
+if "test" in EVAL_ROLES:
+
+    rule summary:
+        input:
+            test_metrics=f"{RESULTS}/metrics/test.json",
+            diagnosis=f"{DIAGNOSIS}/diagnosis.json",
+        output:
+            summary=f"{RESULTS}/summary.md",
+        params:
+            case=CASE,
+            case_sections=case_sections(),
+        log:
+            f"{RESULTS}/logs/summary/summary.log",
+        script:
+            "../scripts/summary.py"
+
+    ALL_TARGETS.append(f"{RESULTS}/summary.md")

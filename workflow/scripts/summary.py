@@ -1,0 +1,10 @@
+"""Rule summary: the run's measured test figures as the README quotes them."""
+
+from hybridfmu.case import case_roles
+from hybridfmu.evaluation.summary import write_case_summary
+from hybridfmu.progress import setup_rule_logging
+
+setup_rule_logging(snakemake.log[0])
+roles = case_roles(snakemake.params.case_sections)
+write_case_summary(snakemake.output.summary, snakemake.params.case, snakemake.input.test_metrics,
+                   snakemake.input.get("diagnosis"), {name: s.unit for name, s in roles.signals.items()})
