@@ -47,7 +47,7 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
         the factor by which each model's RMSE is below the FMU's.
     """
     far = (diagnosis or {}).get("how_far") or {}
-    effects = ", ".join((diagnosis or {}).get("which", {}).get("found_effects", [])) or "none"
+    effects = (", ".join((diagnosis or {}).get("which", {}).get("found_effects", [])) or "none").replace("|", "\\|")
     lines = [f"Case `{case}`, test maneuver(s) {', '.join(test_metrics.get('maneuvers', [])) or ''}, "
              f"open loop over the whole record ({_number(test_metrics.get('duration_s'))} s):", "",
              "| signal | model | RMSE | MAE | RMSE vs FMU |", "|---|---|---|---|---|"]
