@@ -181,8 +181,9 @@ def test_cogging_torque_is_periodic_in_the_angle_and_ripples_the_speed():
                                                       np.ones_like(phase)]) @ fit) / np.var(ripple)
     # amplitude of a torque ripple T sin(24 theta) on an inertia at speed w: T / (J 24 w)
     expected = 0.02 / (NOMINAL_PARAMETERS["J"] * 24 * np.mean(run["omega"][tail]))
-    assert explained > 0.9
-    assert np.hypot(fit[0], fit[1]) == pytest.approx(expected, rel=0.3)
+    # measured: the 24th-order sine explains 1 - 3e-8 of the ripple; its amplitude is 1.017 x the expected one
+    assert explained > 0.999
+    assert np.hypot(fit[0], fit[1]) == pytest.approx(expected, rel=0.05)
 
 
 def test_inverter_deadtime_lowers_the_effective_voltage():

@@ -18,13 +18,16 @@ REPO = Path(__file__).resolve().parents[1]
 
 @pytest.mark.slow
 def test_ingest_and_select_segments_rules(tmp_path):
-    raw = write_mdf(tmp_path / "logs" / "run1.mf4", raw_signals(duration_s=2.0))
+    raw = write_mdf(tmp_path / "logs" / "run1.mf4", raw_signals(duration_s=3.6))
     case = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
     case["case"] = "datacase"
     case["results_dir"] = str(tmp_path / "results")
     case["maneuvers"] = {name: {"role": role, "raw": str(raw)}  # a case needs all three roles
                          for name, role in [("run1", "train"), ("run2", "validation"), ("run3", "test")]}
-    case["maneuvers"]["run3"].update(t_start_s=0.5, t_end_s=1.5)  # a slice of the log
+    # one log, split into slices that do not overlap (data of one role must not be data of another)
+    case["maneuvers"]["run1"].update(t_end_s=2.0)
+    case["maneuvers"]["run2"].update(t_start_s=2.0, t_end_s=2.5)
+    case["maneuvers"]["run3"].update(t_start_s=2.5, t_end_s=3.5)
     case.pop("bench", None)  # a user's case: its own logs, no emulated bench
     config_path = tmp_path / "case.yaml"
     config_path.write_text(yaml.safe_dump(case))

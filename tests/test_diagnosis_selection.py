@@ -60,7 +60,7 @@ def test_an_input_time_offset_is_named_with_its_size():
     measured = msd_maneuvers(None, duration_s=20.0, input_delay_s=0.03)
     result = run_diagnosis(problem, model, measured, open_loop=False)
     assert _names(result) == ["time_offset(F)"]
-    assert _param(result, "offset_s") == pytest.approx(0.03, rel=0.2)
+    assert _param(result, "offset_s") == pytest.approx(0.03, rel=0.01)  # measured 0.0300007 s
 
 
 def test_nothing_is_named_when_the_model_is_right():

@@ -29,7 +29,8 @@ def write_best(tmp_path, fmu_path, gate_opening: float):
         spec = model_spec(model_config, fmu, STEP_S, 8, 2, gate_opening)
         model = build_neural_fmu(FmuRhs(fmu), spec, None, seed=5)
         checkpoint = tmp_path / f"best_{gate_opening}.pt"
-        torch.save({"format": CHECKPOINT_FORMAT, "spec": spec.to_dict(), "model": model.state_dict()}, checkpoint)
+        torch.save({"format": CHECKPOINT_FORMAT, "status": "ok", "bracket": 0, "rung": 0, "config": 0,
+                    "validations": [], "spec": spec.to_dict(), "model": model.state_dict()}, checkpoint)
     best = tmp_path / f"best_{gate_opening}.json"
     best.write_text(json.dumps({"trial_id": "b0c0", "hyperparameters": {"width": 8, "depth": 2},
                                 "checkpoint": str(checkpoint), "mlflow_run_id": None}))

@@ -41,3 +41,31 @@ def test_evaluation_run_records_metrics_and_artifacts(tmp_path):
     artifacts = {a.path for a in client.list_artifacts(info["run_id"])}
     assert {"metrics", "figures", "report.md"} <= artifacts
     assert [a.path for a in client.list_artifacts(info["run_id"], "figures")] == ["figures/fig.png"]
+
+
+def test_evaluation_run_names_its_process_and_ends_runs_of_dead_jobs(tmp_path):
+    """An evaluation killed mid-way leaves its run RUNNING; the next evaluation ends it as KILLED."""
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    from mlflow.tracking import MlflowClient
+
+    from hybridfmu.tracking import Tracker
+    from hybridfmu.tracking.jobs import process_start
+
+    uri, experiment = resolve_tracking({}, tmp_path, "tiny")
+    tracker = Tracker(uri)
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(0.3)"])
+    start = process_start(child.pid)
+    child.wait()
+    stale = tracker.call("create_run", tracker.experiment_id(experiment), tags={
+        "hybridfmu.role": "evaluation", "hybridfmu.host": socket.gethostname(), "hybridfmu.pid": str(child.pid),
+        "hybridfmu.pid_start": str(start)}).info.run_id
+    metrics = {"test": {"fmu": {"angle_mae": 2.0}, "neural_fmu": {"angle_mae": 1.0}, "improvement": {"angle_mae": 2.0}}}
+    info = log_evaluation_run(tmp_path / "run.json", uri, experiment, metrics, [], {}, None, "tiny")
+    client = MlflowClient(tracking_uri=uri)
+    assert client.get_run(stale).info.status == "KILLED"
+    assert "is gone" in client.get_run(stale).data.tags["hybridfmu.ended_reason"]
+    assert client.get_run(info["run_id"]).data.tags["hybridfmu.pid"] == str(os.getpid())

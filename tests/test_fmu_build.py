@@ -5,6 +5,7 @@ from __future__ import annotations
 import ctypes
 import os
 import subprocess
+import sys
 import zipfile
 from pathlib import Path
 
@@ -102,16 +103,29 @@ def test_missing_compiler_is_reported(tmp_path, monkeypatch):
         build_fmu("Oscillator", tmp_path / "Oscillator.fmu")
 
 
+def path_with_a_foreign_python_first(tmp_path: Path) -> dict[str, str]:
+    """The environment with a folder first on PATH whose ``python`` is not this interpreter (it
+    fails), as when the test environment's interpreter is not first on PATH."""
+    folder = tmp_path / "foreign-bin"
+    folder.mkdir()
+    foreign = folder / "python"
+    foreign.write_text("#!/bin/sh\necho 'not the test interpreter' >&2\nexit 97\n")
+    foreign.chmod(0o755)
+    return {**os.environ, "PATH": f"{folder}{os.pathsep}{os.environ.get('PATH', '')}"}
+
+
 def test_command_line_builds(tmp_path):
     out = tmp_path / "cli" / "Oscillator.fmu"
+    env = path_with_a_foreign_python_first(tmp_path)
     result = subprocess.run(
-        ["python", "-m", "hybridfmu.fmu.build", "Oscillator", str(out)], capture_output=True, text=True, check=False
+        [sys.executable, "-m", "hybridfmu.fmu.build", "Oscillator", str(out)], capture_output=True, text=True,
+        check=False, env=env,
     )
     assert result.returncode == 0, result.stderr
     assert validate_fmu(str(out)) == []
     bad = subprocess.run(
-        ["python", "-m", "hybridfmu.fmu.build", "Nope", str(tmp_path / "x.fmu")], capture_output=True, text=True,
-        check=False,
+        [sys.executable, "-m", "hybridfmu.fmu.build", "Nope", str(tmp_path / "x.fmu")], capture_output=True,
+        text=True, check=False, env=env,
     )
     assert bad.returncode == 1 and "unknown FMU model 'Nope'" in bad.stderr
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 
-from hybridfmu.fmu import FmuError, FmuFormatError, FmuRhs, load_fmu, simulate_open_loop
+from hybridfmu.fmu import FmuError, FmuFormatError, FmuRhs, load_fmu, platform_library, simulate_open_loop
 
 PROBE_C = r"""
 #include <stdlib.h>
@@ -240,6 +240,35 @@ def test_missing_binary(tmp_path):
     path = write_fmu(tmp_path / "NoBinary.fmu", None, probe_description())
     with pytest.raises(FmuFormatError, match="no binary for this platform.*Probe.so"):
         load_fmu(path)
+
+
+def test_binary_only_for_other_platforms(tmp_path, probe_library):
+    """An FMU built for Windows and macOS only: the error names the FMU, what it has and what is needed."""
+    path = tmp_path / "ForeignOnly.fmu"
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("modelDescription.xml", probe_description())
+        archive.write(probe_library, "binaries/win64/Probe.dll")
+        archive.write(probe_library, "binaries/darwin64/Probe.dylib")
+    with pytest.raises(FmuFormatError) as info:
+        load_fmu(path)
+    message = str(info.value)
+    for part in (str(path), "darwin64, win64", "linux64 needs binaries/linux64/Probe.so"):
+        assert part in message, message
+
+
+@pytest.mark.parametrize("platform, expected", [
+    ("linux64", "binaries/linux64/M.so"),
+    ("darwin64", "binaries/darwin64/M.dylib"),
+    ("win64", "binaries/win64/M.dll"),
+])
+def test_platform_library_names(platform, expected):
+    assert platform_library("M", platform) == expected
+
+
+def test_platform_library_of_this_platform_and_unknown_ones():
+    assert platform_library("M") == f"binaries/{fmpy.platform}/M{fmpy.sharedLibraryExtension}"
+    with pytest.raises(ValueError, match="platform: expected one of .*'amiga68k'"):
+        platform_library("M", "amiga68k")
 
 
 def test_format_errors_are_value_errors(tmp_path):

@@ -5,8 +5,8 @@ import math
 import pytest
 
 from hybridfmu.data.settings import section_settings
-from hybridfmu.training.hyperband import (hyperband_brackets, max_bracket, rank_results, select_survivors,
-                                          total_configurations)
+from hybridfmu.training.hyperband import (check_budget, hyperband_brackets, max_bracket, rank_results,
+                                          select_survivors, total_configurations)
 from hybridfmu.training.plan import plan_entry, search_plan
 from hybridfmu.training.search_space import PAPER_SEARCH_SPACE, config_hash, sample_configuration
 
@@ -32,9 +32,35 @@ def test_small_search_and_non_integer_ratio():
         (9, [9, 3, 1]), (5, [5, 1]), (3, [3])]
     brackets = hyperband_brackets(10, 3)
     assert max_bracket(10, 3) == 2 and brackets[0].rungs[0].resource_units == pytest.approx(10 / 9)
-    assert hyperband_brackets(1, 3)[0].n_configs == 1
+    assert [b.n_configs for b in hyperband_brackets(3, 3)] == [3, 2]  # R = eta: the smallest real search
     with pytest.raises(ValueError, match="eta"):
         hyperband_brackets(9, 1)
+
+
+@pytest.mark.parametrize("R, eta, expected", [
+    (1, 3, r"^R = 1 is smaller than eta = 3: .* single configuration .* expected R >= eta"),
+    (2.5, 3, r"^R = 2.5 is smaller than eta = 3"),
+    (0.5, 3, r"^R = 0.5: expected at least 1"),
+    (9, 1, r"^eta = 1: expected a reduction factor above 1"),
+    (9, 0.5, r"^eta = 0.5: expected a reduction factor above 1"),
+    (math.inf, 3, r"^R = inf: expected a finite number"),
+    (math.nan, 3, r"^R = nan: expected a finite number"),
+    (81, math.nan, r"^eta = nan: expected a finite number"),
+    (81, 1.001, r"^R = 81, eta = 1.001: 4397 brackets .* expected at most 20"),
+])
+def test_degenerate_budgets_are_rejected(R, eta, expected):
+    """R < eta would silently run one configuration (no search); eta near 1 an unbounded number of them."""
+    for function in (hyperband_brackets, max_bracket, total_configurations):
+        with pytest.raises(ValueError, match=expected):
+            function(R, eta)
+
+
+def test_budget_errors_name_the_config_fields():
+    with pytest.raises(ValueError, match=r"^config\.hpo\.R = 2 is smaller than config\.hpo\.eta = 3: .* expected "
+                                         r"config\.hpo\.R >= config\.hpo\.eta"):
+        check_budget(2, 3, names=("config.hpo.R", "config.hpo.eta"))
+    check_budget(3, 3)
+    check_budget(2 ** 19, 2)  # 20 brackets: the most allowed
 
 
 def test_selection_ranks_by_objective_and_never_promotes_failures():

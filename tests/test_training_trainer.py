@@ -168,7 +168,9 @@ def test_training_is_deterministic_and_learns(arrays, statistics):
     assert other.history[0][1] != a.history[0][1]  # another seed draws other windows
     losses = [row[1] for row in a.history]
     assert np.mean(losses[-10:]) < 0.8 * np.mean(losses[:10])
-    assert a.model.delay_s() != 0.0  # dt is trained
+    # dt is trained: from 0 it moves to 3.98e-6 s in these 0.32 s of training (bounds +-3e-4 s); a delay left
+    # out of the optimiser, or without gradient, stays at exactly 0
+    assert 1e-6 < abs(a.model.delay_s()) < 3e-4
     objective = Objective("MAE", {"p": 0.5, "v": 0.5})
     short = dataclasses.replace(arrays, spans=np.array([[300, 700], [1600, 2000]]))
     trained = validate(a.model, short, "MAE", WEIGHTS, objective, statistics)

@@ -215,3 +215,85 @@ def test_intermediate_validations_report_the_best_state(case, tmp_path):
     checkpoint = load_checkpoint(tmp_path / "checkpoint.pt")
     assert checkpoint["best"]["objective"] == min(objectives)
     assert checkpoint["best"]["resource_s"] <= checkpoint["trainer"]["used_samples"] * H + 1e-12
+
+
+# --- faults: damaged or foreign checkpoints, a tracking store lost during the search ----------------
+
+def test_corrupt_checkpoint_names_the_file(case, tmp_path):
+    path = tmp_path / "checkpoint.pt"
+    path.write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="expected a trial checkpoint") as raised:
+        load_checkpoint(path)
+    assert str(path) in str(raised.value)
+    best = tmp_path / "best.json"
+    best.write_text(json.dumps({"checkpoint": str(path)}))
+    with pytest.raises(ValueError, match=str(path)):
+        load_trained_neural_fmu(best, case["fmu"])
+
+
+def test_checkpoint_of_another_configuration_is_refused(case, tmp_path):
+    result = train(case, 0, 0, 0)
+    with pytest.raises(ValueError) as raised:
+        run_trial_rung(
+            plan_path=case["plan"], bracket=1, rung=1, config_index=2,
+            train_arrays_path=case["arrays"]["train"], validation_arrays_path=case["arrays"]["validation"],
+            statistics_path=case["statistics"], fmu_path=case["fmu"], calibration_path=case["calibration"],
+            roles=ROLES, model_config=case["model"], training_config=case["training"],
+            previous_checkpoint=result["checkpoint"], checkpoint_path=tmp_path / "checkpoint.pt",
+            result_path=tmp_path / "result.json", track=False)
+    message = str(raised.value)
+    assert result["checkpoint"] in message and "expected b1 r0 c2" in message and "'config'" in message
+    assert not (tmp_path / "checkpoint.pt").exists() and not (tmp_path / "result.json").exists()
+
+
+def test_tracking_store_lost_mid_search_keeps_the_rung_and_logs_it_later(case, tmp_path):
+    """The store vanishes: the job still writes its checkpoint and result (tracking deferred, queued); the
+    next job that reaches the store logs it; logging again adds no rows."""
+    from mlflow.tracking import MlflowClient
+
+    from hybridfmu.tracking import default_tracking_uri
+    from hybridfmu.tracking.search import pending_folder, start_search, sync_pending
+
+    plan = read_json(case["plan"])
+    uri = default_tracking_uri(tmp_path / "store")
+    plan["tracking"] = start_search(uri, "synthetic", plan["search_id"], "synthetic", {"R": plan["R"]})
+    plan_path = tmp_path / "hpo" / "plan.json"
+    write_json_atomic(plan_path, plan)
+    database = tmp_path / "store" / "mlflow.db"
+    database.rename(tmp_path / "away.db")  # the store is lost
+
+    def run(rung, config):
+        folder = tmp_path / "hpo" / f"b1/r{rung}/c{config}"
+        previous = tmp_path / "hpo" / f"b1/r{rung - 1}/c{config}/checkpoint.pt" if rung else None
+        return run_trial_rung(
+            plan_path=plan_path, bracket=1, rung=rung, config_index=config,
+            train_arrays_path=case["arrays"]["train"], validation_arrays_path=case["arrays"]["validation"],
+            statistics_path=case["statistics"], fmu_path=case["fmu"], calibration_path=case["calibration"],
+            roles=ROLES, model_config=case["model"], training_config=case["training"], previous_checkpoint=previous,
+            checkpoint_path=folder / "checkpoint.pt", result_path=folder / "result.json",
+            tracking_options={"retry_budget_s": 1.0})
+
+    lost = run(0, 1)
+    assert lost["status"] == "ok" and lost["tracking"]["status"] == "deferred" and lost["mlflow_run_id"] is None
+    assert "mlflow.db" in lost["tracking"]["error"] and not database.exists()
+    assert read_json(tmp_path / "hpo/b1/r0/c1/result.json")["tracking"]["status"] == "deferred"
+    assert load_checkpoint(tmp_path / "hpo/b1/r0/c1/checkpoint.pt")["rung"] == 0
+    assert [p.name for p in pending_folder(plan_path).iterdir()] == ["b1_r0_c1.json"]
+
+    (tmp_path / "away.db").rename(database)  # the store is back: the next job logs itself and the queue
+    resumed = run(1, 1)
+    assert resumed["tracking"] == {"status": "logged", "error": ""} and resumed["mlflow_run_id"]
+    assert not list(pending_folder(plan_path).iterdir())
+    client = MlflowClient(uri)
+    run_id = resumed["mlflow_run_id"]
+    history = load_checkpoint(tmp_path / "hpo/b1/r1/c1/checkpoint.pt")["trainer"]["history"]
+    steps = [m.step for m in client.get_metric_history(run_id, "train_loss")]
+    assert len(steps) == len(set(steps)) == len({int(round(1000 * r)) for r, loss, *_ in history if math.isfinite(loss)})
+    assert sorted(m.step for m in client.get_metric_history(run_id, "best_val_objective")) == sorted(
+        {int(round(1000 * lost["resource_s"])), int(round(1000 * resumed["resource_s"]))})
+    assert client.get_run(run_id).info.status == "FINISHED"
+
+    from hybridfmu.tracking.search import record_pending
+    record_pending(plan_path, lost, tmp_path / "hpo/b1/r0/c1/result.json", "again")
+    assert set(sync_pending(plan_path)) == {"b1c1"}  # logging it a second time adds no rows
+    assert [m.step for m in client.get_metric_history(run_id, "train_loss")] == steps

@@ -5,6 +5,7 @@ happens in a temporary directory (outputs, Snakemake metadata, MLflow store), wi
 Snakefile.
 """
 
+import copy
 import json
 import os
 import subprocess
@@ -61,6 +62,16 @@ def tiny_run(tmp_path_factory):
     return workdir, workdir / config.get("results_dir", "results") / config["case"], config, elapsed_s
 
 
+# Errors (metrics/<role>.json) that the best neural FMU of the tiny search reduces below the calibrated FMU's.
+NEURAL_FMU_BEATS_FMU_ON = ("angle_mae", "angle_mse", "angle_rmse", "speed_mae", "speed_mse", "speed_rmse")
+
+
+def assert_neural_fmu_beats_fmu(metrics, role):
+    for key in NEURAL_FMU_BEATS_FMU_ON:
+        assert metrics["neural_fmu"][key] < metrics["fmu"][key], (role, key, metrics["fmu"], metrics["neural_fmu"])
+        assert metrics["improvement"][key] > 1.0, (role, key, metrics["improvement"])
+
+
 def test_every_stage_writes_its_outputs(tiny_run):
     workdir, results, config, elapsed_s = tiny_run
     print(f"tiny workflow: {elapsed_s:.1f} s")
@@ -76,6 +87,8 @@ def test_every_stage_writes_its_outputs(tiny_run):
         assert metrics["fmu"]["angle_mae"] > 0 and metrics["neural_fmu"]["angle_mae"] > 0
         assert metrics["improvement"]["angle_mae"] == pytest.approx(
             metrics["fmu"]["angle_mae"] / metrics["neural_fmu"]["angle_mae"])
+        if role == "validation":  # the test maneuver: test_neural_fmu_beats_fmu_on_the_test_maneuver
+            assert_neural_fmu_beats_fmu(metrics, role)
         assert isinstance(metrics["dt_s"], float) and metrics["gates"]
         assert metrics["zooms"] and all({"t_start_s", "t_end_s", "fmu", "neural_fmu", "improvement"} <= set(z)
                                         for z in metrics["zooms"])
@@ -92,6 +105,13 @@ def test_every_stage_writes_its_outputs(tiny_run):
     logged = client.get_run(run["run_id"])
     assert "test/improvement/angle_mae" in logged.data.metrics
     assert {a.path for a in client.list_artifacts(run["run_id"])} >= {"figures", "metrics", "report.md"}
+
+
+@pytest.mark.xfail(strict=True, reason="the tiny search's best neural FMU drifts away on the test maneuver "
+                   "(angle MAE ~10.8 rad against the FMU's ~0.047 rad); it beats the FMU on validation only")
+def test_neural_fmu_beats_fmu_on_the_test_maneuver(tiny_run):
+    _, results, _, _ = tiny_run
+    assert_neural_fmu_beats_fmu(json.loads((results / "metrics" / "test.json").read_text()), "test")
 
 
 def test_nothing_left_to_do(tiny_run):
@@ -141,3 +161,110 @@ def test_snakemake_report(tiny_run):
     snakemake(workdir, TINY, "--report", str(workdir / "report.html"))
     html = (workdir / "report.html").read_text(errors="replace")
     assert len(html) > 10000 and "training_curves.png" in html
+
+
+# Rules of the tiny case's default target, by how far upstream a config change reaches.
+ALL_RULES = {"build_fmu", "emulate_bench", "check_bench_spread", "ingest", "select_segments", "calibrate",
+             "simulate_baseline", "time_offset", "hpo_prepare", "hpo_plan", "train_rung", "select_rung",
+             "select_best", "simulate_best", "evaluate", "plot", "report", "diagnose", "summary"}
+FROM_EMULATION = ALL_RULES - {"build_fmu"}
+FROM_INGEST = FROM_EMULATION - {"emulate_bench", "check_bench_spread"}
+FROM_CALIBRATION = FROM_INGEST - {"ingest", "select_segments"}
+FROM_SEARCH = {"hpo_plan", "train_rung", "select_rung", "select_best", "simulate_best", "evaluate", "plot",
+               "report", "diagnose", "summary"}
+FROM_SEGMENTS = {"select_segments", "hpo_prepare"} | FROM_SEARCH
+
+
+def _rename_results(config, case, results_dir):
+    config["case"], config["results_dir"] = case, results_dir
+    for name, maneuver in config["maneuvers"].items():  # a case with a bench reads the bench's logs
+        maneuver["raw"] = f"{results_dir}/{case}/raw/{name}.mf4"
+
+
+def _set(*path_and_value):
+    """A change of config: the value at the key path (created where missing)."""
+    *path, value = path_and_value
+
+    def change(config):
+        node = config
+        for key in path[:-1]:
+            node = node.setdefault(key, {})
+        node[path[-1]] = value
+    return change
+
+
+# One meaningful change per config section (the evaluation's subsections reach different rules) and the
+# rules of the tiny case's default target it reruns: exactly the rules whose params carry the section and
+# everything downstream of them.
+SECTION_CHANGES = {
+    "case": (lambda config: _rename_results(config, "tiny_renamed", config.get("results_dir", "results")),
+             ALL_RULES),
+    "results_dir": (lambda config: _rename_results(config, config["case"], "results_moved"), ALL_RULES),
+    "seed": (_set("seed", 12), FROM_EMULATION),
+    "mlflow": (_set("mlflow", "experiment", "tiny_renamed"), FROM_CALIBRATION),
+    "fmu": (_set("fmu", "parameters", {"R": 0.031}), FROM_EMULATION),
+    "maneuvers": (_set("maneuvers", "test", "t_end_s", 2.5), FROM_INGEST),
+    "signals": (_set("signals", "speed", "label", "motor speed"), FROM_INGEST),
+    "transforms": (lambda config: config["transforms"][0].update(label="load torque of the brake"), FROM_INGEST),
+    "roles": (_set("roles", "targets", {"theta": 0.6, "omega": 0.4}), FROM_INGEST),
+    "ingest": (_set("ingest", "max_gap_s", 0.02), FROM_INGEST),
+    "segments": (_set("segments", "relative", 0.06), FROM_SEGMENTS),
+    "calibration": (_set("calibration", "max_iterations", 40), FROM_CALIBRATION),
+    "model": (_set("model", "input_delay", "scale_s", 0.0002), FROM_SEARCH),
+    "training": (_set("training", "batch_windows", 3), FROM_SEARCH),
+    "hpo": (_set("hpo", "max_resource_s", 0.1), FROM_SEARCH),
+    "evaluation.zoom": (_set("evaluation", "zoom", "length_s", "angle", 0.8), {"evaluate", "plot", "report", "summary"}),
+    "evaluation.time_offset": (_set("evaluation", "time_offset", "length_s", 0.03), {"time_offset", "plot", "report"}),
+    "evaluation.plot": (_set("evaluation", "plot", "dpi", 61), {"plot", "report"}),
+    "evaluation.reference": (_set("evaluation", "reference", "name", "paper, 2nd reading"), {"report"}),
+    "diagnosis": (_set("diagnosis", "selection", "bootstrap_samples", 21), {"diagnose", "summary"}),
+    "withheld": (_set("withheld", "duration_s", 5.0), set()),  # the `withheld` target only
+    "bench": (_set("bench", "effects", "inertia_mismatch", "scale", 1.07), FROM_EMULATION),
+}
+
+
+@pytest.mark.parametrize("section", list(SECTION_CHANGES))
+def test_a_changed_section_reruns_exactly_its_stages(tiny_run, tmp_path, section):
+    workdir, _, config, _ = tiny_run
+    change, expected = SECTION_CHANGES[section]
+    changed = copy.deepcopy(config)
+    change(changed)
+    assert changed != config
+    configfile = tmp_path / f"tiny_{section}.yaml"
+    configfile.write_text(yaml.safe_dump(changed, sort_keys=False))  # key order is part of Snakemake params
+    output = snakemake(workdir, configfile, "-n")
+    assert planned_rules(output.stdout + output.stderr) == expected, output.stdout[-6000:]
+
+
+def test_the_search_is_planned_after_the_data_are_prepared(tmp_path):
+    """The plan (and the search's MLflow parent run) needs the prepared data: a bad log stops the run in
+    ingest, before the search or the MLflow store exist."""
+    config = yaml.safe_load(TINY.read_text())
+    plan = f"{config['results_dir']}/{config['case']}/hpo/plan.json"
+    output = snakemake(tmp_path, TINY, "-n", plan)
+    assert planned_rules(output.stdout + output.stderr) == {
+        "build_fmu", "emulate_bench", "ingest", "select_segments", "calibrate", "hpo_prepare", "hpo_plan"}
+
+
+def test_withheld_cases_follow_the_sections_they_are_derived_from(tmp_path):
+    """A withheld case's config is regenerated when a section it is derived from changes (the diagnosis'
+    settings among them), not when its summary's expectations or a stage it skips change."""
+    demo = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    configfile = tmp_path / "demo.yaml"
+    configfile.write_text(yaml.safe_dump(demo, sort_keys=False))
+    target = f"{demo['results_dir']}/withheld/cases/none.yaml"
+    snakemake(tmp_path, configfile, target)
+    assert planned_rules(snakemake(tmp_path, configfile, "-n", target).stdout) == set()
+    changes = {
+        "diagnosis": (_set("diagnosis", "selection", "bootstrap_samples", 201), {"withheld_case"}),
+        "withheld.diagnosis": (_set("withheld", "diagnosis", "selection", "bootstrap_samples", 51), {"withheld_case"}),
+        "withheld.expected": (_set("withheld", "expected", "cogging", ["periodic(*)"]), set()),
+        "hpo": (_set("hpo", "max_resource_s", 1.0), set()),
+        "evaluation": (_set("evaluation", "plot", "dpi", 61), set()),
+    }
+    for name, (change, expected) in changes.items():
+        changed = copy.deepcopy(demo)
+        change(changed)
+        configfile.write_text(yaml.safe_dump(changed, sort_keys=False))
+        output = snakemake(tmp_path, configfile, "-n", target)
+        assert planned_rules(output.stdout + output.stderr) == expected, (name, output.stdout[-4000:])

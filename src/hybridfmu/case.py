@@ -23,10 +23,13 @@ API::
     model_interface(config) -> ModelInterface          # FMU names and units, without loading it
     case_roles(config, interface=None) -> CaseRoles
     check_case(config, config_file="") -> CaseRoles    # every check, ConfigError naming file and field
+    case_warnings(config, config_file="") -> list[str] # what a valid config leaves out (no test maneuver)
 """
 
 from __future__ import annotations
 
+import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -201,6 +204,7 @@ def model_interface(config: dict[str, Any]) -> ModelInterface:
         description = read_model_description(str(path), validate=False)
     except Exception as err:
         raise ConfigError(f"{path}: cannot read the model description: {err}") from None
+    _check_model_name(config, path, description)
     states = [unknown.variable.derivative for unknown in description.derivatives]
     if any(state is None for state in states):
         raise ConfigError(f"{path}: a derivative in ModelStructure names no state; expected a Model-Exchange FMU")
@@ -218,6 +222,22 @@ def model_interface(config: dict[str, Any]) -> ModelInterface:
               if v.causality == "input" and v.type == "Real" and v.variability in (None, "continuous")]
     parameters = [v.name for v in variables if v.causality == "parameter"]
     return ModelInterface(str(path), [s.name for s in states], inputs, parameters, units, starts)
+
+
+def _check_model_name(config: dict[str, Any], path: Path, description: Any) -> None:
+    """A user FMU (``fmu.source: path``) whose ``fmu.model_name`` is set must be that model."""
+    fmu = config.get("fmu") or {}
+    wanted = fmu.get("model_name")
+    if fmu.get("source") != "path" or not wanted:
+        return
+    identifiers = [kind.modelIdentifier for kind in (description.modelExchange, description.coSimulation)
+                   if kind is not None and kind.modelIdentifier]
+    names = list(dict.fromkeys([description.modelName, *identifiers]))
+    if wanted not in names:
+        actual = f"modelName {description.modelName!r}" + "".join(
+            f", modelIdentifier {identifier!r}" for identifier in dict.fromkeys(identifiers))
+        raise ConfigError(f"config.fmu.model_name: {wanted!r} does not match the FMU {path} ({actual}); expected "
+                          f"one of {names} or no config.fmu.model_name")
 
 
 def _natural_units(config: dict[str, Any]) -> dict[str, str]:
@@ -339,10 +359,104 @@ def check_case(config: dict[str, Any], config_file: str = "") -> CaseRoles:
         ConfigError: the message starts with the config file (when given) and names the field.
     """
     try:
-        return case_roles(config)
+        check_hpo(config)
+        roles = case_roles(config)
+        check_maneuvers(config, roles)
+        return roles
     except ConfigError as err:
         prefix = f"{config_file}: " if config_file else ""
         raise ConfigError(f"{prefix}{err}") from None
+
+
+def check_hpo(config: dict[str, Any]) -> None:
+    """The Hyperband budget of a validated config is a real search (:func:`hybridfmu.training.hyperband.check_budget`).
+
+    Raises:
+        ConfigError: naming ``config.hpo.R`` and ``config.hpo.eta`` and what is expected.
+    """
+    from hybridfmu.training.hyperband import check_budget
+
+    hpo = config.get("hpo") or {}
+    try:
+        check_budget(hpo.get("R", 81), hpo.get("eta", 3), names=("config.hpo.R", "config.hpo.eta"))
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
+
+
+def check_maneuvers(config: dict[str, Any], roles: CaseRoles) -> None:
+    """Each maneuver's source in its raw log, and no log data in two roles.
+
+    A maneuver's data are its raw file, the raw channel of each logged signal (``config.signals`` with the
+    maneuver's ``channels`` overrides) and its slice ``t_start_s``..``t_end_s``. Two maneuvers of different
+    roles (train, validation, test) must not read the same data: the same file with the same channels over
+    overlapping slices would make e.g. the test maneuver a copy of the validation data. Slices that do not
+    overlap, or different channels (records side by side in one log), are different data.
+
+    Raises:
+        ConfigError: a channel override of a signal that is not logged, a slice that ends before it starts,
+            or the same data in two roles; naming the ``config.maneuvers`` fields.
+    """
+    from hybridfmu.data.errors import DataError
+    from hybridfmu.data.ingest import maneuver_source
+
+    maneuvers = config.get("maneuvers") or {}
+    sources = {}
+    for name in maneuvers:
+        try:
+            sources[name] = maneuver_source(config, roles, name)
+        except DataError as err:
+            raise ConfigError(str(err)) from None
+    names = list(maneuvers)
+    for k, first in enumerate(names):
+        for second in names[k + 1:]:
+            a, b = maneuvers[first], maneuvers[second]
+            if a["role"] == b["role"] or _raw_key(a["raw"]) != _raw_key(b["raw"]):
+                continue
+            sa, sb = sources[first], sources[second]
+            if sa.channels != sb.channels:
+                continue
+            start = max(_bound(sa.t_start_s, 0.0), _bound(sb.t_start_s, 0.0))
+            end = min(_bound(sa.t_end_s, math.inf), _bound(sb.t_end_s, math.inf))
+            if start < end:
+                raise ConfigError(
+                    f"config.maneuvers.{second}: role {b['role']} reads the same raw log {b['raw']!r} with the same "
+                    f"channels as config.maneuvers.{first} (role {a['role']}) over an overlapping time span "
+                    f"({_span(sa)} and {_span(sb)}), so its data would be {a['role']} data too; expected another "
+                    "raw file, t_start_s/t_end_s slices that do not overlap, or other channels")
+
+
+def _raw_key(raw: str) -> str:
+    """The raw file a path names (relative paths from the working directory, links resolved)."""
+    return os.path.realpath(os.path.expanduser(str(raw)))
+
+
+def _bound(value: float | None, default: float) -> float:
+    return default if value is None else float(value)
+
+
+def _span(source: Any) -> str:
+    start = "start" if source.t_start_s is None else f"{source.t_start_s:g} s"
+    end = "end" if source.t_end_s is None else f"{source.t_end_s:g} s"
+    return f"{start} to {end}"
+
+
+def case_warnings(config: dict[str, Any], config_file: str = "") -> list[str]:
+    """What a valid config leaves out that the user probably wants (one line each, naming file and field).
+
+    Without a test maneuver the held-out check (the diagnosis' "how far" on data no fit saw) is not run.
+    """
+    prefix = f"{config_file}: " if config_file else ""
+    warnings = []
+    maneuvers = config.get("maneuvers") or {}
+    if not any(entry.get("role") == "test" for entry in maneuvers.values()):
+        warnings.append(f"{prefix}config.maneuvers: {NO_TEST_MANEUVER}")
+    return warnings
+
+
+#: Why the held-out check is missing when a case has no test maneuver, and how to add one.
+NO_TEST_MANEUVER = ("no maneuver has role: test, so the held-out check (how far the gap shrinks on data no fit "
+                    "saw) is not run; to run it, add a maneuver with role: test to config.maneuvers, e.g. "
+                    "`test: {role: test, raw: logs/test.csv}`")
 
 
 def _outputs(transform: dict[str, Any]) -> list[str]:

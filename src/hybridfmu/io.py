@@ -9,7 +9,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import tempfile
+import secrets
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -23,12 +23,7 @@ def atomic_path(destination: str | Path, suffix: str | None = None) -> Iterator[
     """
     destination = Path(destination)
     destination.parent.mkdir(parents=True, exist_ok=True)
-    handle, tmp_name = tempfile.mkstemp(
-        prefix=f".{destination.name}.", suffix=suffix if suffix is not None else destination.suffix,
-        dir=destination.parent,
-    )
-    os.close(handle)
-    tmp_path = Path(tmp_name)
+    tmp_path = _create_temporary(destination, suffix if suffix is not None else destination.suffix)
     try:
         yield tmp_path
         os.replace(tmp_path, destination)
@@ -36,6 +31,24 @@ def atomic_path(destination: str | Path, suffix: str | None = None) -> Iterator[
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
         raise
+
+
+def _create_temporary(destination: Path, suffix: str) -> Path:
+    """Create an empty, new file beside ``destination`` with the mode a plain ``open(path, "w")`` gives.
+
+    ``tempfile.mkstemp`` creates its files with mode 0600 (owner only), which the rename would carry over to
+    the result; here the file is created with 0666 and the process's umask applies (0644 under umask 022),
+    as for any file the user writes.
+    """
+    for _ in range(100):
+        candidate = destination.parent / f".{destination.name}.{secrets.token_hex(4)}{suffix}"
+        try:
+            handle = os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
+        except FileExistsError:
+            continue
+        os.close(handle)
+        return candidate
+    raise FileExistsError(f"{destination.parent}: no unused temporary file name for {destination.name}")
 
 
 def write_json_atomic(destination: str | Path, data: Any) -> Path:

@@ -11,9 +11,11 @@ UNMEASURED_STATES = _ROLES.unmeasured_states
 
 
 def case_sections():
-    """The config sections that define the case's roles (params of every stage that reads data through
-    them, so that a change reruns the stage); ``hybridfmu.case.case_roles`` builds the roles from them."""
-    return {"fmu": config["fmu"], "maneuvers": config["maneuvers"], "signals": config.get("signals", {}),
+    """The config a stage reads its data through (params of every such stage, so that a change reruns it):
+    the case's roles (``hybridfmu.case.case_roles`` builds them from the FMU's interface and the sections
+    signals, transforms, roles) and config.maneuvers (roles, initial states). The FMU's parameters are not
+    part of it: they reach these stages through the calibration."""
+    return {"fmu": fmu_interface(), "maneuvers": config["maneuvers"], "signals": config.get("signals", {}),
             "transforms": config.get("transforms", []), "roles": config.get("roles", {})}
 
 

@@ -12,8 +12,8 @@ if "bench" in config:
             mdf=f"{RESULTS}/raw/{{maneuver}}.mf4",
             truth=f"{RESULTS}/raw/{{maneuver}}.truth.json",
         params:
-            bench=config["bench"],
-            seed=config.get("seed", 0),
+            # what hybridfmu.bench reads: the bench, the master seed and the FMU's nominal parameters
+            config={**config_sections("bench", "seed"), "fmu": {"parameters": config["fmu"].get("parameters", {})}},
         wildcard_constraints:
             maneuver="|".join(MANEUVERS),
         log:

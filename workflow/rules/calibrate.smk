@@ -14,10 +14,10 @@ rule calibrate:
         figure=f"{RESULTS}/calibration/calibration.png",
     params:
         maneuver_names=CALIBRATION_MANEUVERS,
-        calibration=config.get("calibration", {}),
-        fmu=config["fmu"],
-        roles=config["roles"],
-        maneuvers=config["maneuvers"],
+        # what hybridfmu.calibration reads: its settings, the FMU (interface, parameters), the roles, the
+        # maneuvers (roles, initial states) and, for its MLflow run, the case, mlflow and results_dir
+        config=config_sections("case", "results_dir", "mlflow", "calibration", "fmu", "maneuvers", "signals",
+                               "transforms", "roles"),
     log:
         f"{RESULTS}/logs/calibrate/calibrate.log",
     benchmark:

@@ -3,15 +3,52 @@ from hybridfmu.case import check_case
 from hybridfmu.config import validate_case_config
 
 CONFIG_FILE = str((workflow.config_settings.configfiles or ["config/config.yaml"])[-1])
+# The config file read again strictly (Snakemake's YAML reading keeps the last of a key listed twice without a
+# word) and the config checked against the schema: a ConfigError names the file, the line or field, the key.
+from hybridfmu.config import check_config_file
+check_config_file(CONFIG_FILE, config)
 validate_case_config(config)
 # Roles against the FMU's interface and every unit, before any job runs: a ConfigError here names the
 # config file and the field (an FMU variable that does not exist, a unit of the wrong dimension ...).
 ROLES = check_case(config, CONFIG_FILE)
+# The MLflow store before any job runs (seconds; creates nothing, so dry runs stay clean): a ConfigError
+# names the config file, config.mlflow.tracking_uri, the URI and why. On SIGINT, Snakemake passes SIGINT
+# on to its jobs (else running jobs finish first and are then redone as incomplete).
+from hybridfmu.tracking import check_tracking_store, tracking_uri as _tracking_uri
+from hybridfmu.tracking.jobs import forward_interrupt
+check_tracking_store(_tracking_uri(config.get("mlflow"), config.get("results_dir", "results")), CONFIG_FILE,
+                     timeout_s=float(config.get("mlflow", {}).get("request_timeout_s", 10.0)))
+forward_interrupt()
+# What a valid config leaves out (no test maneuver: the held-out check is not run), logged as the run starts.
+from hybridfmu.case import case_warnings
+from snakemake.logging import logger as _logger
+for _warning in case_warnings(config, CONFIG_FILE):
+    _logger.warning(f"Warning: {_warning}")
 
 CASE = config["case"]
 RESULTS = f"{config.get('results_dir', 'results')}/{CASE}"
 MANEUVERS = list(config["maneuvers"])
 ALL_TARGETS = []
+
+
+def config_sections(*names):
+    """The named top-level sections of the case config (those present), for a rule's params: a job
+    reruns when a section it reads changes, and only then; every rule's params name the sections its
+    script or the functions it calls read. Of ``mlflow`` only the destination counts (mlflow_destination)."""
+    return {name: mlflow_destination() if name == "mlflow" else config[name] for name in names if name in config}
+
+
+def mlflow_destination():
+    """Where a stage records its MLflow run (config.mlflow.tracking_uri and .experiment): a new destination
+    reruns the stages that log runs; the retry and timeout settings (hybridfmu.tracking.retry_settings) are
+    read from the config when a training job runs, and a change of them reruns nothing."""
+    mlflow = config.get("mlflow", {})
+    return {key: mlflow.get(key, "") for key in ("tracking_uri", "experiment")}
+
+
+def fmu_interface():
+    """What of config.fmu locates the FMU's interface (names and declared units), without its parameters."""
+    return {key: config["fmu"].get(key) for key in ("source", "model_name", "path")}
 
 
 def fmu_path():

@@ -7,14 +7,14 @@ def raw_log(wildcards):
     return config["maneuvers"][wildcards.maneuver]["raw"]
 
 
-def data_job_config(wildcards, *sections):
-    """The config a data job reads (a job reruns when it changes): the named sections, what locates the
-    FMU's interface (declared units), and only this maneuver's entry of config.maneuvers."""
-    return {
-        **{name: config[name] for name in ("case", *sections) if name in config},
-        "fmu": {key: config["fmu"].get(key) for key in ("source", "model_name", "path")},
-        "maneuvers": {wildcards.maneuver: config["maneuvers"][wildcards.maneuver]},
-    }
+def data_job_config(wildcards, *sections, maneuver_entry=True):
+    """The config a data job reads (a job reruns when it changes, and only then): the named sections, what
+    locates the FMU's interface (declared units) and, with ``maneuver_entry``, only this maneuver's entry
+    of config.maneuvers (channel overrides, slice)."""
+    job_config = {**config_sections(*sections), "fmu": fmu_interface()}
+    if maneuver_entry:
+        job_config["maneuvers"] = {wildcards.maneuver: config["maneuvers"][wildcards.maneuver]}
+    return job_config
 
 
 rule ingest:
@@ -41,7 +41,9 @@ rule select_segments:
         segments=f"{RESULTS}/segments/{{maneuver}}.json",
         plot=f"{RESULTS}/segments/{{maneuver}}.png",
     params:
-        config=lambda wildcards: data_job_config(wildcards, "segments", "signals", "transforms", "roles"),
+        # the spans depend on the ingested data and the settings, not on the maneuver's entry
+        config=lambda wildcards: data_job_config(wildcards, "segments", "signals", "transforms", "roles",
+                                                 maneuver_entry=False),
     wildcard_constraints:
         maneuver="|".join(MANEUVERS),
     log:

@@ -31,11 +31,11 @@ rule diagnose:
         figures=expand(f"{DIAGNOSIS}/{{figure}}.png", figure=DIAGNOSIS_FIGURES),
     params:
         maneuvers=MANEUVERS,
-        diagnosis=config.get("diagnosis", {}),
-        roles=config.get("roles", {}),
-        signals=config.get("signals", {}),
-        transforms=config.get("transforms", []),
-        model=config.get("model", {}),
+        # what hybridfmu.diagnosis reads: its settings, the master seed, the FMU (interface, parameters), the
+        # roles, the maneuvers' roles and initial states, the model's end stop and, for its MLflow run, the
+        # case, mlflow and results_dir
+        config=config_sections("case", "results_dir", "seed", "mlflow", "fmu", "maneuvers", "signals",
+                               "transforms", "roles", "model", "diagnosis"),
     log:
         f"{RESULTS}/logs/diagnose/diagnose.log",
     benchmark:

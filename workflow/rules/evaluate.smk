@@ -51,7 +51,6 @@ rule simulate_best:
         learned=f"{RESULTS}/evaluation/trajectories/{{maneuver}}.learned.json",
     params:
         case=case_sections(),
-        model=config.get("model", {}),
     wildcard_constraints:
         maneuver="|".join(EVAL_MANEUVERS) if EVAL_MANEUVERS else "(?!)",
     threads: 1
@@ -74,7 +73,7 @@ rule evaluate:
     params:
         maneuvers={name: config["maneuvers"][name]["role"] for name in EVAL_MANEUVERS},
         zoom=EVAL_CONFIG.get("zoom", {}),
-        mlflow=config.get("mlflow", {}),
+        mlflow=mlflow_destination(),
         results_dir=config.get("results_dir", "results"),
         case=CASE,
     log:

@@ -1,6 +1,6 @@
 # Hyperparameter search over neural FMUs (Hyperband, paper Sec. 3.2): the training data are prepared
-# once (rule hpo_prepare), the search is planned and its MLflow parent run created (rule hpo_plan), every
-# (configuration, rung) is one job (rule train_rung) that resumes the previous rung's checkpoint, the
+# once (rule hpo_prepare), then the search is planned and its MLflow parent run created (rule hpo_plan),
+# every (configuration, rung) is one job (rule train_rung) that resumes the previous rung's checkpoint, the
 # survivors of each (bracket, rung) are chosen by a checkpoint rule (select_rung), and the best
 # configuration over all brackets is written to hpo/best.json (rule select_best).
 from hybridfmu.data.settings import section_settings
@@ -68,6 +68,12 @@ rule hpo_prepare:
 
 
 rule hpo_plan:
+    input:
+        # planned only once the data are ingested, segmented and prepared: a bad log or a bad setting of
+        # those stages stops the run before the search (and its MLflow parent run) exists
+        train=f"{HPO_DIR}/prepared/train.npz",
+        validation=f"{HPO_DIR}/prepared/validation.npz",
+        statistics=f"{HPO_DIR}/prepared/statistics.json",
     output:
         plan=f"{HPO_DIR}/plan.json",
     params:
@@ -79,6 +85,7 @@ rule hpo_plan:
         case_sections=case_sections(),
         tracking_uri=tracking_uri(config.get("mlflow"), config.get("results_dir", "results")),
         experiment=experiment_name(config.get("mlflow"), CASE),
+        mlflow=config.get("mlflow", {}),  # the MLflow client's settings (retries, timeouts)
     log:
         f"{RESULTS}/logs/hpo_plan/hpo_plan.log",
     benchmark:
@@ -100,10 +107,11 @@ rule train_rung:
         checkpoint=f"{HPO_DIR}/b{{bracket}}/r{{rung}}/c{{config}}/checkpoint.pt",
         result=f"{HPO_DIR}/b{{bracket}}/r{{rung}}/c{{config}}/result.json",
     params:
+        # the search settings (config.hpo) reach a rung through the plan
         model=MODEL,
         training=TRAINING,
-        hpo=HPO,
         case=case_sections(),
+        mlflow=config.get("mlflow", {}),  # the MLflow client's settings (retries, timeouts)
     wildcard_constraints:
         bracket=r"\d+",
         rung=r"\d+",
@@ -143,6 +151,7 @@ rule select_best:
         summary=f"{HPO_DIR}/summary.json",
     params:
         case=CASE,
+        mlflow=config.get("mlflow", {}),  # the MLflow client's settings (retries, timeouts)
     log:
         f"{RESULTS}/logs/select_best/select_best.log",
     benchmark:

@@ -5,7 +5,7 @@ from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 run_calibration(
-    config=snakemake.config,
+    config=dict(snakemake.params.config),
     fmu_path=snakemake.input.fmu,
     data_paths=dict(zip(snakemake.params.maneuver_names, snakemake.input.data)),
     calibration_path=snakemake.output.calibration,

@@ -11,7 +11,7 @@ torch.set_num_threads(1)
 setup_rule_logging(snakemake.log[0])
 maneuvers = list(snakemake.params.maneuvers)
 diagnose(
-    config=dict(snakemake.config),
+    config=dict(snakemake.params.config),
     fmu_path=snakemake.input.fmu,
     data_paths=dict(zip(maneuvers, snakemake.input.data)),
     segments_paths=dict(zip(maneuvers, snakemake.input.segments)),

@@ -3,5 +3,5 @@ from hybridfmu.bench.emulate import emulate_bench
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
-emulate_bench(snakemake.config, snakemake.wildcards.maneuver, mdf_path=snakemake.output.mdf,
+emulate_bench(dict(snakemake.params.config), snakemake.wildcards.maneuver, mdf_path=snakemake.output.mdf,
               truth_path=snakemake.output.truth)

@@ -1,10 +1,16 @@
-"""Rule hpo_plan: the search plan (brackets, rungs, configurations) and the MLflow parent run."""
+"""Rule hpo_plan: the search plan (brackets, rungs, configurations) and the MLflow parent run (runs that
+killed jobs left RUNNING in the case's experiment are ended as KILLED first)."""
 
 from hybridfmu.case import case_roles
 from hybridfmu.progress import setup_rule_logging
+from hybridfmu.tracking import retry_settings
+from hybridfmu.tracking.mlflow_store import bound_http_requests
 from hybridfmu.training.hpo import plan_search
 
 setup_rule_logging(snakemake.log[0])
+settings = retry_settings(snakemake.config.get("mlflow"))
+if snakemake.params.tracking_uri.startswith(("http://", "https://")):
+    bound_http_requests(settings["request_timeout_s"], settings["http_retries"])
 plan_search(
     case=snakemake.params.case,
     seed=snakemake.params.seed,

@@ -1,10 +1,18 @@
-"""Rule select_best: the best configuration over all brackets -> hpo/best.json."""
+"""Rule select_best: the best configuration over all brackets -> hpo/best.json.
+
+Rungs whose MLflow logging failed are logged first (the queue beside the plan), runs that killed jobs left
+RUNNING are ended, and best.json names the best trial's MLflow run even when it was logged late.
+"""
 
 from hybridfmu.progress import setup_rule_logging
+from hybridfmu.tracking import retry_settings
+from hybridfmu.tracking.search import catch_up_search
 from hybridfmu.training.hpo import select_best
 
 setup_rule_logging(snakemake.log[0])
-select_best(
+settings = retry_settings(snakemake.config.get("mlflow"))
+catch_up_search(snakemake.input.plan, settings)
+record = select_best(
     plan_path=snakemake.input.plan,
     selection_paths=list(snakemake.input.selections),
     best_path=snakemake.output.best,
@@ -12,3 +20,4 @@ select_best(
     summary_path=snakemake.output.summary,
     case=snakemake.params.case,
 )
+catch_up_search(snakemake.input.plan, settings, best_path=snakemake.output.best)

@@ -4,5 +4,5 @@ from hybridfmu.diagnosis.withheld import write_case_config
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
-write_case_config(dict(snakemake.config), snakemake.wildcards.wcase, snakemake.input.fmu, snakemake.output.case,
-                  duration_s=snakemake.params.duration_s)
+write_case_config(dict(snakemake.params.config), snakemake.wildcards.wcase, snakemake.input.fmu,
+                  snakemake.output.case, duration_s=snakemake.params.duration_s)

@@ -9,13 +9,18 @@ signal to another channel for one maneuver. Steps:
 2. check each channel: time stamps finite and strictly increasing, no run of more than
    ``max_nonfinite_samples`` NaN/inf samples (shorter runs are dropped), no gap longer than
    ``max_gap_s`` between usable samples; a unit in the file must agree with the config's unit (an
-   unknown file unit is warned about and the config's unit used);
-3. in the raw unit: unwrap (``wrap_period``), ``gain * raw + offset``;
+   unknown file unit is warned about and the config's unit used); no isolated implausible sample
+   (``config.ingest.outliers``, :mod:`hybridfmu.data.plausibility`);
+3. in the raw unit: unwrap (``wrap_period``), ``gain * raw + offset``; every sample inside
+   ``config.signals.<name>.range`` where one is given;
 4. slice the maneuver (``t_start_s``/``t_end_s``, relative to the log's first sample) and resample
    onto ``rate_hz`` from the common start of all channels: zero-order hold or linear per signal;
 5. apply the transforms (:mod:`hybridfmu.data.transforms`) in natural units (the raw unit of a
    logged signal, the unit a transform gives a derived one);
-6. convert every column to its model unit (``Signal.unit``; affine conversions allowed).
+6. convert every column to its model unit (``Signal.unit``; affine conversions allowed);
+7. where the FMU says one measured state is the time derivative of another (a kinematic pair), the
+   logged position must move as the logged rate says (``config.ingest.kinematic``): a wrong declared
+   unit of either stops the ingest.
 
 Output: a DataFrame with ``time_s`` (from 0, step ``1 / rate_hz``) and one float64 column per signal
 of ``case_roles(config).signals`` (logged signals, then derived ones), each in its model unit.
@@ -34,6 +39,7 @@ import pandas as pd
 from hybridfmu.case import CaseRoles, Signal, case_roles
 from hybridfmu.data.errors import DataError
 from hybridfmu.data.readers import MDF_SUFFIXES, RawChannel, read_channels
+from hybridfmu.data.plausibility import check_kinematic_pairs, check_outliers, check_range, kinematic_pairs
 from hybridfmu.data.resample import common_grid, linear, zero_order_hold
 from hybridfmu.data.settings import section_settings
 from hybridfmu.data.transforms import TransformError, apply_transforms
@@ -114,7 +120,12 @@ def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | Non
                                          float(settings["max_gap_s"]), int(settings["max_nonfinite_samples"]),
                                          start_s, end_s)
         check_file_unit(raw_path, channel, signal)
-        clean[name] = (time_s, raw_to_natural(signal, values))
+        check_outliers(raw_path, channel.name, name, signal.natural_unit, time_s, values,
+                       settings["outliers"]["factor"], float(settings["outliers"]["quantile"]))
+        natural = raw_to_natural(signal, values)
+        check_range(raw_path, channel.name, name, signal.natural_unit, time_s, natural,
+                    (config["signals"].get(name) or {}).get("range"))
+        clean[name] = (time_s, natural)
         LOG.info("%s: %s -> %s: %d samples, %.4g Hz mean rate, unit %s", raw_path.name, channel.name, name,
                  len(time_s), (len(time_s) - 1) / max(time_s[-1] - time_s[0], 1e-12), signal.natural_unit)
 
@@ -128,6 +139,11 @@ def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | Non
                for name, (time_s, values) in clean.items()}
     columns = derive_signals(raw_path, roles, columns, rate_hz)
     frame = model_frame(raw_path, roles, grid_s - grid_s[0], columns)
+    if settings["kinematic"]["enabled"]:
+        pairs = kinematic_pairs(config, roles.measured_states)
+        check_kinematic_pairs(raw_path, pairs, roles, source.channels,
+                              {name: frame[name].to_numpy() for name in roles.signals}, rate_hz,
+                              settings["kinematic"])
     LOG.info("%s: %d samples at %.6g Hz over %.4g s, columns %s", raw_path.name, len(frame), rate_hz,
              frame["time_s"].iloc[-1], list(frame.columns))
     return frame

@@ -71,6 +71,8 @@ def verdict(result: dict[str, Any]) -> str:
                                                                   for s in problem.target_weights))
         parts.append(f"Open loop on the held-out test data: {quoted} (normalised gap {far['gap_before']:.4g} -> "
                      f"{far['gap_after']:.4g}, factor {far['shrink_factor']:.3g}).")
+    elif result.get("how_far_not_run"):
+        parts.append(f"Held-out check not run: {result['how_far_not_run']}")
     return " ".join(parts)
 
 
@@ -113,6 +115,7 @@ def diagnosis_record(result: dict[str, Any], config: dict[str, Any]) -> dict[str
         "neural_fmu": result.get("neural"),
         "neural_fmu_error": result.get("neural_error"),
         "how_far": None if far is None else {k: v for k, v in far.items() if k != "trajectories"},
+        "how_far_not_run": result.get("how_far_not_run") if far is None else None,
     }
     return _clean(record)
 
@@ -244,6 +247,9 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
         lines += ["", f"Normalised gap: {_fmt(far['gap_before'])} -> {_fmt(far['gap_after'])}, factor "
                       f"{_fmt(far['shrink_factor'], 3)}."]
         lines += [f"- {note}" for note in far.get("notes", [])] + [""]
+    else:
+        reason = record.get("how_far_not_run") or "The held-out check on test maneuvers was not run."
+        lines += ["## How far", "", f"**Not run.** {reason}", ""]
     lines += ["## Figures", ""] + [f"![{name}]({name})" for name in figure_names] + [""]
     lines += ["## Notes", "",
               "- The diagnosis reads only the FMU, its calibration, the ingested logs and their segments.",

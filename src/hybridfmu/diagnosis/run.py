@@ -391,12 +391,26 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
 
         neural = compare_learned_correction(neural_model, prepared, fit_names, which["terms"], problem)
     far = growth = None
-    if open_loop and test_names:
+    not_run = how_far_not_run(test_names, open_loop)
+    if not_run is None:
         far = how_far(model, helper, simulate_fn, prepared, test_names, which["terms"], problem, neural_model)
         growth = error_growth(model, simulate_fn, prepared, problem)
+    else:
+        LOGGER.warning("diagnosis: %s", not_run)
     return {"settings": problem.settings, "problem": problem, "prepared": prepared, "fit_names": fit_names,
             "test_names": test_names, "where": where, "regions": regions, "which": which, "neural": neural,
-            "how_far": far, "growth": growth}
+            "how_far": far, "how_far_not_run": not_run, "growth": growth}
+
+
+def how_far_not_run(test_names: list[str], open_loop: bool = True) -> str | None:
+    """Why the held-out check ("how far") is not run, in words for the report, or None when it runs."""
+    if not test_names:
+        from hybridfmu.case import NO_TEST_MANEUVER
+
+        return f"There is no test maneuver: {NO_TEST_MANEUVER}."
+    if not open_loop:
+        return "The open-loop simulation was switched off, so the held-out check on the test maneuver(s) was not run."
+    return None
 
 
 def analyse(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, str | Path],

@@ -3,7 +3,8 @@
 The run lives in the case's experiment (config ``mlflow.experiment``, else the case name) of the
 tracking store ``mlflow.tracking_uri`` (else ``sqlite:///<absolute results_dir>/mlflow.db``), is
 tagged ``hybridfmu.role = evaluation`` and is linked to the best training trial by the tag
-``best_trial_run_id``. Store access goes through :class:`hybridfmu.tracking.Tracker` (retries while
+``best_trial_run_id``; while RUNNING it names the writing process (tags ``hybridfmu.pid`` ...), so a run
+left RUNNING by a killed job is ended (KILLED) by the next run. Store access goes through :class:`hybridfmu.tracking.Tracker` (retries while
 a concurrent job holds the SQLite lock).
 """
 
@@ -51,10 +52,13 @@ def log_evaluation_run(run_path: str | Path, tracking_uri: str, experiment: str,
         best_trial_run_id: MLflow run id of the best training trial (tag ``best_trial_run_id``), or None.
     """
     from hybridfmu.tracking import Tracker
+    from hybridfmu.tracking.jobs import owner_tags
+    from hybridfmu.tracking.search import end_stale_runs
 
     tracker = Tracker(tracking_uri)
     experiment_id = tracker.experiment_id(experiment)
-    tags = {"hybridfmu.role": "evaluation", "case": case}
+    end_stale_runs(tracker, experiment_id)  # runs left RUNNING by killed jobs
+    tags = {"hybridfmu.role": "evaluation", "case": case, **owner_tags()}
     if best_trial_run_id:
         tags["best_trial_run_id"] = best_trial_run_id
     run_id = tracker.call("create_run", experiment_id, tags=tags, run_name="evaluation").info.run_id

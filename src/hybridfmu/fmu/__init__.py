@@ -6,7 +6,7 @@ indicators, outputs), :class:`FmuRhs` (differentiable right-hand side for PyTorc
 """
 
 from hybridfmu.fmu.build import FmuBuildError, build_fmu
-from hybridfmu.fmu.bridge import FmuError, FmuFormatError, FmuModel, load_fmu
+from hybridfmu.fmu.bridge import FmuError, FmuFormatError, FmuModel, FmuNonFiniteError, FmuTerminated, load_fmu, platform_library
 from hybridfmu.fmu.simulate import SimulationResult, simulate_open_loop
 
 def __getattr__(name: str):
@@ -23,9 +23,12 @@ __all__ = [
     "FmuError",
     "FmuFormatError",
     "FmuModel",
+    "FmuNonFiniteError",
     "FmuRhs",
+    "FmuTerminated",
     "SimulationResult",
     "build_fmu",
     "load_fmu",
+    "platform_library",
     "simulate_open_loop",
 ]

@@ -8,8 +8,10 @@ runs in a small compiled C shim (``shim.c``), which calls the FMU's functions di
 
 Every argument is checked in Python before any C code runs; a bad argument raises ``ValueError``
 naming the argument and what was expected, a bad file ``FileNotFoundError`` or
-:class:`FmuFormatError`, and an FMU function that fails raises :class:`FmuError` with the
-messages the FMU logged.
+:class:`FmuFormatError` (also for an FMU without a binary for this platform: see
+:func:`platform_library`), and an FMU function that fails raises :class:`FmuError` with the
+messages the FMU logged. Non-finite state derivatives raise :class:`FmuNonFiniteError` naming the
+derivative, its state and the time; an FMU that asks to terminate raises :class:`FmuTerminated`.
 
 Thread safety: an ``FmuModel`` owns one FMU instance with mutable state (time, states, inputs)
 and is NOT thread-safe; use one ``FmuModel`` per thread or process (each ``load_fmu`` call
@@ -27,6 +29,7 @@ import tempfile
 import weakref
 import zipfile
 from ctypes import c_double, c_void_p
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
@@ -39,6 +42,11 @@ MAX_LOG_LINES_IN_MESSAGE = 20
 # Central differences: the step that balances truncation (h^2) and round-off (eps/h) errors.
 DEFAULT_FD_RELATIVE_STEP = float(np.finfo(np.float64).eps ** (1.0 / 3.0))
 _STATUS_LABELS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
+#: File extension of the shared library in each FMI 2.0 platform folder ``binaries/<platform>/``.
+PLATFORM_LIBRARY_EXTENSIONS = {
+    "linux64": ".so", "linux32": ".so", "darwin64": ".dylib", "win64": ".dll", "win32": ".dll",
+}
+MAX_EVENT_ITERATIONS = 1000
 
 
 class FmuError(RuntimeError):
@@ -56,6 +64,75 @@ class FmuError(RuntimeError):
 
 class FmuFormatError(FmuError, ValueError):
     """The file is not a usable FMI 2.0 Model-Exchange FMU (not a zip, wrong version, ...)."""
+
+
+class FmuNonFiniteError(FmuError, FloatingPointError):
+    """The FMU returned a non-finite (NaN or infinite) state derivative.
+
+    Also a FloatingPointError, so callers that treat a diverging simulation as such keep doing so.
+    Attributes: ``states`` (the names of the states whose derivatives are not finite) and
+    ``time_s`` (the time of the evaluation, s).
+    """
+
+    def __init__(self, message: str, log: Sequence[str] = (), *, states: Sequence[str] = (), time_s: float = math.nan):
+        super().__init__(message, log)
+        self.states = list(states)
+        self.time_s = float(time_s)
+
+
+class FmuTerminated(FmuError):
+    """The FMU asked to end the simulation (terminateSimulation) before the requested horizon.
+
+    Attributes: ``path`` (the FMU file), ``time_s`` (when it asked, s), ``reason`` (which FMI
+    function asked, and where) and ``result``: the partial result up to ``time_s`` when the
+    request came during ``simulate_open_loop`` (else None).
+    """
+
+    def __init__(self, message: str, log: Sequence[str] = (), *, path: Path, time_s: float, reason: str,
+                 result=None):
+        super().__init__(message, log)
+        self.path = path
+        self.time_s = float(time_s)
+        self.reason = reason
+        self.result = result
+
+
+@dataclass(frozen=True)
+class EventUpdate:
+    """Outcome of one event iteration (fmi2NewDiscreteStates until no new discrete states).
+
+    next_time_event_s: the FMU's next time event in s (inf if it announced none);
+    states_changed: the FMU changed the values of the continuous states;
+    terminate: the FMU asked to end the simulation (terminateSimulation).
+    """
+
+    next_time_event_s: float
+    states_changed: bool
+    terminate: bool
+
+
+def platform_library(identifier: str, platform: str | None = None) -> str:
+    """Path inside an FMU of the shared library of model ``identifier`` for ``platform``.
+
+    platform: an FMI 2.0 platform folder name (``linux64``, ``darwin64``, ``win64``, ...); default:
+    the platform this Python runs on. Returns e.g. ``binaries/linux64/<identifier>.so``,
+    ``binaries/darwin64/<identifier>.dylib`` or ``binaries/win64/<identifier>.dll``.
+    """
+    platform = platform or _library_platform()
+    extension = PLATFORM_LIBRARY_EXTENSIONS.get(platform)
+    if extension is None:
+        raise ValueError(f"platform: expected one of {sorted(PLATFORM_LIBRARY_EXTENSIONS)}, got {platform!r}")
+    return f"binaries/{platform}/{identifier}{extension}"
+
+
+def binary_platforms(unzip_dir: str | os.PathLike, identifier: str) -> list[str]:
+    """The platform folders under ``binaries/`` of an extracted FMU that hold a library of ``identifier``
+    (any file named ``<identifier>.*``), sorted."""
+    binaries = Path(unzip_dir, "binaries")
+    if not binaries.is_dir():
+        return []
+    return sorted(folder.name for folder in binaries.iterdir()
+                  if folder.is_dir() and any(folder.glob(f"{identifier}.*")))
 
 
 def load_fmu(
@@ -91,9 +168,11 @@ def _read_description(path: Path):
         with zipfile.ZipFile(path) as archive:
             if "modelDescription.xml" not in archive.namelist():
                 raise FmuFormatError(f"{path}: zip archive has no modelDescription.xml (expected an FMU)")
-    version = _fmi_version(path)
+    root = _description_root(path)
+    version = root.get("fmiVersion")
     if version != "2.0":
         raise FmuFormatError(f"{path}: fmiVersion is {version!r}, expected '2.0' (FMI 2.0 Model Exchange)")
+    _check_state_declarations(path, root)
     try:
         description = fmpy.read_model_description(str(path), validate=False)
     except Exception as err:  # FMPy raises plain exceptions for malformed descriptions
@@ -108,6 +187,11 @@ def _read_description(path: Path):
 
 def _fmi_version(path: Path) -> str | None:
     """The fmiVersion attribute of modelDescription.xml (read before FMPy parses the rest)."""
+    return _description_root(path).get("fmiVersion")
+
+
+def _description_root(path: Path):
+    """The root element of modelDescription.xml of the FMU file or folder ``path``."""
     from xml.etree import ElementTree
 
     try:
@@ -120,7 +204,44 @@ def _fmi_version(path: Path) -> str | None:
         raise FmuFormatError(f"{path}: modelDescription.xml cannot be read: {err}") from None
     if root.tag != "fmiModelDescription":
         raise FmuFormatError(f"{path}: modelDescription.xml has root <{root.tag}>, expected <fmiModelDescription>")
-    return root.get("fmiVersion")
+    return root
+
+
+def _variable_index(text: str | None) -> int | None:
+    """A 1-based ScalarVariable index written in the XML, or None if it is not an integer."""
+    try:
+        return int(text)
+    except (TypeError, ValueError):
+        return None
+
+
+def _check_state_declarations(path: Path, root) -> None:
+    """Every state derivative names an existing Real state (its 'derivative' attribute), and every
+    <Derivatives> entry of <ModelStructure> is such a derivative; FmuFormatError naming the
+    variable otherwise (checked before FMPy, whose own errors do not name it)."""
+    variables = root.findall("ModelVariables/ScalarVariable")
+
+    def fail(problem: str) -> FmuFormatError:
+        return FmuFormatError(f"{path}: modelDescription.xml: {problem}")
+
+    for variable in variables:
+        real = variable.find("Real")
+        if real is None or real.get("derivative") is None:
+            continue
+        name, text = variable.get("name"), real.get("derivative")
+        index = _variable_index(text)
+        if index is None or not 1 <= index <= len(variables):
+            raise fail(f"derivative variable {name!r} declares derivative=\"{text}\", but there is no "
+                       f"ScalarVariable {text} (expected the 1-based index of its state, 1..{len(variables)})")
+        if variables[index - 1].find("Real") is None:
+            raise fail(f"derivative variable {name!r} declares derivative=\"{text}\", but ScalarVariable {index} "
+                       f"({variables[index - 1].get('name')!r}) is not a Real state")
+    for unknown in root.findall("ModelStructure/Derivatives/Unknown"):
+        text = unknown.get("index")
+        index = _variable_index(text)
+        if index is None or not 1 <= index <= len(variables):
+            raise fail(f"ModelStructure/Derivatives lists Unknown index=\"{text}\", but there is no such "
+                       f"ScalarVariable (expected 1..{len(variables)})")
 
 
 def _library_platform() -> str:
@@ -218,14 +339,7 @@ class FmuModel:
                 except Exception as err:
                     raise FmuFormatError(f"{self.path}: cannot extract the FMU archive: {err}") from None
             self._unzip_dir = unzip_dir
-            library = Path(unzip_dir, "binaries", _library_platform(), self._identifier + ".so")
-            if not library.is_file():
-                available = sorted(p.name for p in Path(unzip_dir, "binaries").glob("*")) if Path(
-                    unzip_dir, "binaries").is_dir() else []
-                raise FmuFormatError(
-                    f"{self.path}: no binary for this platform (expected binaries/{_library_platform()}/"
-                    f"{self._identifier}.so; the FMU has binaries for {available or 'no platform'})"
-                )
+            library = self._platform_library_file(unzip_dir)
             try:
                 self._fmu = FMU2Model(
                     guid=description.guid, unzipDirectory=unzip_dir, modelIdentifier=self._identifier,
@@ -261,6 +375,20 @@ class FmuModel:
             raise
 
     # ------------------------------------------------------------------ description
+
+    def _platform_library_file(self, unzip_dir: str) -> Path:
+        """The FMU's shared library for this platform in the extracted folder; FmuFormatError naming
+        the FMU, the platform needed and the platforms the FMU has if there is none."""
+        platform = _library_platform()
+        relative = platform_library(self._identifier, platform)
+        library = Path(unzip_dir, relative)
+        if not library.is_file():
+            available = binary_platforms(unzip_dir, self._identifier)
+            raise FmuFormatError(
+                f"{self.path}: no binary for this platform: {platform} needs {relative}; the FMU contains "
+                f"binaries for {', '.join(available) if available else 'no platform'}"
+            )
+        return library
 
     def _collect_variables(self, description) -> None:
         path = self.path
@@ -403,7 +531,10 @@ class FmuModel:
         self._fmi("setupExperiment", None, float(start_time_s), None)
         self._fmi("enterInitializationMode")
         self._fmi("exitInitializationMode")
-        self._next_time_event_s, _ = self._event_iteration(float(start_time_s))
+        update = self._event_iteration(float(start_time_s))
+        if update.terminate:
+            raise self._terminated(float(start_time_s), "fmi2NewDiscreteStates during initialisation")
+        self._next_time_event_s = update.next_time_event_s
         self._fmi("enterContinuousTimeMode")
         x = np.empty(self.n_states)
         if self.n_states:
@@ -411,21 +542,31 @@ class FmuModel:
         self.initial_states = x
         self._needs_reinit = False
 
-    def _event_iteration(self, time_s: float) -> tuple[float, bool]:
-        """fmi2NewDiscreteStates until the FMU needs no more; return the next time event in s
-        (inf if none) and whether the FMU changed the values of continuous states."""
+    def _event_iteration(self, time_s: float) -> EventUpdate:
+        """fmi2NewDiscreteStates (in event mode, at time_s in s) until the FMU needs no more
+        iterations or asks to terminate; a terminate request leaves the model to be re-initialised."""
         values_changed = False
-        for _ in range(1000):
+        for _ in range(MAX_EVENT_ITERATIONS):
             (needed, terminate, _nominals_changed, changed,
              next_defined, next_time) = self._fmi("newDiscreteStates")
             values_changed = values_changed or bool(changed)
-            if terminate:
-                self._needs_reinit = True
-                raise FmuError(f"{self.path}: the FMU asked to terminate at t = {time_s} s", self.log_messages())
-            if not needed:
-                return (float(next_time) if next_defined else float("inf")), values_changed
-        raise FmuError(f"{self.path}: event iteration at t = {time_s} s did not converge in 1000 iterations",
+            if terminate or not needed:
+                if terminate:
+                    self._needs_reinit = True
+                next_time_s = float(next_time) if next_defined and not terminate else float("inf")
+                return EventUpdate(next_time_s, values_changed, bool(terminate))
+        raise FmuError(f"{self.path}: event iteration at t = {time_s} s did not converge in "
+                       f"{MAX_EVENT_ITERATIONS} iterations (newDiscreteStatesNeeded stayed true)",
                        self.log_messages())
+
+    def _terminated(self, time_s: float, reason: str, result=None) -> FmuTerminated:
+        """The error for a terminateSimulation request of the FMU at time_s (s) from ``reason``."""
+        self._needs_reinit = True
+        return FmuTerminated(
+            f"{self.path}: the FMU asked to terminate the simulation (terminateSimulation from {reason}) "
+            f"at t = {time_s} s",
+            self.log_messages(), path=self.path, time_s=time_s, reason=reason, result=result,
+        )
 
     def _set_start_value(self, name: str, value) -> None:
         variable = self._variables[name]
@@ -512,18 +653,42 @@ class FmuModel:
         text = buffer.value.decode("utf-8", errors="replace")
         return [line for line in text.splitlines() if line]
 
-    def _raise_shim_error(self, status: int, what: str, row_label: str = "row") -> None:
+    def _raise_shim_error(self, status: int, what: str, row_label: str = "row",
+                          derivatives: np.ndarray | None = None, states: np.ndarray | None = None) -> None:
+        """Raise the error for a failed shim call. derivatives, states: the (N, n_x) arrays of a
+        batch call, to name every non-finite derivative of the failing row and its states."""
         m = self._shim_model
         function = _shim.FUNCTION_NAMES.get(m.failed_function, f"function #{m.failed_function}")
         where = f" at {row_label} {m.failed_row}" if m.failed_row >= 0 else ""
         if status == _shim.ERR_NOT_FINITE:
-            raise FmuError(f"{self.path}: {what}: the derivatives are not finite{where}", self.log_messages())
+            message, names = self._non_finite_message(what, where, derivatives, states)
+            raise FmuNonFiniteError(message, self.log_messages(), states=names, time_s=m.failed_time)
         if status == _shim.ERR_NO_MEMORY:
             raise MemoryError(f"{self.path}: {what}: out of memory in the FMU shim")
         if status > 2:
             self._needs_reinit = True
         label = _STATUS_LABELS.get(status, str(status))
         raise FmuError(f"{self.path}: {what}: {function} returned {label}{where}", self.log_messages())
+
+    def _non_finite_message(self, what: str, where: str, derivatives: np.ndarray | None,
+                            states: np.ndarray | None) -> tuple[str, list[str]]:
+        """Message naming the non-finite derivative(s) (and their states), the time and the FMU;
+        and the names of those states."""
+        m = self._shim_model
+        row = m.failed_row
+        if derivatives is not None and 0 <= row < len(derivatives):
+            columns = np.flatnonzero(~np.isfinite(derivatives[row])).tolist() or [int(m.failed_index)]
+            values = [f"{self.derivative_names[j]} = {derivatives[row, j]}" for j in columns]
+        else:
+            columns = [int(m.failed_index)]
+            values = [f"{self.derivative_names[columns[0]]} = {m.failed_value}"]
+        named = ", ".join(f"{value} (state {self.state_names[j]!r})" for value, j in zip(values, columns))
+        message = (f"{self.path}: {what}: non-finite state derivative {named} at t = {m.failed_time} s{where}; "
+                   "expected finite derivatives")
+        if states is not None and 0 <= row < len(states):
+            message += " (states: " + ", ".join(
+                f"{name} = {value}" for name, value in zip(self.state_names, states[row])) + ")"
+        return message, [self.state_names[j] for j in columns]
 
     # ------------------------------------------------------------------ argument checks
 
@@ -604,7 +769,7 @@ class FmuModel:
             status = self._lib.hf_derivatives(self._m, n, t_ptr, t_stride,
                                               self._data(x), self._data(u), self._data(dx))
             if status:
-                self._raise_shim_error(status, "derivatives")
+                self._raise_shim_error(status, "derivatives", derivatives=dx, states=x)
         return dx
 
     def event_indicators(self, x, u=None, t_s=0.0) -> np.ndarray:

@@ -29,6 +29,7 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from hybridfmu.fmu.bridge import platform_library
 from hybridfmu.io import atomic_path
 
 LOGGER = logging.getLogger("hybridfmu.fmu.build")
@@ -39,6 +40,9 @@ COMMON_DIR = C_SOURCE_DIR / "common"
 
 #: Compiler flags (besides include paths, macros and the prefix maps).
 C_FLAGS = ("-shared", "-fPIC", "-O2", "-std=c11", "-Wall", "-Wextra", "-fvisibility=hidden")
+
+#: The FMI platform folder of the binaries built here (see ``_check_platform``).
+BUILD_PLATFORM = "linux64"
 
 #: Timestamp of every archive entry (the earliest a zip file can hold).
 ZIP_DATE_TIME = (1980, 1, 1, 0, 0, 0)
@@ -222,7 +226,7 @@ def _package(source: ModelSource, out_path: Path, compiler: str | None) -> Path:
         compile_shared_library(source, library, compiler=compiler)
         members = {
             "modelDescription.xml": source.model_description.read_bytes(),
-            f"binaries/linux64/{model_name}.so": library.read_bytes(),
+            platform_library(model_name, BUILD_PLATFORM): library.read_bytes(),
         }
         with atomic_path(out_path) as tmp_path:
             write_fmu_archive(tmp_path, members)

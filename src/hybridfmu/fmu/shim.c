@@ -90,6 +90,9 @@ typedef struct {
     int failed_function;
     long long failed_row;
     int failed_status;
+    long long failed_index; /* for HF_ERR_NOT_FINITE: the first state whose derivative is not finite */
+    double failed_time;     /* for HF_ERR_NOT_FINITE: the time of the evaluation, s */
+    double failed_value;    /* for HF_ERR_NOT_FINITE: that derivative's value (NaN or +-inf) */
 } hf_model;
 
 #define HF_FAIL(m, fn, row, st)         \
@@ -205,16 +208,33 @@ static int hf_set_point(hf_model *m, double t, const double *x, const double *u,
     return 0;
 }
 
-/* dx (n, nx) = f(t, x, u) for every row. t has stride t_stride (0: one time for all rows). */
+/* HF_ERR_NOT_FINITE (recording the state index, the value and the time) if a derivative in dx (nx,) is
+   NaN or infinite, else 0. */
+static int hf_check_finite(hf_model *m, const double *dx, double t, long long row) {
+    size_t i;
+    for (i = 0; i < m->nx; ++i)
+        if (!isfinite(dx[i])) {
+            m->failed_index = (long long)i;
+            m->failed_time = t;
+            m->failed_value = dx[i];
+            HF_FAIL(m, HF_FN_GET_DERIVATIVES, row, HF_ERR_NOT_FINITE);
+        }
+    return 0;
+}
+
+/* dx (n, nx) = f(t, x, u) for every row. t has stride t_stride (0: one time for all rows).
+   A derivative that is not finite stops the loop with HF_ERR_NOT_FINITE at that row. */
 int hf_derivatives(hf_model *m, size_t n, const double *t, size_t t_stride, const double *x,
                    const double *u, double *dx) {
     size_t r;
     m->failed_function = HF_FN_NONE;
     for (r = 0; r < n; ++r) {
-        int st = hf_set_point(m, t[r * t_stride], x + r * m->nx, u + r * m->nu, (long long)r);
+        const double tr = t[r * t_stride];
+        int st = hf_set_point(m, tr, x + r * m->nx, u + r * m->nu, (long long)r);
         if (st) return st;
         HF_CHECK(m, m->get_derivatives(m->component, dx + r * m->nx, m->nx), HF_FN_GET_DERIVATIVES,
                  r);
+        if ((st = hf_check_finite(m, dx + r * m->nx, tr, (long long)r))) return st;
     }
     return 0;
 }
@@ -361,9 +381,7 @@ static int hf_rhs(hf_model *m, double t, const double *x, const double *u, doubl
         if (m->correction() != 0) HF_FAIL(m, HF_FN_CORRECTION, row, HF_ERR_CALLBACK);
         for (i = 0; i < m->nx; ++i) out[i] += m->cb_dx[i];
     }
-    for (i = 0; i < m->nx; ++i)
-        if (!isfinite(out[i])) HF_FAIL(m, HF_FN_GET_DERIVATIVES, row, HF_ERR_NOT_FINITE);
-    return 0;
+    return hf_check_finite(m, out, t, row);
 }
 
 /* One classical Runge-Kutta step of size h from (t, x) with the inputs u held; leaves the FMU at

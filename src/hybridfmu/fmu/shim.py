@@ -80,6 +80,9 @@ class ShimModel(ctypes.Structure):
         ("failed_function", c_int),
         ("failed_row", c_longlong),
         ("failed_status", c_int),
+        ("failed_index", c_longlong),
+        ("failed_time", c_double),
+        ("failed_value", c_double),
     ]
 
 

@@ -5,6 +5,9 @@
   database is locked; the store is created (schema migrations) under an exclusive file lock, so two jobs
   that open a fresh database at once do not race.
 - Experiments and runs are found by name / tags before they are created, so a rerun reuses them.
+- Bounded waiting: retries stop after ``retry_budget_s`` (config ``mlflow.retry_budget_s``); HTTP stores are
+  asked with ``mlflow.request_timeout_s`` and ``mlflow.http_retries`` instead of MLflow's own minutes of
+  retries. :func:`check_tracking_store` checks the store when the workflow starts (seconds, creates nothing).
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import logging
+import os
 import random
 import re
 import subprocess
@@ -24,6 +28,19 @@ T = TypeVar("T")
 
 #: Substrings of errors that mean "try again": SQLite lock contention.
 RETRYABLE_MESSAGES = ("database is locked", "database table is locked", "disk i/o error", "unable to open database")
+
+#: Defaults of the ``mlflow`` config section's fault settings (workflow/schemas/mlflow.schema.yaml).
+DEFAULT_RETRY_BUDGET_S = 60.0
+DEFAULT_REQUEST_TIMEOUT_S = 10.0
+DEFAULT_HTTP_RETRIES = 2
+
+
+def retry_settings(mlflow_config: dict[str, Any] | None) -> dict[str, float]:
+    """``{"retry_budget_s", "request_timeout_s", "http_retries"}`` of the ``mlflow`` config section."""
+    section = mlflow_config or {}
+    return {"retry_budget_s": float(section.get("retry_budget_s", DEFAULT_RETRY_BUDGET_S)),
+            "request_timeout_s": float(section.get("request_timeout_s", DEFAULT_REQUEST_TIMEOUT_S)),
+            "http_retries": int(section.get("http_retries", DEFAULT_HTTP_RETRIES))}
 
 
 def default_tracking_uri(results_dir: str | Path) -> str:
@@ -42,9 +59,11 @@ def experiment_name(mlflow_config: dict[str, Any] | None, case: str) -> str:
 
 
 def retry_locked(fn: Callable[..., T], *args: Any, attempts: int = 15, base_delay_s: float = 0.05,
-                 max_delay_s: float = 5.0, **kwargs: Any) -> T:
+                 max_delay_s: float = 5.0, budget_s: float | None = None, **kwargs: Any) -> T:
     """Call ``fn``; while it fails because the database is locked, wait (exponential backoff with jitter)
-    and call again, up to ``attempts`` times. Other errors propagate at once."""
+    and call again, up to ``attempts`` times and, with ``budget_s``, until the waits would exceed
+    ``budget_s`` seconds in all. Other errors propagate at once."""
+    waited = 0.0
     for attempt in range(attempts):
         try:
             return fn(*args, **kwargs)
@@ -53,6 +72,11 @@ def retry_locked(fn: Callable[..., T], *args: Any, attempts: int = 15, base_dela
             if attempt == attempts - 1 or not any(message in text for message in RETRYABLE_MESSAGES):
                 raise
             delay = min(max_delay_s, base_delay_s * 2 ** attempt) * (0.5 + random.random())
+            if budget_s is not None:
+                if waited >= budget_s:
+                    raise
+                delay = min(delay, budget_s - waited)
+            waited += delay
             LOG.info("MLflow store busy (%s); retrying in %.2f s", text.splitlines()[0][:120], delay)
             time.sleep(delay)
     raise AssertionError("unreachable")
@@ -87,30 +111,51 @@ def mlflow_key(name: str) -> str:
     return _MLFLOW_KEY_INVALID.sub("_", str(name))[:250]
 
 
+def sqlite_database(uri: str) -> Path | None:
+    """The database file of a ``sqlite:///`` URI, else None."""
+    return Path(uri[len("sqlite:///"):]) if uri.startswith("sqlite:///") else None
+
+
+def bound_http_requests(request_timeout_s: float, http_retries: int) -> None:
+    """Bound MLflow's HTTP requests of this process (its defaults retry for about 4 minutes)."""
+    os.environ["MLFLOW_HTTP_REQUEST_TIMEOUT"] = str(max(1, int(round(request_timeout_s))))
+    os.environ["MLFLOW_HTTP_REQUEST_MAX_RETRIES"] = str(max(0, int(http_retries)))
+    os.environ["MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR"] = "1"
+
+
 class Tracker:
     """An MLflow client with retries. ``artifact_root``: folder for the artifacts of experiments this
-    tracker creates (default: ``mlartifacts`` beside a SQLite database)."""
+    tracker creates (default: ``mlartifacts`` beside a SQLite database). ``create``: create a missing SQLite
+    store (False: a missing database is an error naming it, e.g. for a store lost during the search).
+    ``retry_budget_s``: most seconds one call waits for a locked store (None: unbounded attempts only)."""
 
-    def __init__(self, uri: str, artifact_root: str | Path | None = None) -> None:
+    def __init__(self, uri: str, artifact_root: str | Path | None = None, *, create: bool = True,
+                 retry_budget_s: float | None = DEFAULT_RETRY_BUDGET_S,
+                 request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S, http_retries: int = DEFAULT_HTTP_RETRIES) -> None:
         from mlflow.tracking import MlflowClient
 
         self.uri = uri
-        database = Path(uri[len("sqlite:///"):]) if uri.startswith("sqlite:///") else None
+        self.retry_budget_s = retry_budget_s
+        database = sqlite_database(uri)
         if artifact_root is None and database is not None:
             artifact_root = database.parent / "mlartifacts"
         self.artifact_root = Path(artifact_root).resolve() if artifact_root is not None else None
+        if uri.startswith(("http://", "https://")):
+            bound_http_requests(request_timeout_s, http_retries)
         if database is None:
             self.client = MlflowClient(tracking_uri=uri)
         else:
+            if not create and not database.is_file():
+                raise FileNotFoundError(f"{database}: MLflow store (tracking URI {uri}) does not exist any more")
             # The store is created (schema migrations) on first use: do it under an exclusive file lock,
             # so that jobs opening a fresh database at the same time do not race.
             with _file_lock(database.with_name(database.name + ".lock")):
                 self.client = MlflowClient(tracking_uri=uri)
-                retry_locked(self.client.search_experiments, max_results=1)
+                retry_locked(self.client.search_experiments, max_results=1, budget_s=retry_budget_s)
 
     def call(self, method: str, *args: Any, **kwargs: Any) -> Any:
         """``client.<method>(*args, **kwargs)`` with retries while the store is locked."""
-        return retry_locked(getattr(self.client, method), *args, **kwargs)
+        return retry_locked(getattr(self.client, method), *args, budget_s=self.retry_budget_s, **kwargs)
 
     def experiment_id(self, name: str) -> str:
         """Id of experiment ``name``, created if missing (safe when another job creates it meanwhile)."""
@@ -170,3 +215,58 @@ class Tracker:
             self.call("update_run", run_id, status="RUNNING")
         else:
             self.call("set_terminated", run_id, status=status)
+
+
+def _nearest_existing(path: Path) -> Path:
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return path
+
+
+def _store_problem(uri: str, timeout_s: float) -> str | None:
+    """Why the store at ``uri`` cannot be used, or None (creates nothing)."""
+    database = sqlite_database(uri)
+    if uri.startswith("sqlite:") and database is None:
+        return "a SQLite URI must be sqlite:///<absolute path of the database file>"
+    if database is not None or uri.startswith("file:") or "://" not in uri:
+        path = database if database is not None else Path(uri[len("file://"):] if uri.startswith("file://") else uri)
+        target = path if database is None else path.parent
+        if database is not None and database.exists():
+            if not database.is_file():
+                return f"{database} is not a file"
+            if not os.access(database, os.R_OK | os.W_OK):
+                return f"the database {database} is not writable"
+        existing = _nearest_existing(target)
+        if not existing.is_dir():
+            return f"{existing} is not a folder, so {target} cannot be created"
+        if not os.access(existing, os.W_OK | os.X_OK):
+            return f"the folder {existing} is not writable"
+        return None
+    if uri.startswith(("http://", "https://")):
+        import urllib.error
+        import urllib.request
+
+        try:
+            with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=timeout_s):
+                return None
+        except urllib.error.HTTPError:
+            return None  # the server answers (an MLflow server without /health, a proxy asking to log in ...)
+        except (urllib.error.URLError, OSError, ValueError) as err:
+            reason = getattr(err, "reason", err)
+            return f"the server does not answer within {timeout_s:g} s ({reason})"
+    return None  # other stores (databases, Databricks ...) are checked by their first use
+
+
+def check_tracking_store(uri: str, config_file: str | Path, timeout_s: float = 5.0) -> None:
+    """Fail fast when the tracking store cannot be used: a SQLite store whose folder cannot be created or
+    written, an HTTP(S) server that does not answer within ``timeout_s``. Creates nothing (safe in a dry run).
+
+    Raises:
+        hybridfmu.config.ConfigError: one line naming ``config_file``, ``config.mlflow.tracking_uri``, the URI
+            and why.
+    """
+    from hybridfmu.config import ConfigError
+
+    problem = _store_problem(uri, timeout_s)
+    if problem is not None:
+        raise ConfigError(f"{config_file}: config.mlflow.tracking_uri: the MLflow store {uri} cannot be used: {problem}")

@@ -157,7 +157,7 @@ def select_best(*, plan_path: str | Path, selection_paths: list[str], best_path:
     "validation", "objective", "delay_s", "gates", "model_spec", "fmu", "mlflow_run_id", "tracking",
     "summary", ...}``.
     """
-    import torch
+    from hybridfmu.training.trial import load_checkpoint
 
     plan = read_json(plan_path)
     finals, trials = [], []
@@ -182,7 +182,7 @@ def select_best(*, plan_path: str | Path, selection_paths: list[str], best_path:
         raise RuntimeError(f"hyperparameter search of case {case}: every configuration of the last rungs failed "
                            f"or diverged; see {summary_path}")
     best = ranked[0]
-    checkpoint = torch.load(best["checkpoint"], map_location="cpu", weights_only=False)
+    checkpoint = load_checkpoint(best["checkpoint"])
     with atomic_path(best_model_path) as tmp:
         shutil.copyfile(best["checkpoint"], tmp)
     record = {

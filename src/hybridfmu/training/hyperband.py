@@ -35,11 +35,49 @@ class Bracket:
         return self.rungs[-1].index
 
 
-def max_bracket(R: float, eta: float) -> int:
-    """s_max = floor(log_eta(R)) (robust to rounding: R = 81, eta = 3 gives 4)."""
-    if not R >= 1 or not eta > 1:
-        raise ValueError(f"hyperband: need R >= 1 and eta > 1, got R={R}, eta={eta}")
+#: At most this many brackets (s_max + 1); the paper's R = 81, eta = 3 has 5. More means an eta so close to 1
+#: that the search would plan (and the workflow schedule) an unbounded number of configurations.
+MAX_BRACKETS = 20
+
+
+def check_budget(R: float, eta: float, names: tuple[str, str] = ("R", "eta")) -> None:
+    """Raise ValueError unless (R, eta) gives a real search: several brackets, each successive halving.
+
+    Degenerate inputs: R or eta not a finite number; R < 1; eta <= 1 (no halving; log_eta undefined);
+    R < eta (a single bracket of a single configuration trained to R: no search at all); more than
+    :data:`MAX_BRACKETS` brackets (eta too close to 1 for R). ``names`` name R and eta in the message
+    (e.g. ``config.hpo.R``).
+    """
+    r_name, eta_name = names
+    for name, value in ((r_name, R), (eta_name, eta)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ValueError(f"{name} = {value!r}: expected a finite number")
+    if not R >= 1:
+        raise ValueError(f"{r_name} = {R:g}: expected at least 1 (the maximum resource per configuration, in units)")
+    if not eta > 1:
+        raise ValueError(f"{eta_name} = {eta:g}: expected a reduction factor above 1 (the paper's 3)")
+    if R < eta * (1 - 1e-9):
+        raise ValueError(f"{r_name} = {R:g} is smaller than {eta_name} = {eta:g}: Hyperband would have one bracket "
+                         "with a single configuration trained to R (no search); expected "
+                         f"{r_name} >= {eta_name} (the paper: R = 81, eta = 3)")
+    n_brackets = _s_max(R, eta) + 1
+    if n_brackets > MAX_BRACKETS:
+        raise ValueError(f"{r_name} = {R:g}, {eta_name} = {eta:g}: {n_brackets} brackets (log_eta R + 1); expected "
+                         f"at most {MAX_BRACKETS} (a larger {eta_name} or a smaller {r_name})")
+
+
+def _s_max(R: float, eta: float) -> int:
     return int(math.floor(math.log(R) / math.log(eta) + 1e-9))
+
+
+def max_bracket(R: float, eta: float) -> int:
+    """s_max = floor(log_eta(R)) (robust to rounding: R = 81, eta = 3 gives 4).
+
+    Raises:
+        ValueError: degenerate R and eta (:func:`check_budget`).
+    """
+    check_budget(R, eta)
+    return _s_max(R, eta)
 
 
 def hyperband_brackets(R: float, eta: float) -> list[Bracket]:

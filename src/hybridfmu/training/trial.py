@@ -40,14 +40,33 @@ def file_sha256(path: str | Path) -> str:
     return digest.hexdigest()
 
 
+#: Fields every trial checkpoint holds.
+CHECKPOINT_FIELDS = ("format", "status", "bracket", "rung", "config", "spec", "model", "validations")
+
+
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Read a trial checkpoint written by ``run_trial_rung``."""
+    """Read a trial checkpoint written by ``run_trial_rung``.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: the file is not a readable trial checkpoint (truncated, corrupt, another format); the
+            message names the file and what was expected.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint does not exist")
-    checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # torch raises OSError, RuntimeError, UnpicklingError ... for a damaged file
+        raise ValueError(f"{path}: cannot read the checkpoint ({type(err).__name__}: {err}); expected a trial "
+                         f"checkpoint (torch.save of a dict with format {CHECKPOINT_FORMAT}) written by "
+                         f"run_trial_rung; delete it to retrain that rung") from None
     if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path}: not a trial checkpoint (expected format {CHECKPOINT_FORMAT})")
+        found = checkpoint.get("format") if isinstance(checkpoint, dict) else type(checkpoint).__name__
+        raise ValueError(f"{path}: not a trial checkpoint (field 'format' is {found!r}, expected {CHECKPOINT_FORMAT})")
+    missing = [field for field in CHECKPOINT_FIELDS if field not in checkpoint]
+    if missing:
+        raise ValueError(f"{path}: trial checkpoint lacks the fields {missing} (expected {list(CHECKPOINT_FIELDS)})")
     return checkpoint
 
 
@@ -68,6 +87,35 @@ def _curve(history: list[list[float]], points: int) -> list[list[float]]:
     return curve
 
 
+def _track_rung(plan: dict[str, Any], plan_path: str | Path, result: dict[str, Any], result_path: str | Path,
+                history: list[list[float]], model: Any, spec: Any, run_id: str | None,
+                options: dict[str, Any]) -> tuple[str | None, dict[str, str]]:
+    """Log the rung to MLflow; on failure queue it for later. Returns (run id, tracking record)."""
+    from hybridfmu.tracking import Tracker
+    from hybridfmu.tracking.search import (drop_pending, end_stale_runs, log_trial_rung, record_pending,
+                                           sync_pending, trial_lock)
+
+    tracking = plan["tracking"]
+    try:
+        tracker = Tracker(tracking["uri"], create=False, **options)
+        end_stale_runs(tracker, tracking["experiment_id"], plan["search_id"])
+        with trial_lock(plan_path, result["trial_id"]):
+            run_id = log_trial_rung(tracking, plan["search_id"], result, history, model, spec, run_id, tracker=tracker)
+    except Exception as err:  # any store failure: the rung is kept and logged later
+        error = f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}"[:500]
+        entry = record_pending(plan_path, result, result_path, error)
+        LOG.warning("trial %s rung %d: MLflow logging failed (%s); the rung is kept and queued in %s for later",
+                    result["trial_id"], result["rung"], error, entry)
+        return None, {"status": "deferred", "error": error}
+    drop_pending(plan_path, result)
+    try:  # the store answers: catch up on rungs whose logging failed before
+        sync_pending(plan_path, tracker)
+    except Exception as err:
+        LOG.warning("MLflow: rungs queued for later logging stay queued (%s: %s)", type(err).__name__,
+                    str(err).splitlines()[0] if str(err) else "")
+    return run_id, {"status": "logged", "error": ""}
+
+
 def validation_points(start_s: float, target_s: float, every_s: float | None) -> list[float]:
     """Resources (s of data) at which a rung from ``start_s`` to ``target_s`` validates: evenly spaced, at most
     ``every_s`` apart, the last at ``target_s`` (only there if ``every_s`` is None)."""
@@ -82,7 +130,8 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
                    fmu_path: str | Path, calibration_path: str | Path | None, roles: Any,
                    model_config: dict[str, Any], training_config: dict[str, Any],
                    previous_checkpoint: str | Path | None,
-                   checkpoint_path: str | Path, result_path: str | Path, track: bool = True) -> dict[str, Any]:
+                   checkpoint_path: str | Path, result_path: str | Path, track: bool = True,
+                   tracking_options: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train configuration ``config_index`` of ``bracket`` up to the resource of ``rung`` and validate it.
 
     Validation (open loop over the validation segments) runs at the rung's end and, with
@@ -101,6 +150,14 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
         previous_checkpoint: the previous rung's checkpoint (None for rung 0).
         checkpoint_path, result_path: outputs (written atomically, also for a failed trial).
         track: log to MLflow (the plan's tracking store).
+        tracking_options: :class:`hybridfmu.tracking.Tracker` options (``retry_budget_s``,
+            ``request_timeout_s``, ``http_retries``; config section ``mlflow``).
+
+    The checkpoint and the result are written before anything is logged: a tracking store that is locked
+    too long, lost or unreachable does not fail the job. The result's ``tracking`` records what happened
+    (``{"status": "logged" | "deferred" | "off", "error"}``); a deferred rung is queued beside the plan and
+    logged later (:func:`hybridfmu.tracking.search.sync_pending`, run by the next job that reaches the store
+    and by select_best).
 
     Returns:
         The result record (also written to ``result_path``).
@@ -134,7 +191,12 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
         previous = load_checkpoint(previous_checkpoint)
         if previous["config"] != config_index or previous["bracket"] != bracket or previous["rung"] != rung - 1:
             raise ValueError(f"{previous_checkpoint}: checkpoint of b{previous['bracket']} r{previous['rung']} "
-                             f"c{previous['config']}, expected b{bracket} r{rung - 1} c{config_index}")
+                             f"c{previous['config']} (fields 'bracket', 'rung', 'config'), expected "
+                             f"b{bracket} r{rung - 1} c{config_index}")
+        if previous.get("hash") != entry["hash"]:
+            raise ValueError(f"{previous_checkpoint}: field 'hash' is {previous.get('hash')!r}, expected "
+                             f"{entry['hash']!r} (the configuration of {plan_path}); the checkpoint is of "
+                             f"another search")
         validations = list(previous["validations"])
         best = dict(previous.get("best") or {})
         best_model = previous["model"]
@@ -198,17 +260,20 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
         "hyperparameters": entry["hyperparameters"], "trainer": trainer.state_dict() if trainer else None,
         "model": model.state_dict(), "best": best, "validations": validations, "fmu": result["fmu"],
     }
-    if track and plan.get("tracking"):
-        from hybridfmu.tracking.search import log_trial_rung
-
-        mlflow_run_id = log_trial_rung(plan["tracking"], plan["search_id"], result, trainer.history if trainer else [],
-                                       model, spec, mlflow_run_id, start_resource_s)
-    result["mlflow_run_id"] = mlflow_run_id
+    track = bool(track and plan.get("tracking"))
+    result["mlflow_run_id"] = None
+    result["tracking"] = {"status": "deferred" if track else "off", "error": ""}
     checkpoint["mlflow_run_id"] = mlflow_run_id
     result["wall_time_s"] = time.perf_counter() - wall_start
+    # checkpoint and result first: whatever happens to the tracking store, the rung is kept
     with atomic_path(checkpoint_path) as tmp:
         torch.save(checkpoint, tmp)
     write_json_atomic(result_path, result)
+    if track:
+        result["mlflow_run_id"], result["tracking"] = _track_rung(
+            plan, plan_path, result, result_path, trainer.history if trainer else [], model, spec, mlflow_run_id,
+            tracking_options or {})
+        write_json_atomic(result_path, result)
     LOG.info("trial %s rung %d: %s, objective %s, %.4g s of data, %d steps (%d skipped), dt = %.4g s, %.1f s wall",
              trial_id, rung, status, result["objective"], result["resource_s"], result["steps"],
              result["skipped_steps"], result["delay_s"], result["wall_time_s"])

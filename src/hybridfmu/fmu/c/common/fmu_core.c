@@ -722,13 +722,27 @@ fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *fmi2eventInfo) 
     if (instance == NULL) return fmi2Error;
     if (null_argument(instance, "fmi2NewDiscreteStates", fmi2eventInfo, "fmi2eventInfo")) return fmi2Error;
     if (check_all_parameters(instance, "fmi2NewDiscreteStates") != fmi2OK) return fmi2Error;
+    memset(&instance->request, 0, sizeof instance->request);
     int states_changed = model_event_update(instance);
+    const EventRequest *request = &instance->request;
+    int next_time_valid = request->next_event_time_defined && isfinite(request->next_event_time_s) &&
+                          request->next_event_time_s > instance->state.time_s;
+    if (request->next_event_time_defined && !next_time_valid) {
+        fmu_log(instance, fmi2Error, LOG_STATUS_ERROR,
+                "fmi2NewDiscreteStates: the model announced its next time event at t = %g s, "
+                "expected a finite time after the current time %g s",
+                request->next_event_time_s, instance->state.time_s);
+        return fmi2Error;
+    }
     fmi2eventInfo->newDiscreteStatesNeeded = fmi2False;
-    fmi2eventInfo->terminateSimulation = fmi2False;
+    fmi2eventInfo->terminateSimulation = request->terminate ? fmi2True : fmi2False;
     fmi2eventInfo->nominalsOfContinuousStatesChanged = fmi2False;
     fmi2eventInfo->valuesOfContinuousStatesChanged = states_changed ? fmi2True : fmi2False;
-    fmi2eventInfo->nextEventTimeDefined = fmi2False;
-    fmi2eventInfo->nextEventTime = 0.0;
+    fmi2eventInfo->nextEventTimeDefined = next_time_valid ? fmi2True : fmi2False;
+    fmi2eventInfo->nextEventTime = next_time_valid ? request->next_event_time_s : 0.0;
+    if (request->terminate)
+        fmu_log(instance, fmi2OK, LOG_EVENTS, "fmi2NewDiscreteStates: the model asks to terminate at t = %g s",
+                instance->state.time_s);
     return fmi2OK;
 }
 
@@ -749,8 +763,14 @@ fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStat
         null_argument(instance, "fmi2CompletedIntegratorStep", terminateSimulation, "terminateSimulation"))
         return fmi2Error;
     *enterEventMode = model_step_event_needed(&instance->state.data) ? fmi2True : fmi2False;
-    *terminateSimulation = fmi2False;
+    *terminateSimulation = model_step_terminate_needed(instance) ? fmi2True : fmi2False;
     return fmi2OK;
+}
+
+/* Default for models that never ask to terminate after a step (a model's own definition wins). */
+__attribute__((weak)) int model_step_terminate_needed(const ModelInstance *instance) {
+    (void)instance;
+    return 0;
 }
 
 fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {

@@ -77,6 +77,14 @@ typedef struct {
     ModelData data;
 } InstanceState;
 
+/* What the model asks of the importer at the end of an event iteration (fmi2NewDiscreteStates).
+   The core clears it before every call of model_event_update, which may set its fields. */
+typedef struct {
+    int next_event_time_defined; /* 1: a time event is due at next_event_time_s */
+    double next_event_time_s;    /* absolute simulation time of the next time event, s */
+    int terminate;               /* 1: the simulation must end now (terminateSimulation) */
+} EventRequest;
+
 typedef struct ModelInstance {
     unsigned magic; /* FMU_INSTANCE_MAGIC while the instance is alive */
     char *instance_name;
@@ -87,6 +95,7 @@ typedef struct ModelInstance {
     int logging_on;
     unsigned log_categories; /* bit i set: category i of fmu_log_category_names enabled */
     InstanceState state;
+    EventRequest request; /* filled by model_event_update, reported by fmi2NewDiscreteStates */
 } ModelInstance;
 
 /* Log categories (modelDescription.xml, <LogCategories>). */
@@ -127,12 +136,19 @@ void model_calculate(ModelData *data);
 void model_event_indicators(const ModelData *data, double indicators[]);
 
 /* Event iteration (fmi2NewDiscreteStates): update discrete states, possibly re-initialise
-   continuous states. Return 1 if continuous state values changed, else 0. */
+   continuous states. Return 1 if continuous state values changed, else 0. The model may announce
+   its next time event or ask to terminate through instance->request (cleared before the call);
+   the current time is instance->state.time_s. */
 int model_event_update(ModelInstance *instance);
 
 /* After an integrator step: return 1 if the values are inconsistent with the discrete
    states so that event mode must be entered (a safety net for missed state events). */
 int model_step_event_needed(const ModelData *data);
+
+/* Optional: the core links a default that returns 0 when the model does not define it.
+   After an integrator step (fmi2CompletedIntegratorStep), return 1 to ask the importer to
+   terminate the simulation (terminateSimulation); time and values are in instance->state. */
+int model_step_terminate_needed(const ModelInstance *instance);
 
 #if MODEL_PROVIDES_DIRECTIONAL_DERIVATIVE
 /* dv_unknown[i] = sum_j d(unknown_i)/d(known_j) * dv_known[j] at the current values.

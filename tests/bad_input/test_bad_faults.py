@@ -1,0 +1,110 @@
+"""Faults around the search: an unreachable or unusable MLflow store, a store lost during the search, damaged
+or foreign checkpoints. Each is answered by an error naming the file and the field (or what was expected),
+and what was already written stays intact."""
+
+import json
+import socket
+import time
+
+import pytest
+import torch
+
+from bad_input.conftest import assert_intact, assert_names, snapshot
+from hybridfmu.config import ConfigError
+from hybridfmu.tracking import check_tracking_store, default_tracking_uri
+
+
+def closed_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_unreachable_tracking_server(outputs):
+    before = snapshot(outputs)
+    uri = f"http://127.0.0.1:{closed_port()}"
+    start = time.perf_counter()
+    with pytest.raises(ConfigError) as raised:
+        check_tracking_store(uri, "config/cases/tiny.yaml", timeout_s=2.0)
+    assert time.perf_counter() - start < 5.0
+    message = str(raised.value)
+    assert_names(message, "config/cases/tiny.yaml", "config.mlflow.tracking_uri", uri, "does not answer")
+    assert "\n" not in message
+    assert_intact(outputs, before)
+
+
+def test_store_folder_that_cannot_be_created(outputs):
+    before = snapshot(outputs)
+    blocker = outputs / "data" / "earlier.json"  # a file where the store's folder would be
+    uri = f"sqlite:///{blocker / 'mlruns' / 'mlflow.db'}"
+    with pytest.raises(ConfigError) as raised:
+        check_tracking_store(uri, "case.yaml")
+    assert_names(str(raised.value), "case.yaml", "config.mlflow.tracking_uri", uri, str(blocker), "not a folder")
+    assert_intact(outputs, before)
+
+
+def test_corrupt_checkpoint(outputs):
+    from hybridfmu.training.trial import load_checkpoint
+
+    path = outputs / "hpo" / "b1" / "r0" / "c2" / "checkpoint.pt"
+    path.parent.mkdir(parents=True)
+    path.write_bytes(b"PK\x03\x04 truncated by a full disk")
+    before = snapshot(outputs)
+    with pytest.raises(ValueError) as raised:
+        load_checkpoint(path)
+    assert_names(str(raised.value), str(path), "expected a trial checkpoint")
+    assert_intact(outputs, before)
+
+
+def test_best_json_naming_a_corrupt_checkpoint(outputs):
+    from hybridfmu.training.inference import load_trained_neural_fmu
+
+    checkpoint = outputs / "hpo" / "best_model.pt"
+    checkpoint.parent.mkdir(parents=True)
+    checkpoint.write_bytes(b"\x00" * 64)
+    best = outputs / "hpo" / "best.json"
+    best.write_text(json.dumps({"checkpoint": str(checkpoint)}))
+    before = snapshot(outputs)
+    with pytest.raises(ValueError) as raised:
+        load_trained_neural_fmu(best, outputs / "IPBMotor.fmu")
+    assert_names(str(raised.value), str(checkpoint), "expected a trial checkpoint")
+    assert_intact(outputs, before)
+
+
+def test_checkpoint_of_another_format(outputs):
+    from hybridfmu.training.trial import load_checkpoint
+
+    path = outputs / "hpo" / "foreign.pt"
+    path.parent.mkdir(parents=True)
+    torch.save({"model": {}, "format": 7}, path)
+    before = snapshot(outputs)
+    with pytest.raises(ValueError) as raised:
+        load_checkpoint(path)
+    assert_names(str(raised.value), str(path), "'format'", "expected 1")
+    assert_intact(outputs, before)
+
+
+def test_tracking_store_lost_during_the_search(outputs):
+    """The store's database is gone: opening it names the database (it is not silently created anew), the
+    catch-up of queued rungs reports and keeps the queue, and nothing already written changes."""
+    from hybridfmu.tracking.mlflow_store import Tracker
+    from hybridfmu.tracking.search import catch_up_search, sync_pending
+
+    database = outputs / "store" / "mlflow.db"
+    uri = default_tracking_uri(outputs / "store")
+    hpo = outputs / "hpo"
+    (hpo / "tracking_pending").mkdir(parents=True)
+    (hpo / "plan.json").write_text(json.dumps({"search_id": "s1", "tracking": {
+        "uri": uri, "experiment": "case", "experiment_id": "1", "parent_run_id": "abc"}}))
+    (hpo / "tracking_pending" / "b0_r0_c0.json").write_text(json.dumps({
+        "trial_id": "b0c0", "bracket": 0, "rung": 0, "config": 0, "result": str(hpo / "b0/r0/c0/result.json"),
+        "checkpoint": str(hpo / "b0/r0/c0/checkpoint.pt"), "error": "store locked"}))
+    before = snapshot(outputs)
+    with pytest.raises(FileNotFoundError) as raised:
+        Tracker(uri, create=False)
+    assert_names(str(raised.value), str(database), "does not exist")
+    with pytest.raises(FileNotFoundError, match=str(database)):
+        sync_pending(hpo / "plan.json")
+    assert catch_up_search(hpo / "plan.json", {"retry_budget_s": 0.5}) is False
+    assert not database.exists()
+    assert_intact(outputs, before)
