@@ -375,6 +375,69 @@ def test_a_new_job_takes_over_from_an_orphan(tmp_path):
     taken.release()
 
 
+OWNER_PROBE = textwrap.dedent('''
+    import json, os
+    from hybridfmu.tracking.jobs import snakemake_ancestor, workflow_process
+    from hybridfmu.tracking.search import workflow_owner_tags
+    workflow = workflow_process()
+    print(json.dumps({"parent": os.getppid(), "ancestor": snakemake_ancestor().pid,
+                      "workflow": workflow.pid if workflow else None, "tags": workflow_owner_tags()}))
+''')
+
+
+@pytest.mark.parametrize("remote", [False, True], ids=["workflow", "cluster_job"])
+def test_the_search_is_owned_by_the_workflow_not_by_a_cluster_jobs_snakemake(tmp_path, remote):
+    """Under the workflow's Snakemake the search's parent run records that process; under a cluster job's
+    Snakemake (--mode remote, as the Slurm executor runs each job) it records no PID, so that no later job
+    ends it as the run of a dead process (the job's Snakemake ends with its job), while the watchdog still
+    watches the job's own Snakemake."""
+    folder = tmp_path / "bin"
+    folder.mkdir()
+    fake = folder / "snakemake"
+    fake.write_text("import subprocess, sys\nsys.exit(subprocess.run([sys.executable, '-c', sys.argv[1]]).returncode)\n")
+    extra = ["--mode", "remote"] if remote else ["-j2"]
+    done = subprocess.run([sys.executable, str(fake), OWNER_PROBE, *extra], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    seen = json.loads(done.stdout.strip().splitlines()[-1])
+    assert seen["ancestor"] == seen["parent"]
+    if remote:
+        assert seen["workflow"] is None
+        assert seen["tags"]["hybridfmu.pid"] == seen["tags"]["hybridfmu.snakemake_pid"] == ""
+    else:
+        assert seen["workflow"] == seen["parent"] and seen["tags"]["hybridfmu.pid"] == str(seen["parent"])
+
+
+def test_a_lock_held_by_another_hosts_job_is_waited_for_not_stopped(tmp_path):
+    """A lock whose holder ran on another host (a cluster job on another node): its PID means nothing here;
+    the new job waits, then fails naming the host and the Slurm job, and stops no local process."""
+    from hybridfmu.tracking.jobs import OutputLock, OutputLockError, process_start
+
+    lock = tmp_path / "out" / "job.lock"
+    holder = subprocess.Popen([sys.executable, "-c", textwrap.dedent('''
+        import json, sys, time
+        from hybridfmu.tracking.jobs import OutputLock
+        held = OutputLock(sys.argv[1])
+        held.acquire()
+        record = json.loads(open(sys.argv[1]).read())
+        record.update(host="node17", slurm_job_id="4711")
+        held._handle.seek(0)
+        held._handle.truncate()
+        held._handle.write(json.dumps(record))
+        held._handle.flush()
+        print("locked", flush=True)
+        time.sleep(600)
+    '''), str(lock)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(OutputLockError, match=r"on node17 \(Slurm job 4711; `scancel 4711` stops it\)"):
+            OutputLock(lock, grace_s=1.0).acquire(timeout_s=2)
+        assert process_start(holder.pid) is not None and holder.poll() is None
+    finally:
+        holder.kill()
+        holder.wait()
+
+
 def test_select_best_catches_up_on_queued_rungs(tmp_path):
     """A rung whose logging failed is logged by select_best's catch-up, best.json gets the trial's run id,
     the search run is finished; with the store gone, the catch-up reports instead of failing."""

@@ -13,6 +13,15 @@ what a job does when the Snakemake process that started it is gone.
   to end and then marks their outputs incomplete.
 - :func:`owner_tags` / :func:`owner_alive`: the MLflow tags that record which process writes a run, and
   whether it still runs (runs left RUNNING by dead jobs are ended by ``search.end_stale_runs``).
+
+Cluster jobs (Snakemake's Slurm executor, ``workflow/profiles/slurm``): a job's script runs under a Snakemake
+process of its own (``--mode remote``: the batch job's Snakemake, which starts the job step's Snakemake with
+``srun``), not under the workflow's Snakemake process, which runs on the submitting host and is not an ancestor.
+The watchdog then watches the job step's Snakemake (when it is gone, so is the job's allocation); Slurm itself
+stops the job on ``scancel`` or at its time limit. :func:`workflow_process` is None in such a job: whoever needs
+the workflow's process (the search's parent run) records no PID then. Runs and output locks also record the
+Slurm job (``SLURM_JOB_ID``); a run written on another node counts as ended once ``squeue`` reports its job
+finished (:func:`slurm_job_state`).
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ import logging
 import os
 import signal
 import socket
+import subprocess
 import threading
 import time
 from dataclasses import dataclass
@@ -87,6 +97,17 @@ def is_snakemake(args: list[str]) -> bool:
     return False
 
 
+def runs_remote_jobs(args: list[str]) -> bool:
+    """Whether a Snakemake command line runs jobs handed to it by another Snakemake process (``--mode remote``:
+    a cluster job's Snakemake) instead of being the workflow's own process."""
+    for index, arg in enumerate(args):
+        if arg == "--mode" and index + 1 < len(args) and args[index + 1] == "remote":
+            return True
+        if arg == "--mode=remote":
+            return True
+    return False
+
+
 def snakemake_ancestor(pid: int | None = None) -> ProcessId | None:
     """The nearest ancestor of ``pid`` (default: this process) that is a Snakemake process, or None."""
     current = parent_pid(pid or os.getpid())
@@ -96,6 +117,46 @@ def snakemake_ancestor(pid: int | None = None) -> ProcessId | None:
             return ProcessId(current, start) if start is not None else None
         current = parent_pid(current)
     return None
+
+
+def workflow_process(pid: int | None = None) -> ProcessId | None:
+    """The workflow's own Snakemake process when it is an ancestor of ``pid`` (default: this process): the
+    nearest Snakemake ancestor unless that one runs remote jobs (a cluster job: the workflow's process runs
+    on the submitting host, out of sight), else None."""
+    current = parent_pid(pid or os.getpid())
+    while current and current > 1:
+        args = process_args(current)
+        if is_snakemake(args):
+            if runs_remote_jobs(args):
+                return None
+            start = process_start(current)
+            return ProcessId(current, start) if start is not None else None
+        current = parent_pid(current)
+    return None
+
+
+def slurm_job_id() -> str:
+    """The Slurm job this process runs in (``SLURM_JOB_ID``), or ""."""
+    return os.environ.get("SLURM_JOB_ID", "")
+
+
+#: Slurm job states of a job whose processes may still run.
+SLURM_ACTIVE_STATES = frozenset({"PENDING", "CONFIGURING", "RUNNING", "COMPLETING", "SUSPENDED", "REQUEUED",
+                                 "REQUEUE_FED", "REQUEUE_HOLD", "RESIZING", "SIGNALING", "STAGE_OUT", "STOPPED"})
+
+
+def slurm_job_state(job_id: str, timeout_s: float = 10.0) -> str | None:
+    """State of a Slurm job as ``squeue`` reports it (RUNNING, COMPLETED, ...), or None when unknown (no
+    squeue, no answer, or the job no longer known to the controller)."""
+    if not job_id:
+        return None
+    try:
+        done = subprocess.run(["squeue", f"--jobs={job_id}", "--noheader", "--states=all", "--format=%T"],
+                              capture_output=True, text=True, timeout=timeout_s)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    states = done.stdout.split()
+    return states[0] if done.returncode == 0 and states else None
 
 
 def this_process() -> ProcessId:
@@ -121,20 +182,26 @@ def descendants(pid: int) -> list[int]:
 # --- MLflow owner tags --------------------------------------------------------------------------------
 
 OWNER_TAGS = ("hybridfmu.host", "hybridfmu.pid", "hybridfmu.pid_start", "hybridfmu.snakemake_pid",
-              "hybridfmu.snakemake_start")
+              "hybridfmu.snakemake_start", "hybridfmu.slurm_job_id")
 
 
 def owner_tags() -> dict[str, str]:
-    """Tags naming the process that writes an MLflow run (and its Snakemake process, if any)."""
+    """Tags naming the process that writes an MLflow run (its Snakemake process, if any, and its Slurm job,
+    if any)."""
     me, owner = this_process(), snakemake_ancestor()
     return {"hybridfmu.host": socket.gethostname(), "hybridfmu.pid": str(me.pid), "hybridfmu.pid_start": str(me.start),
             "hybridfmu.snakemake_pid": str(owner.pid) if owner else "",
-            "hybridfmu.snakemake_start": str(owner.start) if owner else ""}
+            "hybridfmu.snakemake_start": str(owner.start) if owner else "",
+            "hybridfmu.slurm_job_id": slurm_job_id()}
 
 
 def owner_alive(tags: dict[str, str]) -> bool | None:
     """Whether the process recorded by :func:`owner_tags` still runs: None when unknown (no such tags, or a
-    run written on another host)."""
+    run written on another host whose Slurm job, if any, ``squeue`` does not report as finished)."""
+    if tags.get("hybridfmu.host") != socket.gethostname() and tags.get("hybridfmu.slurm_job_id") \
+            and tags.get("hybridfmu.pid"):
+        state = slurm_job_state(tags["hybridfmu.slurm_job_id"])
+        return None if state is None else state in SLURM_ACTIVE_STATES
     if tags.get("hybridfmu.host") != socket.gethostname() or not tags.get("hybridfmu.pid"):
         return None
     try:
@@ -154,7 +221,8 @@ def start_watchdog(label: str, interval_s: float = 1.0, grace_s: float = 10.0,
     A daemon thread polls the owner every ``interval_s``; once it is gone the thread logs one line naming
     ``label``, interrupts the main thread (KeyboardInterrupt: temporary files of atomic writes are removed)
     and, if the job has not ended ``grace_s`` later, ends the process with exit status
-    :data:`STOPPED_EXIT_CODE`. Returns the thread, or None when the job has no Snakemake ancestor.
+    :data:`STOPPED_EXIT_CODE`. Returns the thread, or None when the job has no Snakemake ancestor. In a Slurm
+    job the owner is the job step's Snakemake process (see the module's docstring).
     """
     import _thread
 
@@ -222,12 +290,13 @@ class OutputLock:
                 stopped = self._stop_orphan(holder)
             if time.monotonic() > deadline:
                 handle.close()
-                raise OutputLockError(f"{self.path}: still locked by PID {holder.get('pid')} after {timeout_s:.0f} s")
+                raise OutputLockError(f"{self.path}: still locked by PID {holder.get('pid')}{_where(holder)} after "
+                                      f"{timeout_s:.0f} s")
             time.sleep(0.2)
         me, owner = this_process(), snakemake_ancestor()
         record = {"pid": me.pid, "start": me.start, "host": socket.gethostname(),
                   "snakemake_pid": owner.pid if owner else None, "snakemake_start": owner.start if owner else None,
-                  "since": time.strftime("%Y-%m-%dT%H:%M:%S")}
+                  "slurm_job_id": slurm_job_id(), "since": time.strftime("%Y-%m-%dT%H:%M:%S")}
         handle.seek(0)
         handle.truncate()
         handle.write(json.dumps(record) + "\n")
@@ -237,6 +306,10 @@ class OutputLock:
 
     def _stop_orphan(self, holder: dict[str, Any]) -> dict[str, Any]:
         pid, start = holder.get("pid"), holder.get("start")
+        if holder.get("host") and holder["host"] != socket.gethostname():
+            # another node's job (a cluster job): its PID means nothing here; wait for its lock
+            LOG.warning("%s: the output is locked by job PID %s%s; waiting for it", self.path, pid, _where(holder))
+            return holder
         job = ProcessId(int(pid), int(start)) if pid and start is not None else None
         if job is None or not job.alive():
             return holder  # the holder ended meanwhile; its lock goes with it
@@ -244,8 +317,8 @@ class OutputLock:
             owner = ProcessId(int(holder["snakemake_pid"]), int(holder.get("snakemake_start") or 0))
             mine = snakemake_ancestor()
             if owner.alive() and owner != mine:
-                raise OutputLockError(f"{self.path}: the output is being produced by job PID {pid} of the running "
-                                      f"Snakemake process {owner.pid}; not starting a second job for it")
+                raise OutputLockError(f"{self.path}: the output is being produced by job PID {pid}{_where(holder)} of "
+                                      f"the running Snakemake process {owner.pid}; not starting a second job for it")
         LOG.warning("%s: an earlier job (PID %s) for this output is still running without its Snakemake process; "
                     "stopping it and taking over", self.path, pid)
         with contextlib.suppress(ProcessLookupError):
@@ -271,6 +344,14 @@ class OutputLock:
 
     def __exit__(self, *exc: Any) -> None:
         self.release()
+
+
+def _where(holder: dict[str, Any]) -> str:
+    """Host and Slurm job of a lock's holder, for messages (with how to stop a Slurm job)."""
+    text = f" on {holder['host']}" if holder.get("host") else ""
+    if holder.get("slurm_job_id"):
+        text += f" (Slurm job {holder['slurm_job_id']}; `scancel {holder['slurm_job_id']}` stops it)"
+    return text
 
 
 # --- signals ------------------------------------------------------------------------------------------

@@ -78,13 +78,19 @@ def _mark_running(tracker: Tracker, run_id: str, owner: dict[str, str]) -> None:
 
 
 def workflow_owner_tags() -> dict[str, str]:
-    """Owner tags of a search's parent run: the Snakemake process of the workflow (else this process)."""
-    from hybridfmu.tracking.jobs import owner_tags
+    """Owner tags of a search's parent run: the Snakemake process of the workflow (else this process). In a
+    cluster job (Slurm) the workflow's process is not an ancestor and may run on another host: no PID is
+    recorded then, so that the parent run is never taken for a dead job's run (it outlives every job; the
+    search's last job, select_best, ends it)."""
+    from hybridfmu.tracking.jobs import owner_tags, workflow_process
 
     tags = owner_tags()
-    if tags["hybridfmu.snakemake_pid"]:
-        tags["hybridfmu.pid"], tags["hybridfmu.pid_start"] = tags["hybridfmu.snakemake_pid"], tags[
-            "hybridfmu.snakemake_start"]
+    workflow = workflow_process()
+    if workflow is not None:
+        tags["hybridfmu.pid"], tags["hybridfmu.pid_start"] = str(workflow.pid), str(workflow.start)
+    elif tags["hybridfmu.snakemake_pid"]:  # a cluster job's Snakemake (--mode remote)
+        for key in ("hybridfmu.pid", "hybridfmu.pid_start", "hybridfmu.snakemake_pid", "hybridfmu.snakemake_start"):
+            tags[key] = ""
     return tags
 
 
