@@ -198,3 +198,74 @@ def test_non_finite_loss_is_skipped(arrays, statistics):
     result = trainer.step()
     assert result["skipped"] == 1.0 and np.isnan(result["loss"])
     assert trainer.skipped_steps == 1
+
+
+def test_adam_is_torch_adam_bit_for_bit():
+    """The trainer's Adam follows torch.optim.Adam's numbers exactly and reads and writes its state dicts."""
+    from hybridfmu.training.optim import Adam
+
+    def run(make, steps=12, reload_at=None):
+        torch.manual_seed(0)
+        weight = torch.randn(5, 3, dtype=torch.float64, requires_grad=True)
+        bias = torch.randn(3, dtype=torch.float64, requires_grad=True)
+        optimizer = make([weight, bias])
+        x = torch.randn(40, 5, dtype=torch.float64)
+        for step in range(steps):
+            optimizer.zero_grad(set_to_none=True)
+            ((x @ weight + bias).tanh() ** 2).mean().backward()
+            optimizer.step()
+            if step == reload_at:
+                state = optimizer.state_dict()
+                optimizer = make([weight, bias])
+                optimizer.load_state_dict(state)
+        return torch.cat([weight.detach().ravel(), bias.detach().ravel()]), optimizer
+
+    ours = lambda params: Adam(params, lr=1e-2, betas=(0.9, 0.99))  # noqa: E731
+    theirs = lambda params: torch.optim.Adam(params, lr=1e-2, betas=(0.9, 0.99))  # noqa: E731
+    values, optimizer = run(ours)
+    reference, torch_optimizer = run(theirs)
+    assert torch.equal(values, reference)
+    assert torch.equal(run(ours, reload_at=5)[0], reference)
+    state, torch_state = optimizer.state_dict(), torch_optimizer.state_dict()
+    assert state["param_groups"] == torch_state["param_groups"]
+    assert state["state"].keys() == torch_state["state"].keys()
+    for index, entry in torch_state["state"].items():
+        assert entry.keys() == state["state"][index].keys()
+        for key, value in entry.items():
+            assert value.dtype == state["state"][index][key].dtype and torch.equal(value, state["state"][index][key])
+    params = [torch.zeros(5, 3, dtype=torch.float64, requires_grad=True), torch.zeros(3, dtype=torch.float64,
+                                                                                        requires_grad=True)]
+    theirs(params).load_state_dict(state)  # either reads the other's state
+    ours(params).load_state_dict(torch_state)
+
+
+def test_training_steps_do_not_import_torch_dynamo():
+    """torch.optim.Optimizer imports torch._dynamo (seconds of every job's start-up); the trainer does not."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        import sys
+        import torch
+        from hybridfmu.training.optim import Adam
+        weight = torch.zeros(3, requires_grad=True)
+        optimizer = Adam([weight], lr=0.1, betas=(0.9, 0.999))
+        (weight - 1.0).square().sum().backward()
+        optimizer.step()
+        optimizer.zero_grad()
+        optimizer.load_state_dict(optimizer.state_dict())
+        assert "torch._dynamo" not in sys.modules, "torch._dynamo was imported"
+    """)
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_validation_batch_is_shared_without_changing_the_result(arrays, statistics):
+    from hybridfmu.training.validation import validation_batch
+
+    model = make_model(statistics)
+    objective = Objective("MAE", {"p": 0.5, "v": 0.5})
+    alone = validate(model, arrays, "MSE", WEIGHTS, objective, statistics)
+    batch = validation_batch(model.spec, arrays)
+    assert validate(model, arrays, "MSE", WEIGHTS, objective, statistics, batch) == alone
+    assert validate(model, arrays, "MSE", WEIGHTS, objective, statistics, batch) == alone

@@ -202,6 +202,39 @@ def test_gradient_free_rollout_matches_the_recorded_one(case):
     assert torch.allclose(fast, recorded.detach(), rtol=1e-10, atol=1e-9)
 
 
+def test_gradient_free_rollout_through_the_derivatives_kernel_is_exact(case):
+    """The validation's NumPy integration calls the bridge's ``derivatives_kernel`` (buffers reused); it gives
+    the same states to the bit as plain ``derivatives`` calls, and the kernel's errors are the bridge's."""
+    from hybridfmu.fmu import FmuRhs
+    from hybridfmu.training.build import build_neural_fmu, model_spec
+    from hybridfmu.training.solver import rollout
+
+    fmu_model = load_fmu(case["fmu"])
+    spec = model_spec(case["model"], fmu_model, H, width=8, depth=3, gate_opening=0.3)
+    model = build_neural_fmu(FmuRhs(fmu_model), spec, read_json(case["statistics"]), seed=4)
+    with torch.no_grad():
+        model.ann.output.weight.normal_(0.0, 0.3)
+    arrays = np.load(case["arrays"]["validation"])
+    u = torch.from_numpy(arrays["u"][None, 100:900]).repeat(3, 1, 1)
+    x0 = torch.from_numpy(arrays["x_init"][[110, 150, 190]])
+    with torch.no_grad():
+        fast = rollout(model, u, 10, x0, 700)
+    plain = fmu_model.derivatives
+    fmu_model.derivatives_kernel = lambda n: plain  # the instance's own attribute: no kernel, plain calls
+    try:
+        with torch.no_grad():
+            reference = rollout(model, u, 10, x0, 700)
+    finally:
+        del fmu_model.derivatives_kernel
+    assert torch.equal(fast, reference)
+    kernel = fmu_model.derivatives_kernel(2)
+    x = arrays["x_init"][[110, 150]].copy()
+    assert np.array_equal(kernel(x, arrays["u"][[110, 150]]), plain(x, arrays["u"][[110, 150]]))
+    x[1, 0] = np.nan
+    with pytest.raises(ValueError, match="non-finite value"):
+        kernel(x, arrays["u"][[110, 150]])
+
+
 def test_intermediate_validations_report_the_best_state(case, tmp_path):
     training = dict(case["training"], validation_every_s=0.004)
     result = run_trial_rung(

@@ -14,7 +14,8 @@ from hybridfmu.tracking import retry_settings
 from hybridfmu.tracking.jobs import job_guard
 from hybridfmu.training.trial import run_trial_rung
 
-torch.set_num_threads(1)
+# intra-op threads: the job's share of the cores (rule train_rung's threads), not torch's default of all cores
+torch.set_num_threads(max(1, int(snakemake.threads)))
 setup_rule_logging(snakemake.log[0])
 label = f"train_rung b{snakemake.wildcards.bracket} r{snakemake.wildcards.rung} c{snakemake.wildcards.config}"
 with job_guard(Path(snakemake.output.checkpoint).with_name("job.lock"), label):

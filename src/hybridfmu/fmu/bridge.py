@@ -764,6 +764,17 @@ class FmuModel:
         """
         self._require_open()
         x, u, _t, t_ptr, t_stride, n = self._batch(x, u, t_s)
+        return self._derivatives_of(x, u, t_ptr, t_stride, n)
+
+    def derivatives_and_jacobians(self, x, u=None, t_s=0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``derivatives`` and ``jacobians`` of one batch, the arguments checked once: (dx, dfdx, dfdu)."""
+        self._require_open()
+        x, u, _t, t_ptr, t_stride, n = self._batch(x, u, t_s)
+        dx = self._derivatives_of(x, u, t_ptr, t_stride, n)
+        return (dx, *self._jacobians_of(x, u, t_ptr, t_stride, n))
+
+    def _derivatives_of(self, x, u, t_ptr, t_stride, n) -> np.ndarray:
+        """``derivatives`` of checked arguments (from ``_batch``)."""
         dx = np.empty((n, self.n_states))
         if n:
             status = self._lib.hf_derivatives(self._m, n, t_ptr, t_stride,
@@ -771,6 +782,36 @@ class FmuModel:
             if status:
                 self._raise_shim_error(status, "derivatives", derivatives=dx, states=x)
         return dx
+
+    def derivatives_kernel(self, n: int):
+        """``derivatives`` at t = 0 for many calls on batches of ``n`` rows, with less overhead per call.
+
+        Returns a function ``(x (n, n_x), u (n, n_u)) -> dx (n, n_x)``: x and u are copied into buffers of
+        the function and ``dx`` is its own buffer, overwritten by the next call (copy it to keep it). The
+        values, checks and errors are those of ``derivatives`` (a call that does not pass the checks is
+        handed on to it).
+        """
+        shape_x, shape_u = (n, self.n_states), (n, self.n_inputs)
+        x_buf, u_buf, dx = np.empty(shape_x), np.empty(shape_u), np.empty(shape_x)
+        addresses = (self._data(x_buf), self._data(u_buf), self._data(dx))
+        call = self._lib.hf_derivatives
+        isfinite, float64 = np.isfinite, np.dtype(np.float64)
+
+        def kernel(x, u):
+            if (self._closed or self._needs_reinit or n == 0 or getattr(x, "shape", None) != shape_x
+                    or getattr(u, "shape", None) != shape_u or x.dtype != float64 or u.dtype != float64):
+                return self.derivatives(x, u)
+            np.copyto(x_buf, x)
+            np.copyto(u_buf, u)
+            if not (isfinite(x_buf).all() and isfinite(u_buf).all()):
+                return self.derivatives(x, u)
+            self._t_scalar[0] = 0.0
+            status = call(self._m, n, self._t_scalar_address, 0, *addresses)
+            if status:
+                self._raise_shim_error(status, "derivatives", derivatives=dx, states=x_buf)
+            return dx
+
+        return kernel
 
     def event_indicators(self, x, u=None, t_s=0.0) -> np.ndarray:
         """Event indicators for a batch: (N, n_event_indicators) float64 (arguments as derivatives)."""
@@ -827,6 +868,10 @@ class FmuModel:
         """
         self._require_open()
         x, u, _t, t_ptr, t_stride, n = self._batch(x, u, t_s)
+        return self._jacobians_of(x, u, t_ptr, t_stride, n)
+
+    def _jacobians_of(self, x, u, t_ptr, t_stride, n) -> tuple[np.ndarray, np.ndarray]:
+        """``jacobians`` of checked arguments (from ``_batch``)."""
         nx, nu = self.n_states, self.n_inputs
         dfdx = np.empty((n, nx, nx))
         dfdu = np.empty((n, nx, nu))

@@ -52,11 +52,16 @@ def jacobian_function(rhs: Rhs) -> JacobianFn | None:
     model = getattr(rhs, "model", None)
     if model is not None and callable(getattr(model, "derivatives", None)) and callable(
             getattr(model, "jacobians", None)):
+        both = getattr(model, "derivatives_and_jacobians", None)  # the bridge's: the arguments checked once
+
         def value_and_jacobians(x: torch.Tensor, u: torch.Tensor):
             x_np = x.detach().to(torch.float64).contiguous().numpy()
             u_np = u.detach().to(torch.float64).contiguous().numpy()
-            xdot = model.derivatives(x_np, u_np)
-            dfdx, dfdu = model.jacobians(x_np, u_np)
+            if callable(both):
+                xdot, dfdx, dfdu = both(x_np, u_np)
+            else:
+                xdot = model.derivatives(x_np, u_np)
+                dfdx, dfdu = model.jacobians(x_np, u_np)
             return torch.from_numpy(xdot), torch.from_numpy(dfdx), torch.from_numpy(dfdu)
         return value_and_jacobians
     return None
@@ -71,6 +76,19 @@ def numpy_function(rhs: Rhs):
     if model is not None and callable(getattr(model, "derivatives", None)):
         return model.derivatives
     return None
+
+
+def numpy_kernel(rhs: Rhs, n: int):
+    """Like :func:`numpy_function` for many calls on batches of ``n`` rows: the bridge's
+    ``derivatives_kernel(n)`` when it has one (its result is overwritten by the next call), else its
+    ``derivatives``; None for right-hand sides that are not FMU-backed."""
+    if isinstance(rhs, FmuLayer):
+        rhs = rhs.rhs
+    model = getattr(rhs, "model", None)
+    kernel = getattr(model, "derivatives_kernel", None)
+    if callable(kernel):
+        return kernel(n)
+    return numpy_function(rhs)
 
 
 def value_function(rhs: Rhs) -> Rhs:

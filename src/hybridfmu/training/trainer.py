@@ -19,6 +19,7 @@ from hybridfmu.model.neural_fmu import NeuralFmu
 from hybridfmu.progress import Progress
 from hybridfmu.training.data import ManeuverArrays
 from hybridfmu.training.losses import weight_overrides, weighted_loss
+from hybridfmu.training.optim import Adam
 from hybridfmu.training.solver import rollout
 from hybridfmu.training.windows import WindowSampler, delay_padding
 
@@ -109,7 +110,8 @@ class Trainer:
         self.sampler = WindowSampler(arrays, self.n_steps, delay_padding(self.h, spec.delay_min_s, spec.delay_max_s))
         self.target_index = torch.as_tensor([spec.state_names.index(name) for name in arrays.target_states],
                                             dtype=torch.long)
-        self.optimizer = torch.optim.Adam(model.parameters(), lr=hyper.lr, betas=(hyper.beta1, hyper.beta2))
+        # torch.optim.Adam's numbers without torch.optim.Optimizer (whose first use imports torch._dynamo)
+        self.optimizer = Adam(model.parameters(), lr=hyper.lr, betas=(hyper.beta1, hyper.beta2))
         self.rng = np.random.Generator(np.random.PCG64(seed))
         self.used_samples = 0
         self.steps = 0

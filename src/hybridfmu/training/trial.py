@@ -26,7 +26,7 @@ from hybridfmu.training.data import ManeuverArrays
 from hybridfmu.training.losses import objective_from_config
 from hybridfmu.training.plan import plan_entry
 from hybridfmu.training.trainer import Hyperparameters, Trainer, TrainerSettings, TrialDiverged
-from hybridfmu.training.validation import validate
+from hybridfmu.training.validation import validate, validation_batch
 
 LOG = logging.getLogger(__name__)
 CHECKPOINT_FORMAT = 1
@@ -213,10 +213,12 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
         if status == "ok":
             progress = Progress(max(entry["resource_s"] - trainer.resource_used_s, 0.0), f"trial {trial_id} rung {rung}",
                                 unit="s of data", logger=LOG, interval_s=10.0)
+            valid_batch = None  # the validation segments' data, built at the first validation, shared by the rest
             for target_s in validation_points(start_resource_s, entry["resource_s"],
                                               training_config.get("validation_every_s")):
                 trainer.train_until(target_s, progress)
-                metrics = validate(model, valid, hyper.loss, weights, objective, statistics)
+                valid_batch = valid_batch or validation_batch(spec, valid)
+                metrics = validate(model, valid, hyper.loss, weights, objective, statistics, valid_batch)
                 metrics.update(resource_s=trainer.resource_used_s, rung=rung)
                 validations.append(metrics)
                 LOG.info("trial %s: validation at %.4g s of data: objective %.4g, %s", trial_id,
