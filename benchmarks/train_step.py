@@ -1,9 +1,12 @@
 """Training throughput of the neural FMU: simulated sample-steps per second (forward + backward, one core).
 
 Builds the demo IPBMotor FMU into a temporary folder, wraps it in the bridge's FmuRhs, and times one
-training step's rollout and gradient (RK4 on the 10 kHz grid, windows of 0.02 s) at B = 1 and B = 64
-windows per batch, with the discrete adjoint used in training and with plain autograd for reference.
-Prints a table; the last line is a JSON object (``samples_per_s_b1``, ``samples_per_s_b64``, ...).
+training step's rollout and gradient (RK4 on the 10 kHz grid, windows of 0.02 s) at B = 1, 4 (the demo's
+batch) and 64 windows per batch, side by side: the discrete adjoint used in training (``adjoint``: its stages in
+NumPy through the bridge's derivatives-and-Jacobians kernel), the same adjoint with its stages as torch
+operations (``adjoint_torch``), and plain autograd for reference.
+Prints a table; the last line is a JSON object (``samples_per_s_b1``, ``samples_per_s_b64`` of the training
+path, and every row as ``<gradients>_w<width>_d<depth>_b<B>``).
 
     python benchmarks/train_step.py [--repeats 5] [--window-s 0.02]
 """
@@ -81,17 +84,17 @@ def main() -> None:
                                  delay_min_s=-3e-4, delay_max_s=3e-4)
             torch.manual_seed(0)
             model = NeuralFmu(rhs, spec, stats)
-            for gradients in ("adjoint", "autograd"):
-                for batch in (1, 64):
+            for gradients in ("adjoint", "adjoint_torch", "autograd"):
+                for batch in (1, 4, 64):
                     repeats = args.repeats if gradients == "adjoint" else max(1, args.repeats // 2)
                     rate = measure(model, batch, n_steps, repeats, gradients)
                     rows.append((f"{width}x{depth}", gradients, batch, rate))
                     results[f"{gradients}_w{width}_d{depth}_b{batch}"] = rate
     print(f"neural FMU training step, IPBMotor FMU through FmuRhs, RK4, window {args.window_s} s "
           f"({n_steps} steps), float64, 1 thread")
-    print(f"{'MLP':>6} {'gradients':>9} {'B':>4} {'sample-steps/s':>15}")
+    print(f"{'MLP':>6} {'gradients':>13} {'B':>4} {'sample-steps/s':>15}")
     for mlp, gradients, batch, rate in rows:
-        print(f"{mlp:>6} {gradients:>9} {batch:>4} {rate:>15,.0f}")
+        print(f"{mlp:>6} {gradients:>13} {batch:>4} {rate:>15,.0f}")
     summary = {"samples_per_s_b1": results["adjoint_w8_d2_b1"], "samples_per_s_b64": results["adjoint_w8_d2_b64"],
                "window_steps": n_steps, "mlp": "8x2", **results}
     print(json.dumps(summary))

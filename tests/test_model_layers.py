@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -167,15 +168,46 @@ def test_fixture_jacobians_match_autograd():
     assert torch.allclose(dfdu, ref_u, rtol=1e-12, atol=1e-9)
 
 
-@pytest.mark.parametrize("solver,rhs", [("rk4", Pendulum()), ("euler", Pendulum()), ("rk4", plain_pendulum)])
+class BridgedPendulum:
+    """The pendulum behind the FMU bridge's NumPy interface (the way ``hybridfmu.fmu.FmuRhs`` wraps an FMU:
+    ``model.derivatives``, ``model.jacobians``, ``model.derivatives_and_jacobians_kernel``), so that the adjoint
+    runs its stages in NumPy (``training.numpy_adjoint``). Counts the kernel's calls."""
+
+    def __init__(self) -> None:
+        self.model = self
+        self.kernel_calls = 0
+
+    def __call__(self, x, u):
+        return Pendulum()(x, u)
+
+    def derivatives(self, x, u):
+        return Pendulum()(torch.from_numpy(np.asarray(x)), torch.from_numpy(np.asarray(u))).numpy()
+
+    def jacobians(self, x, u):
+        _, dfdx, dfdu = Pendulum().value_and_jacobians(torch.from_numpy(np.asarray(x)), torch.from_numpy(np.asarray(u)))
+        return dfdx.numpy(), dfdu.numpy()
+
+    def derivatives_and_jacobians_kernel(self, n):
+        def kernel(x, u):
+            assert x.shape[0] == n
+            self.kernel_calls += 1
+            xdot, dfdx, dfdu = Pendulum().value_and_jacobians(torch.from_numpy(x.copy()), torch.from_numpy(u.copy()))
+            return xdot.numpy(), dfdx.numpy(), dfdu.numpy()
+        return kernel
+
+
+@pytest.mark.parametrize("solver,rhs", [("rk4", Pendulum()), ("euler", Pendulum()), ("rk4", plain_pendulum),
+                                        ("rk4", BridgedPendulum()), ("euler", BridgedPendulum())])
 def test_gradients_reach_every_parameter_and_adjoint_matches_autograd(solver, rhs):
+    """The adjoint (NumPy stages for a bridged right-hand side, torch stages otherwise, and the torch stages
+    forced) gives autograd's states and gradients, through the delay, the end stop and every layer."""
     torch.manual_seed(1)
     stop = EndStop("p", "v", -1.0, 0.02)
     model = NeuralFmu(rhs, make_spec(solver=solver, delay_init_s=0.3 * H, end_stop=stop), STATS)
     u = inputs(3, 60).requires_grad_(True)
     x0 = torch.tensor([[0.0, 50.0, 1.0]] * 3, dtype=torch.float64, requires_grad=True)
     results = {}
-    for mode in ("autograd", "adjoint"):
+    for mode in ("autograd", "adjoint", "adjoint_torch"):
         model.zero_grad()
         u.grad = x0.grad = None
         states = rollout(model, u, 10, x0, 40, gradients=mode)
@@ -185,14 +217,18 @@ def test_gradients_reach_every_parameter_and_adjoint_matches_autograd(solver, rh
         loss.backward()
         results[mode] = (states.detach(), {n: p.grad.clone() for n, p in model.named_parameters()}, u.grad.clone(),
                          x0.grad.clone())
-    ref, fast = results["autograd"], results["adjoint"]
-    assert torch.allclose(ref[0], fast[0], rtol=0, atol=1e-12)
+    ref = results["autograd"]
     assert (ref[0][:, :, 0] >= 0.02 - 1e-15).any(), "the end stop must be reached in this test"
-    for name, grad in ref[1].items():
-        assert torch.isfinite(grad).all() and grad.abs().sum() > 0, f"no gradient reaches {name}"
-        assert torch.allclose(fast[1][name], grad, rtol=1e-9, atol=1e-12 * grad.abs().max()), name
-    assert torch.allclose(fast[2], ref[2], rtol=1e-9, atol=1e-14)
-    assert torch.allclose(fast[3], ref[3], rtol=1e-9, atol=1e-14)
+    for mode in ("adjoint", "adjoint_torch"):
+        fast = results[mode]
+        assert torch.allclose(ref[0], fast[0], rtol=0, atol=1e-12), mode
+        for name, grad in ref[1].items():
+            assert torch.isfinite(grad).all() and grad.abs().sum() > 0, f"no gradient reaches {name}"
+            assert torch.allclose(fast[1][name], grad, rtol=1e-9, atol=1e-12 * grad.abs().max()), (mode, name)
+        assert torch.allclose(fast[2], ref[2], rtol=1e-9, atol=1e-14), mode
+        assert torch.allclose(fast[3], ref[3], rtol=1e-9, atol=1e-14), mode
+    if isinstance(rhs, BridgedPendulum):  # "adjoint" ran its stages through the NumPy kernel, once per stage
+        assert rhs.kernel_calls == (4 if solver == "rk4" else 1) * 40
 
 
 def test_adjoint_uses_rhs_jacobians_when_offered():

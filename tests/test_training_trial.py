@@ -217,15 +217,19 @@ def test_gradient_free_rollout_through_the_derivatives_kernel_is_exact(case):
     arrays = np.load(case["arrays"]["validation"])
     u = torch.from_numpy(arrays["u"][None, 100:900]).repeat(3, 1, 1)
     x0 = torch.from_numpy(arrays["x_init"][[110, 150, 190]])
-    with torch.no_grad():
-        fast = rollout(model, u, 10, x0, 700)
-    plain = fmu_model.derivatives
-    fmu_model.derivatives_kernel = lambda n: plain  # the instance's own attribute: no kernel, plain calls
+    fmu_model.neural_rollout = None  # the instance's own attribute: not the loop in C, the NumPy one
     try:
         with torch.no_grad():
-            reference = rollout(model, u, 10, x0, 700)
+            fast = rollout(model, u, 10, x0, 700)
+        plain = fmu_model.derivatives
+        fmu_model.derivatives_kernel = lambda n: plain  # no kernel, plain calls
+        try:
+            with torch.no_grad():
+                reference = rollout(model, u, 10, x0, 700)
+        finally:
+            del fmu_model.derivatives_kernel
     finally:
-        del fmu_model.derivatives_kernel
+        del fmu_model.neural_rollout
     assert torch.equal(fast, reference)
     kernel = fmu_model.derivatives_kernel(2)
     x = arrays["x_init"][[110, 150]].copy()
@@ -233,6 +237,79 @@ def test_gradient_free_rollout_through_the_derivatives_kernel_is_exact(case):
     x[1, 0] = np.nan
     with pytest.raises(ValueError, match="non-finite value"):
         kernel(x, arrays["u"][[110, 150]])
+
+
+@pytest.mark.parametrize("solver", ["rk4", "euler"])
+def test_gradient_free_rollout_in_c_matches_the_numpy_one(case, solver):
+    """Validation and inference run the neural FMU's whole loop in C (the bridge's ``neural_rollout``): the same
+    states as the NumPy loop to round-off, end stop included, and NaN rows once a state is not finite."""
+    from hybridfmu.fmu import FmuRhs
+    from hybridfmu.training.build import build_neural_fmu, model_spec
+    from hybridfmu.training.solver import rollout
+
+    fmu_model = load_fmu(case["fmu"], parameters={"theta_min": 4.9})
+    spec = model_spec(dict(case["model"], solver=solver), fmu_model, H, width=8, depth=3, gate_opening=0.3)
+    model = build_neural_fmu(FmuRhs(fmu_model), spec, read_json(case["statistics"]), seed=5)
+    with torch.no_grad():
+        model.ann.output.weight.normal_(0.0, 0.3)
+        model.delay.raw.fill_(0.3)
+    arrays = np.load(case["arrays"]["validation"])
+    u = torch.from_numpy(arrays["u"][None, 100:900]).repeat(3, 1, 1)
+    x0 = torch.from_numpy(arrays["x_init"][[110, 150, 190]]).clone()
+    x0[0, 2:] = torch.tensor([4.95, -40.0], dtype=torch.float64)  # runs into the retract stop at 4.9 rad
+
+    def both():
+        with torch.no_grad():
+            in_c = rollout(model, u, 10, x0, 700)
+        fmu_model.neural_rollout = None
+        try:
+            with torch.no_grad():
+                in_numpy = rollout(model, u, 10, x0, 700)
+        finally:
+            del fmu_model.neural_rollout
+        return in_c, in_numpy
+
+    in_c, in_numpy = both()
+    assert torch.isfinite(in_c).all()
+    assert (in_c[0, :, 2] == 4.9).any(), "the end stop must be reached in this test"
+    assert torch.allclose(in_c, in_numpy, rtol=1e-10, atol=1e-9)
+    if solver != "euler":
+        return
+    with torch.no_grad():
+        model.ann.output.bias.fill_(math.inf)  # the first step leaves the finite numbers
+    in_c, in_numpy = both()
+    assert torch.equal(in_c[:, 0], x0) and torch.isnan(in_c[:, 1:]).all()
+    assert torch.equal(torch.isnan(in_c), torch.isnan(in_numpy))
+
+
+def test_training_gradients_through_the_fmu_in_numpy_equal_the_torch_stages(case):
+    """Training on an FMU runs the adjoint's stages in NumPy (``training.numpy_adjoint``): the same states and
+    gradients as its torch stages, for every parameter (delay included) and the initial states."""
+    from hybridfmu.fmu import FmuRhs
+    from hybridfmu.training.build import build_neural_fmu, model_spec
+    from hybridfmu.training.solver import rollout
+
+    fmu_model = load_fmu(case["fmu"])
+    spec = model_spec(case["model"], fmu_model, H, width=8, depth=3, gate_opening=0.3)
+    model = build_neural_fmu(FmuRhs(fmu_model), spec, read_json(case["statistics"]), seed=6)
+    with torch.no_grad():
+        model.ann.output.weight.normal_(0.0, 0.3)
+        model.delay.raw.fill_(0.4)
+    arrays = np.load(case["arrays"]["train"])
+    u = torch.from_numpy(arrays["u"][None, 100:400]).repeat(2, 1, 1)
+    results = {}
+    for gradients in ("adjoint", "adjoint_torch"):
+        model.zero_grad(set_to_none=True)
+        x0 = torch.from_numpy(arrays["x_init"][[110, 130]]).clone().requires_grad_(True)
+        states = rollout(model, u, 10, x0, 250, gradients=gradients)
+        (states[:, 1:, 2].abs().mean() + 1e-2 * states[:, 1:, 3].pow(2).mean()).backward()
+        results[gradients] = (states.detach(), {n: p.grad.clone() for n, p in model.named_parameters()}, x0.grad)
+    (states_np, grads_np, x0_np), (states_t, grads_t, x0_t) = results["adjoint"], results["adjoint_torch"]
+    assert torch.allclose(states_np, states_t, rtol=1e-12, atol=1e-10)
+    for name, grad in grads_t.items():
+        assert grad.abs().sum() > 0, f"no gradient reaches {name}"
+        assert torch.allclose(grads_np[name], grad, rtol=1e-8, atol=1e-11 * grad.abs().max()), name
+    assert torch.allclose(x0_np, x0_t, rtol=1e-8, atol=1e-11 * x0_t.abs().max())
 
 
 def test_intermediate_validations_report_the_best_state(case, tmp_path):

@@ -492,3 +492,118 @@ int hf_simulate(hf_model *m, size_t T, const double *time, const double *u, size
     result[1] = (long long)(T ? T - 1 : 0);
     return 0;
 }
+
+/* ---------------------------------------------------------------- neural FMU rollout */
+
+/* One stage of a neural FMU in its fused form (hybridfmu.model.neural_fmu.FusedDerivative) for one row:
+     a_0 = tanh(z + [x, f] W_xd),  a_l = tanh(b_l + a_(l-1) W_l),  y = f * g + b_out + a_L W_out,
+   f = f(x, u) the FMU's derivatives (already in f). params: W_xd (2 nx, H_0), then per hidden layer
+   W_l (H_(l-1), H_l) and b_l (H_l), then W_out (H_L, nx), b_out (nx), g (nx), all row-major.
+   act0, act1: max(H) doubles each. */
+static void hf_neural_stage(size_t nx, const double *x, const double *f, const double *z, size_t n_act,
+                            const size_t *widths, const double *params, double *act0, double *act1,
+                            double *y) {
+    const double *p = params, *w;
+    double *a = act0, *b = act1, *swap;
+    size_t width = widths[0], next, i, j, l;
+    for (j = 0; j < width; ++j) a[j] = z[j];
+    for (i = 0; i < nx; ++i) {
+        w = p + i * width;
+        for (j = 0; j < width; ++j) a[j] += x[i] * w[j];
+    }
+    for (i = 0; i < nx; ++i) {
+        w = p + (nx + i) * width;
+        for (j = 0; j < width; ++j) a[j] += f[i] * w[j];
+    }
+    for (j = 0; j < width; ++j) a[j] = tanh(a[j]);
+    p += 2 * nx * width;
+    for (l = 1; l < n_act; ++l) {
+        next = widths[l];
+        w = p;
+        p += width * next;
+        for (j = 0; j < next; ++j) b[j] = p[j];
+        for (i = 0; i < width; ++i)
+            for (j = 0; j < next; ++j) b[j] += a[i] * w[i * next + j];
+        for (j = 0; j < next; ++j) b[j] = tanh(b[j]);
+        p += next;
+        swap = a, a = b, b = swap;
+        width = next;
+    }
+    w = p;
+    p += width * nx; /* b_out, then g */
+    for (i = 0; i < nx; ++i) y[i] = f[i] * p[nx + i] + p[i];
+    for (j = 0; j < width; ++j)
+        for (i = 0; i < nx; ++i) y[i] += a[j] * w[j * nx + i];
+}
+
+/* y = the neural FMU's derivative at (x, u) with first-layer input term z, for one row (FMU at t = 0). */
+static int hf_neural_rhs(hf_model *m, const double *x, const double *u, const double *z, size_t n_act,
+                         const size_t *widths, const double *params, double *f, double *act0, double *act1,
+                         double *y, long long row) {
+    int st = hf_set_point(m, 0.0, x, u, row);
+    if (st) return st;
+    HF_CHECK(m, m->get_derivatives(m->component, f, m->nx), HF_FN_GET_DERIVATIVES, row);
+    if ((st = hf_check_finite(m, f, 0.0, row))) return st;
+    hf_neural_stage(m->nx, x, f, z, n_act, widths, params, act0, act1, y);
+    return 0;
+}
+
+/* Gradient-free open-loop rollout of a neural FMU, `batch` rows side by side, n_steps steps of size h on the
+   sample grid: classical RK4 (rk4 != 0; inputs at the step's ends from u_grid/z_grid, at its middle from
+   u_half/z_half) or explicit Euler. Time-major inputs: x0 (batch, nx), u_grid (n_steps + 1, batch, nu),
+   u_half (n_steps, batch, nu), z_grid (n_steps + 1, batch, H_0), z_half (n_steps, batch, H_0); weights as in
+   hf_neural_stage. End stop (i_pos >= 0): after a step, a position at or beyond [lower, upper] is clamped and
+   its rate set to 0. states (n_steps + 1, batch, nx): row 0 = x0, then each step while every state stays
+   finite; *steps_done = the steps written (n_steps unless a state became non-finite).
+   work: 6 * batch * nx + 2 * max(H) doubles. */
+int hf_neural_rollout(hf_model *m, size_t n_steps, size_t batch, double h, int rk4, const double *x0,
+                      const double *u_grid, const double *u_half, const double *z_grid, const double *z_half,
+                      size_t n_act, const size_t *widths, const double *params, long long i_pos,
+                      long long i_rate, double lower, double upper, double *states, double *work,
+                      size_t *steps_done) {
+    const size_t nx = m->nx, nu = m->nu, h0 = widths[0];
+    size_t width_max = 0, k, r, i, l;
+    for (l = 0; l < n_act; ++l)
+        if (widths[l] > width_max) width_max = widths[l];
+    double *k1 = work, *k2 = k1 + nx, *k3 = k2 + nx, *k4 = k3 + nx, *xs = k4 + nx, *f = xs + nx;
+    double *next = work + 6 * nx, *act0 = next + batch * nx, *act1 = act0 + width_max;
+    int st;
+    m->failed_function = HF_FN_NONE;
+    memcpy(states, x0, batch * nx * sizeof(double));
+    *steps_done = 0;
+    for (k = 0; k < n_steps; ++k) {
+        const double *x_k = states + k * batch * nx;
+        int finite = 1;
+        for (r = 0; r < batch; ++r) {
+            const double *x = x_k + r * nx, *ug = u_grid + (k * batch + r) * nu;
+            const double *zg = z_grid + (k * batch + r) * h0;
+            double *x_new = next + r * nx;
+            const long long row = (long long)r;
+            if ((st = hf_neural_rhs(m, x, ug, zg, n_act, widths, params, f, act0, act1, k1, row))) return st;
+            if (rk4) {
+                const double *uh = u_half + (k * batch + r) * nu, *zh = z_half + (k * batch + r) * h0;
+                const double *ue = ug + batch * nu, *ze = zg + batch * h0;
+                for (i = 0; i < nx; ++i) xs[i] = x[i] + 0.5 * h * k1[i];
+                if ((st = hf_neural_rhs(m, xs, uh, zh, n_act, widths, params, f, act0, act1, k2, row))) return st;
+                for (i = 0; i < nx; ++i) xs[i] = x[i] + 0.5 * h * k2[i];
+                if ((st = hf_neural_rhs(m, xs, uh, zh, n_act, widths, params, f, act0, act1, k3, row))) return st;
+                for (i = 0; i < nx; ++i) xs[i] = x[i] + h * k3[i];
+                if ((st = hf_neural_rhs(m, xs, ue, ze, n_act, widths, params, f, act0, act1, k4, row))) return st;
+                for (i = 0; i < nx; ++i)
+                    x_new[i] = x[i] + h / 6.0 * (k1[i] + k4[i]) + h / 3.0 * (k2[i] + k3[i]);
+            } else {
+                for (i = 0; i < nx; ++i) x_new[i] = x[i] + h * k1[i];
+            }
+            if (i_pos >= 0 && (x_new[i_pos] <= lower || x_new[i_pos] >= upper)) {
+                x_new[i_pos] = x_new[i_pos] < lower ? lower : (x_new[i_pos] > upper ? upper : x_new[i_pos]);
+                x_new[i_rate] = 0.0;
+            }
+            for (i = 0; i < nx; ++i)
+                if (!isfinite(x_new[i])) finite = 0;
+        }
+        if (!finite) return 0;
+        memcpy(states + (k + 1) * batch * nx, next, batch * nx * sizeof(double));
+        *steps_done = k + 1;
+    }
+    return 0;
+}

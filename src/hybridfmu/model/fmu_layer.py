@@ -100,3 +100,22 @@ def value_function(rhs: Rhs) -> Rhs:
         return lambda x, u: torch.from_numpy(model.derivatives(
             x.to(torch.float64).contiguous().numpy(), u.to(torch.float64).contiguous().numpy()))
     return rhs
+
+
+def jacobian_kernel(rhs: Rhs, n: int):
+    """The bridge's ``derivatives_and_jacobians_kernel(n)`` behind an FMU-backed ``rhs``: a NumPy function
+    ``(x (n, n_x), u (n, n_u)) -> (xdot (n, n_x), dfdx (n, n_x, n_x), dfdu (n, n_x, n_u))`` whose results are
+    overwritten by its next call; None for right-hand sides without one (they take the torch path)."""
+    if isinstance(rhs, FmuLayer):
+        rhs = rhs.rhs
+    kernel = getattr(getattr(rhs, "model", None), "derivatives_and_jacobians_kernel", None)
+    return kernel(n) if callable(kernel) else None
+
+
+def neural_rollout_function(rhs: Rhs):
+    """The bridge's ``neural_rollout`` (a neural FMU's gradient-free rollout in C) behind an FMU-backed ``rhs``,
+    or None for other right-hand sides."""
+    if isinstance(rhs, FmuLayer):
+        rhs = rhs.rhs
+    method = getattr(getattr(rhs, "model", None), "neural_rollout", None)
+    return method if callable(method) else None

@@ -14,8 +14,10 @@ import torch
 
 import numpy as np
 
-from hybridfmu.model.fmu_layer import jacobian_function, numpy_function, numpy_kernel, value_function
+from hybridfmu.model.fmu_layer import (jacobian_function, jacobian_kernel, neural_rollout_function, numpy_function,
+                                       numpy_kernel, value_function)
 from hybridfmu.model.neural_fmu import FusedDerivative
+from hybridfmu.training.numpy_adjoint import NumpyRollout, NumpyWeights
 
 
 @dataclass
@@ -47,6 +49,7 @@ class SolverEngine:
         self.jacobians = jacobian_function(stage.rhs)
         self.value = value_function(stage.rhs)
         self.numpy_rhs = numpy_function(stage.rhs)
+        self.c_rollout = neural_rollout_function(stage.rhs)
         self.h = h
         self.method = method
         self.clamp = clamp
@@ -101,6 +104,8 @@ class SolverEngine:
         Raises:
             FloatingPointError: a state became non-finite while recording (training).
         """
+        if records is None and self.c_rollout is not None:
+            return self._run_c(wts, x0, u_grid, u_half, z_grid, z_half)
         if records is None and self.numpy_rhs is not None:
             return self._run_numpy(wts, x0, u_grid, u_half, z_grid, z_half)
         n_steps = u_grid.shape[0] - 1
@@ -124,6 +129,20 @@ class SolverEngine:
                 records.append((stage_records, mask))
             states.append(x)
         return torch.stack(states, dim=0)
+
+    def _run_c(self, wts: _Weights, x0, u_grid, u_half, z_grid, z_half) -> torch.Tensor:
+        """Gradient-free integration with the whole loop in C (the bridge's ``neural_rollout``); the same
+        stages as ``_run_numpy`` (values equal to rounding), without Python per stage."""
+        as_np = lambda t: t.detach().numpy()  # noqa: E731
+        parts = [wts.w_xd_t]
+        for weight_t, bias in wts.hidden:
+            parts.extend([weight_t, bias])
+        parts.extend([wts.w_out, wts.b_out, wts.g_fmu])
+        params = np.concatenate([as_np(t).reshape(-1) for t in parts])
+        widths = [wts.w_xd_t.shape[1]] + [weight_t.shape[1] for weight_t, _ in wts.hidden]
+        states = self.c_rollout(as_np(x0), as_np(u_grid), as_np(u_half), as_np(z_grid), as_np(z_half), widths,
+                                params, self.h, self.method, self.clamp)
+        return torch.from_numpy(states)
 
     def _run_numpy(self, wts: _Weights, x0, u_grid, u_half, z_grid, z_half) -> torch.Tensor:
         """Gradient-free integration in NumPy with the FMU's batched derivatives (fewer, cheaper calls).
@@ -302,14 +321,57 @@ class _Rollout(torch.autograd.Function):
         return (None, g_x0, g_u_grid, g_u_half, g_z_grid, g_z_half, *weight_grads)
 
 
-def rollout_adjoint(stage: FusedDerivative, h: float, method: str, clamp, x0, u_grid, u_half, z_grid, z_half):
+class _NumpyRolloutFunction(torch.autograd.Function):
+    """``_Rollout`` with the stages in NumPy (:mod:`hybridfmu.training.numpy_adjoint`)."""
+
+    @staticmethod
+    def forward(ctx, engine: SolverEngine, kernel, x0, u_grid, u_half, z_grid, z_half, w_xd_t, w_out, b_out, g_fmu,
+                *hidden_flat):
+        as_np = lambda t: t.detach().numpy()  # noqa: E731
+        weights = NumpyWeights(as_np(w_xd_t), as_np(w_out), as_np(b_out), as_np(g_fmu),
+                               [(as_np(w), as_np(b)) for w, b in zip(hidden_flat[0::2], hidden_flat[1::2])])
+        rollout = NumpyRollout(kernel, weights, engine.h, engine.method, engine.clamp)
+        states = rollout.forward(as_np(x0), as_np(u_grid), as_np(u_half), as_np(z_grid), as_np(z_half))
+        ctx.rollout = rollout
+        ctx.has_half = u_half.numel() > 0
+        return torch.from_numpy(states)
+
+    @staticmethod
+    def backward(ctx, grad_states):
+        rollout, ctx.rollout = ctx.rollout, None
+        g_x0, g_u_grid, g_u_half, g_z_grid, g_z_half, *weight_grads = rollout.backward(
+            grad_states.detach().to(torch.float64).contiguous().numpy())
+        as_tensor = lambda a: None if a is None else torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
+        if not ctx.has_half:
+            g_u_half = g_z_half = None
+        return (None, None, as_tensor(g_x0), as_tensor(g_u_grid), as_tensor(g_u_half), as_tensor(g_z_grid),
+                as_tensor(g_z_half), *(as_tensor(g) for g in weight_grads))
+
+
+def rollout_adjoint(stage: FusedDerivative, h: float, method: str, clamp, x0, u_grid, u_half, z_grid, z_half,
+                    engine: str = "auto"):
     """Time-major rollout: inputs u_grid (n+1, B, n_u), u_half (n, B, n_u) (empty for Euler), their first-layer
-    terms z_grid, z_half (…, H), x0 (B, n_x) -> states (n+1, B, n_x), differentiable w.r.t. all tensors."""
-    engine = SolverEngine(stage, h, method, clamp)
+    terms z_grid, z_half (…, H), x0 (B, n_x) -> states (n+1, B, n_x), differentiable w.r.t. all tensors.
+
+    ``engine``: "numpy" (stages in NumPy; needs an FMU behind the bridge, whose
+    ``derivatives_and_jacobians_kernel`` it calls), "torch" (stages as torch operations; any right-hand side),
+    or "auto" (numpy where possible). Both give the same values and gradients to rounding.
+    """
+    if engine not in ("auto", "numpy", "torch"):
+        raise ValueError(f"rollout_adjoint: engine must be 'auto', 'numpy' or 'torch', got {engine!r}")
+    solver = SolverEngine(stage, h, method, clamp)
     hidden_flat = [t for pair in stage.hidden for t in pair]
     tensors = (x0, u_grid, u_half, z_grid, z_half, stage.w_xd_t, stage.w_out, stage.b_out, stage.g_fmu, *hidden_flat)
     if not torch.is_grad_enabled() or not any(t.requires_grad for t in tensors):
         wts = _Weights(stage.w_xd_t, stage.w_out, stage.b_out, stage.g_fmu, list(stage.hidden))
         with torch.no_grad():
-            return engine.run(wts, x0, u_grid, u_half, z_grid, z_half, None)
-    return _Rollout.apply(engine, *tensors)
+            return solver.run(wts, x0, u_grid, u_half, z_grid, z_half, None)
+    kernel = None
+    if engine != "torch" and all(t.dtype == torch.float64 for t in tensors):
+        kernel = jacobian_kernel(stage.rhs, x0.shape[0])
+    if kernel is None and engine == "numpy":
+        raise ValueError("rollout_adjoint: engine 'numpy' needs an FMU-backed right-hand side in float64 "
+                         "(the bridge's derivatives_and_jacobians_kernel)")
+    if kernel is not None:
+        return _NumpyRolloutFunction.apply(solver, kernel, *tensors)
+    return _Rollout.apply(solver, *tensors)
