@@ -2,9 +2,10 @@
 
 Builds the demo IPBMotor FMU into a temporary folder, wraps it in the bridge's FmuRhs, and times one
 training step's rollout and gradient (RK4 on the 10 kHz grid, windows of 0.02 s) at B = 1, 4 (the demo's
-batch) and 64 windows per batch, side by side: the discrete adjoint used in training (``adjoint``: its stages in
-NumPy through the bridge's derivatives-and-Jacobians kernel), the same adjoint with its stages as torch
-operations (``adjoint_torch``), and plain autograd for reference.
+batch) and 64 windows per batch, side by side: the discrete adjoint used in training (``adjoint``: forward pass
+and reverse sweep in C, ``hybridfmu.fmu.neural``), the same adjoint with its stages in NumPy through the bridge's
+derivatives-and-Jacobians kernel (``adjoint_numpy``) and as torch operations (``adjoint_torch``), and plain
+autograd for reference.
 Prints a table; the last line is a JSON object (``samples_per_s_b1``, ``samples_per_s_b64`` of the training
 path, and every row as ``<gradients>_w<width>_d<depth>_b<B>``).
 
@@ -84,7 +85,7 @@ def main() -> None:
                                  delay_min_s=-3e-4, delay_max_s=3e-4)
             torch.manual_seed(0)
             model = NeuralFmu(rhs, spec, stats)
-            for gradients in ("adjoint", "adjoint_torch", "autograd"):
+            for gradients in ("adjoint", "adjoint_numpy", "adjoint_torch", "autograd"):
                 for batch in (1, 4, 64):
                     repeats = args.repeats if gradients == "adjoint" else max(1, args.repeats // 2)
                     rate = measure(model, batch, n_steps, repeats, gradients)

@@ -282,15 +282,20 @@ def test_gradient_free_rollout_in_c_matches_the_numpy_one(case, solver):
     assert torch.equal(torch.isnan(in_c), torch.isnan(in_numpy))
 
 
-def test_training_gradients_through_the_fmu_in_numpy_equal_the_torch_stages(case):
-    """Training on an FMU runs the adjoint's stages in NumPy (``training.numpy_adjoint``): the same states and
-    gradients as its torch stages, for every parameter (delay included) and the initial states."""
+@pytest.mark.parametrize("solver", ["rk4", "euler"])
+@pytest.mark.parametrize("jacobian_method", ["directional", "fd"])
+def test_training_gradients_in_c_and_numpy_equal_the_torch_stages(case, solver, jacobian_method):
+    """Training on an FMU runs the adjoint in C (``fmu.neural``; "adjoint" picks it) or with its stages in NumPy
+    (``training.numpy_adjoint``): the same states and gradients as its torch stages, for every parameter (delay
+    included) and the initial states, through the end stop, with the FMU's directional derivatives or finite
+    differences."""
     from hybridfmu.fmu import FmuRhs
     from hybridfmu.training.build import build_neural_fmu, model_spec
     from hybridfmu.training.solver import rollout
 
-    fmu_model = load_fmu(case["fmu"])
-    spec = model_spec(case["model"], fmu_model, H, width=8, depth=3, gate_opening=0.3)
+    fmu_model = load_fmu(case["fmu"], parameters={"theta_min": 4.9})
+    fmu_model.jacobian_method = jacobian_method
+    spec = model_spec(dict(case["model"], solver=solver), fmu_model, H, width=8, depth=3, gate_opening=0.3)
     model = build_neural_fmu(FmuRhs(fmu_model), spec, read_json(case["statistics"]), seed=6)
     with torch.no_grad():
         model.ann.output.weight.normal_(0.0, 0.3)
@@ -298,18 +303,44 @@ def test_training_gradients_through_the_fmu_in_numpy_equal_the_torch_stages(case
     arrays = np.load(case["arrays"]["train"])
     u = torch.from_numpy(arrays["u"][None, 100:400]).repeat(2, 1, 1)
     results = {}
-    for gradients in ("adjoint", "adjoint_torch"):
+    for gradients in ("adjoint", "adjoint_c", "adjoint_numpy", "adjoint_torch"):
         model.zero_grad(set_to_none=True)
-        x0 = torch.from_numpy(arrays["x_init"][[110, 130]]).clone().requires_grad_(True)
+        x0 = torch.from_numpy(arrays["x_init"][[110, 130]]).clone()
+        x0[1, 2:] = torch.tensor([4.95, -40.0], dtype=torch.float64)  # runs into the retract stop at 4.9 rad
+        x0.requires_grad_(True)
         states = rollout(model, u, 10, x0, 250, gradients=gradients)
         (states[:, 1:, 2].abs().mean() + 1e-2 * states[:, 1:, 3].pow(2).mean()).backward()
         results[gradients] = (states.detach(), {n: p.grad.clone() for n, p in model.named_parameters()}, x0.grad)
-    (states_np, grads_np, x0_np), (states_t, grads_t, x0_t) = results["adjoint"], results["adjoint_torch"]
-    assert torch.allclose(states_np, states_t, rtol=1e-12, atol=1e-10)
-    for name, grad in grads_t.items():
-        assert grad.abs().sum() > 0, f"no gradient reaches {name}"
-        assert torch.allclose(grads_np[name], grad, rtol=1e-8, atol=1e-11 * grad.abs().max()), name
-    assert torch.allclose(x0_np, x0_t, rtol=1e-8, atol=1e-11 * x0_t.abs().max())
+    states_t, grads_t, x0_t = results["adjoint_torch"]
+    assert (states_t[1, :, 2] == 4.9).any(), "the end stop must be reached in this test"
+    assert torch.equal(results["adjoint"][0], results["adjoint_c"][0])
+    for engine in ("adjoint_c", "adjoint_numpy"):
+        states_e, grads_e, x0_e = results[engine]
+        assert torch.allclose(states_e, states_t, rtol=1e-12, atol=1e-10), engine
+        for name, grad in grads_t.items():
+            assert grad.abs().sum() > 0, f"no gradient reaches {name}"
+            assert torch.allclose(grads_e[name], grad, rtol=1e-8, atol=1e-11 * grad.abs().max()), (engine, name)
+        assert torch.allclose(x0_e, x0_t, rtol=1e-8, atol=1e-11 * x0_t.abs().max()), engine
+
+
+def test_training_rollout_in_c_stops_on_a_non_finite_state(case):
+    """A training window whose state leaves the finite numbers raises FloatingPointError (the trainer skips the
+    step), in C as with the torch stages."""
+    from hybridfmu.fmu import FmuRhs
+    from hybridfmu.training.build import build_neural_fmu, model_spec
+    from hybridfmu.training.solver import rollout
+
+    fmu_model = load_fmu(case["fmu"])
+    spec = model_spec(dict(case["model"], solver="euler"), fmu_model, H, width=8, depth=2, gate_opening=0.3)
+    model = build_neural_fmu(FmuRhs(fmu_model), spec, read_json(case["statistics"]), seed=7)
+    with torch.no_grad():
+        model.ann.output.bias.fill_(math.inf)
+    arrays = np.load(case["arrays"]["train"])
+    u = torch.from_numpy(arrays["u"][None, 100:200]).repeat(2, 1, 1)
+    x0 = torch.from_numpy(arrays["x_init"][[110, 130]])
+    for gradients in ("adjoint_c", "adjoint_torch"):
+        with pytest.raises(FloatingPointError, match="non-finite state after step 1 of 50"):
+            rollout(model, u, 10, x0, 50, gradients=gradients)
 
 
 def test_intermediate_validations_report_the_best_state(case, tmp_path):

@@ -864,80 +864,20 @@ class FmuModel:
         return kernel
 
     def neural_rollout(self, x0: np.ndarray, u_grid: np.ndarray, u_half: np.ndarray, z_grid: np.ndarray,
-                       z_half: np.ndarray, widths: Sequence[int], params: np.ndarray, h_s: float, method: str,
+                       z_half: np.ndarray, weights, h_s: float, method: str,
                        clamp: tuple[int, int, float, float] | None = None) -> np.ndarray:
-        """Gradient-free open-loop rollout of a neural FMU around this FMU, the whole loop in C.
+        """Gradient-free rollout of a neural FMU around this FMU, the whole loop in C
+        (:func:`hybridfmu.fmu.neural.rollout`; ``weights`` a :class:`hybridfmu.fmu.neural.NeuralWeights`)."""
+        from hybridfmu.fmu.neural import rollout
 
-        The neural FMU is given in its fused form (``hybridfmu.model.neural_fmu.FusedDerivative``): per solver
-        stage, with f = this FMU's derivatives at (x, u) and t = 0,
-        ``a_0 = tanh(z + [x, f] W_xd)``, ``a_l = tanh(b_l + a_(l-1) W_l)``, ``dx/dt = f * g + b_out + a_L W_out``.
+        return rollout(self, x0, u_grid, u_half, z_grid, z_half, weights, h_s, method, clamp)
 
-        Args:
-            x0: (B, n_x) initial states.
-            u_grid: (n + 1, B, n_u) inputs at the sample instants; u_half: (n, B, n_u) at the steps' middles
-                (RK4; ignored for Euler).
-            z_grid, z_half: the first layer's input terms (n + 1, B, H_0) and (n, B, H_0) (z = u W_u + b_0).
-            widths: layer widths H_0 .. H_L.
-            params: float64 vector: W_xd (2 n_x, H_0), per hidden layer W_l (H_(l-1), H_l) and b_l (H_l),
-                W_out (H_L, n_x), b_out (n_x,), g (n_x,), each row-major.
-            h_s: step size (s). method: "rk4" or "euler".
-            clamp: optional end stop (position index, rate index, lower, upper).
+    def neural_recorder(self, weights, h_s: float, method: str, clamp: tuple[int, int, float, float] | None = None):
+        """A recorded training rollout of a neural FMU around this FMU with its reverse sweep, both in C
+        (:class:`hybridfmu.fmu.neural.RecordedRollout`)."""
+        from hybridfmu.fmu.neural import RecordedRollout
 
-        Returns:
-            states (n + 1, B, n_x); the rows from the first step with a non-finite state on are NaN.
-
-        Raises:
-            ValueError: a shape does not fit, or x0 or an input is not finite.
-            FmuNonFiniteError, FmuError: the FMU returned a non-finite derivative or failed.
-        """
-        self._require_open()
-        if method not in ("rk4", "euler"):
-            raise ValueError(f"neural_rollout: method must be 'rk4' or 'euler', got {method!r}")
-        nx, nu = self.n_states, self.n_inputs
-        widths = [int(w) for w in widths]
-        x0 = np.ascontiguousarray(x0, dtype=np.float64)
-        if x0.ndim != 2 or x0.shape[1] != nx:
-            raise ValueError(f"neural_rollout: x0 has shape {x0.shape}, expected (B, {nx})")
-        batch = x0.shape[0]
-        u_grid = np.ascontiguousarray(u_grid, dtype=np.float64)
-        if u_grid.ndim != 3 or u_grid.shape[1:] != (batch, nu) or u_grid.shape[0] < 1:
-            raise ValueError(f"neural_rollout: u_grid has shape {u_grid.shape}, expected (n + 1, {batch}, {nu})")
-        n_steps = u_grid.shape[0] - 1
-        z_grid = np.ascontiguousarray(z_grid, dtype=np.float64)
-        if not widths or z_grid.shape != (n_steps + 1, batch, widths[0]):
-            raise ValueError(f"neural_rollout: z_grid has shape {z_grid.shape}, expected "
-                             f"{(n_steps + 1, batch, widths[0] if widths else 'H_0')}")
-        rk4 = method == "rk4"
-        if rk4:
-            u_half = np.ascontiguousarray(u_half, dtype=np.float64)
-            z_half = np.ascontiguousarray(z_half, dtype=np.float64)
-            if u_half.shape != (n_steps, batch, nu) or z_half.shape != (n_steps, batch, widths[0]):
-                raise ValueError(f"neural_rollout: u_half/z_half have shapes {u_half.shape}/{z_half.shape}, "
-                                 f"expected {(n_steps, batch, nu)}/{(n_steps, batch, widths[0])}")
-        else:
-            u_half = z_half = self._empty
-        expected = 2 * nx * widths[0] + sum(a * b + b for a, b in zip(widths[:-1], widths[1:])) + widths[-1] * nx + 2 * nx
-        params = np.ascontiguousarray(params, dtype=np.float64)
-        if params.shape != (expected,):
-            raise ValueError(f"neural_rollout: params has shape {params.shape}, expected ({expected},) for widths "
-                             f"{widths}")
-        for name, array in (("x0", x0), ("u_grid", u_grid)) + ((("u_half", u_half),) if rk4 else ()):
-            if not np.isfinite(array).all():
-                raise ValueError(f"neural_rollout: {name} has non-finite values")
-        i_pos, i_rate, lower, upper = clamp if clamp is not None else (-1, -1, 0.0, 0.0)
-        width_array = np.asarray(widths, dtype=np.uintp)
-        states = np.full((n_steps + 1, batch, nx), np.nan)
-        work = np.empty(6 * nx + batch * nx + 2 * max(widths))
-        done = np.zeros(1, dtype=np.uintp)
-        status = self._lib.hf_neural_rollout(
-            self._m, n_steps, batch, float(h_s), int(rk4), x0.ctypes.data, u_grid.ctypes.data, self._data(u_half),
-            self._data(z_grid), self._data(z_half), len(widths), width_array.ctypes.data, params.ctypes.data,
-            int(i_pos), int(i_rate), float(lower), float(upper), states.ctypes.data, work.ctypes.data,
-            done.ctypes.data)
-        if status:
-            self._raise_shim_error(status, "neural FMU rollout")
-        states[int(done[0]) + 1:] = np.nan
-        return states
+        return RecordedRollout(self, weights, h_s, method, clamp)
 
     def event_indicators(self, x, u=None, t_s=0.0) -> np.ndarray:
         """Event indicators for a batch: (N, n_event_indicators) float64 (arguments as derivatives)."""

@@ -499,12 +499,11 @@ int hf_simulate(hf_model *m, size_t T, const double *time, const double *u, size
      a_0 = tanh(z + [x, f] W_xd),  a_l = tanh(b_l + a_(l-1) W_l),  y = f * g + b_out + a_L W_out,
    f = f(x, u) the FMU's derivatives (already in f). params: W_xd (2 nx, H_0), then per hidden layer
    W_l (H_(l-1), H_l) and b_l (H_l), then W_out (H_L, nx), b_out (nx), g (nx), all row-major.
-   act0, act1: max(H) doubles each. */
+   act: H_0 + ... + H_L doubles, receives the activations layer after layer. */
 static void hf_neural_stage(size_t nx, const double *x, const double *f, const double *z, size_t n_act,
-                            const size_t *widths, const double *params, double *act0, double *act1,
-                            double *y) {
+                            const size_t *widths, const double *params, double *act, double *y) {
     const double *p = params, *w;
-    double *a = act0, *b = act1, *swap;
+    double *a = act, *b;
     size_t width = widths[0], next, i, j, l;
     for (j = 0; j < width; ++j) a[j] = z[j];
     for (i = 0; i < nx; ++i) {
@@ -519,6 +518,7 @@ static void hf_neural_stage(size_t nx, const double *x, const double *f, const d
     p += 2 * nx * width;
     for (l = 1; l < n_act; ++l) {
         next = widths[l];
+        b = a + width;
         w = p;
         p += width * next;
         for (j = 0; j < next; ++j) b[j] = p[j];
@@ -526,7 +526,7 @@ static void hf_neural_stage(size_t nx, const double *x, const double *f, const d
             for (j = 0; j < next; ++j) b[j] += a[i] * w[i * next + j];
         for (j = 0; j < next; ++j) b[j] = tanh(b[j]);
         p += next;
-        swap = a, a = b, b = swap;
+        a = b;
         width = next;
     }
     w = p;
@@ -536,15 +536,117 @@ static void hf_neural_stage(size_t nx, const double *x, const double *f, const d
         for (i = 0; i < nx; ++i) y[i] += a[j] * w[j * nx + i];
 }
 
-/* y = the neural FMU's derivative at (x, u) with first-layer input term z, for one row (FMU at t = 0). */
+/* How a recorded rollout gets the FMU's Jacobians: none (gradient-free), directional derivatives, or
+   central finite differences with the scales and relative step below. */
+typedef struct {
+    int method; /* 0 none, 1 directional, 2 finite differences */
+    const double *x_scale, *u_scale;
+    double rel;
+    double *dfdx, *dfdu, *column; /* work: nx * nx, nx * nu, nx doubles */
+} hf_jacobian_source;
+
+/* y = the neural FMU's derivative at (x, u) with first-layer input term z, for one row (FMU at t = 0).
+   With a Jacobian source (method > 0) also records xf = [x, f] (2 nx) and jac = [df/dx, df/du]
+   (nx, nx + nu, row-major); f: nx doubles of work (or xf + nx). */
 static int hf_neural_rhs(hf_model *m, const double *x, const double *u, const double *z, size_t n_act,
-                         const size_t *widths, const double *params, double *f, double *act0, double *act1,
-                         double *y, long long row) {
+                         const size_t *widths, const double *params, double *f, double *act, double *y,
+                         hf_jacobian_source *jac_source, double *xf, double *jac, long long row) {
+    const size_t nx = m->nx, nu = m->nu;
+    const double t0 = 0.0;
+    size_t i, j;
     int st = hf_set_point(m, 0.0, x, u, row);
     if (st) return st;
-    HF_CHECK(m, m->get_derivatives(m->component, f, m->nx), HF_FN_GET_DERIVATIVES, row);
+    if (jac_source && jac_source->method) f = xf + nx;
+    HF_CHECK(m, m->get_derivatives(m->component, f, nx), HF_FN_GET_DERIVATIVES, row);
     if ((st = hf_check_finite(m, f, 0.0, row))) return st;
-    hf_neural_stage(m->nx, x, f, z, n_act, widths, params, act0, act1, y);
+    hf_neural_stage(nx, x, f, z, n_act, widths, params, act, y);
+    if (!jac_source || !jac_source->method) return 0;
+    memcpy(xf, x, nx * sizeof(double));
+    if (jac_source->method == 1)
+        st = hf_jacobians_directional(m, 1, &t0, 0, x, u, jac_source->dfdx, jac_source->dfdu, jac_source->column);
+    else
+        st = hf_jacobians_fd(m, 1, &t0, 0, x, u, jac_source->x_scale, jac_source->u_scale, jac_source->rel,
+                             jac_source->dfdx, jac_source->dfdu);
+    if (st) {
+        m->failed_row = row;
+        return st;
+    }
+    for (i = 0; i < nx; ++i) {
+        for (j = 0; j < nx; ++j) jac[i * (nx + nu) + j] = jac_source->dfdx[i * nx + j];
+        for (j = 0; j < nu; ++j) jac[i * (nx + nu) + nx + j] = jac_source->dfdu[i * nu + j];
+    }
+    return 0;
+}
+
+/* The rollout shared by hf_neural_rollout and hf_neural_forward_record (records when jac_source->method > 0:
+   per stage j = k * S + s, S = 4 for RK4 and 1 for Euler, and row r: xf_rec (R, B, 2 nx), jac_rec
+   (R, B, nx, nx + nu), act_rec (R, B, H_0 + ... + H_L); clamped (n_steps, B) = 1 where the end stop held the
+   step's new state). work: 6 * nx + batch * nx + H_0 + ... + H_L doubles. */
+static int hf_neural_loop(hf_model *m, size_t n_steps, size_t batch, double h, int rk4, const double *x0,
+                          const double *u_grid, const double *u_half, const double *z_grid, const double *z_half,
+                          size_t n_act, const size_t *widths, const double *params, long long i_pos,
+                          long long i_rate, double lower, double upper, double *states, double *work,
+                          size_t *steps_done, hf_jacobian_source *jac_source, double *xf_rec, double *jac_rec,
+                          double *act_rec, unsigned char *clamped) {
+    const size_t nx = m->nx, nu = m->nu, h0 = widths[0], stages = rk4 ? 4 : 1;
+    const int record = jac_source && jac_source->method;
+    size_t width_sum = 0, k, r, i, l, s;
+    for (l = 0; l < n_act; ++l) width_sum += widths[l];
+    double *kk[4], *xs = work + 4 * nx, *f = xs + nx, *next = f + nx, *act = next + batch * nx;
+    int st;
+    for (s = 0; s < 4; ++s) kk[s] = work + s * nx;
+    m->failed_function = HF_FN_NONE;
+    memcpy(states, x0, batch * nx * sizeof(double));
+    *steps_done = 0;
+    for (k = 0; k < n_steps; ++k) {
+        const double *x_k = states + k * batch * nx;
+        int finite = 1;
+        for (r = 0; r < batch; ++r) {
+            const double *x = x_k + r * nx;
+            const double *us[4], *zs[4], *xin[4];
+            double *x_new = next + r * nx;
+            const long long row = (long long)r;
+            us[0] = u_grid + (k * batch + r) * nu;
+            zs[0] = z_grid + (k * batch + r) * h0;
+            if (rk4) {
+                us[1] = us[2] = u_half + (k * batch + r) * nu;
+                zs[1] = zs[2] = z_half + (k * batch + r) * h0;
+                us[3] = us[0] + batch * nu;
+                zs[3] = zs[0] + batch * h0;
+            }
+            for (s = 0; s < stages; ++s) {
+                const size_t j = (k * stages + s) * batch + r;
+                if (s == 0) {
+                    xin[0] = x;
+                } else {
+                    const double c = s == 3 ? h : 0.5 * h;
+                    for (i = 0; i < nx; ++i) xs[i] = x[i] + c * kk[s - 1][i];
+                    xin[s] = xs;
+                }
+                st = hf_neural_rhs(m, xin[s], us[s], zs[s], n_act, widths, params, f,
+                                   record ? act_rec + j * width_sum : act, kk[s], jac_source,
+                                   record ? xf_rec + j * 2 * nx : NULL, record ? jac_rec + j * nx * (nx + nu) : NULL,
+                                   row);
+                if (st) return st;
+            }
+            if (rk4)
+                for (i = 0; i < nx; ++i)
+                    x_new[i] = x[i] + h / 6.0 * (kk[0][i] + kk[3][i]) + h / 3.0 * (kk[1][i] + kk[2][i]);
+            else
+                for (i = 0; i < nx; ++i) x_new[i] = x[i] + h * kk[0][i];
+            if (clamped) clamped[k * batch + r] = 0;
+            if (i_pos >= 0 && (x_new[i_pos] <= lower || x_new[i_pos] >= upper)) {
+                x_new[i_pos] = x_new[i_pos] < lower ? lower : (x_new[i_pos] > upper ? upper : x_new[i_pos]);
+                x_new[i_rate] = 0.0;
+                if (clamped) clamped[k * batch + r] = 1;
+            }
+            for (i = 0; i < nx; ++i)
+                if (!isfinite(x_new[i])) finite = 0;
+        }
+        if (!finite) return 0;
+        memcpy(states + (k + 1) * batch * nx, next, batch * nx * sizeof(double));
+        *steps_done = k + 1;
+    }
     return 0;
 }
 
@@ -555,55 +657,188 @@ static int hf_neural_rhs(hf_model *m, const double *x, const double *u, const do
    hf_neural_stage. End stop (i_pos >= 0): after a step, a position at or beyond [lower, upper] is clamped and
    its rate set to 0. states (n_steps + 1, batch, nx): row 0 = x0, then each step while every state stays
    finite; *steps_done = the steps written (n_steps unless a state became non-finite).
-   work: 6 * batch * nx + 2 * max(H) doubles. */
+   work: 6 * nx + batch * nx + H_0 + ... + H_L doubles. */
 int hf_neural_rollout(hf_model *m, size_t n_steps, size_t batch, double h, int rk4, const double *x0,
                       const double *u_grid, const double *u_half, const double *z_grid, const double *z_half,
                       size_t n_act, const size_t *widths, const double *params, long long i_pos,
                       long long i_rate, double lower, double upper, double *states, double *work,
                       size_t *steps_done) {
-    const size_t nx = m->nx, nu = m->nu, h0 = widths[0];
-    size_t width_max = 0, k, r, i, l;
-    for (l = 0; l < n_act; ++l)
+    return hf_neural_loop(m, n_steps, batch, h, rk4, x0, u_grid, u_half, z_grid, z_half, n_act, widths, params,
+                          i_pos, i_rate, lower, upper, states, work, steps_done, NULL, NULL, NULL, NULL, NULL);
+}
+
+/* hf_neural_rollout for training: records what the reverse sweep (hf_neural_backward) needs, see
+   hf_neural_loop. jac_method: 1 directional derivatives, 2 central finite differences (x_scale (nx),
+   u_scale (nu), rel as in hf_jacobians_fd). work: 7 * nx + nx * (nx + nu) + batch * nx + H_0 + ... + H_L
+   doubles. */
+int hf_neural_forward_record(hf_model *m, size_t n_steps, size_t batch, double h, int rk4, const double *x0,
+                             const double *u_grid, const double *u_half, const double *z_grid,
+                             const double *z_half, size_t n_act, const size_t *widths, const double *params,
+                             long long i_pos, long long i_rate, double lower, double upper, double *states,
+                             double *work, size_t *steps_done, int jac_method, const double *x_scale,
+                             const double *u_scale, double rel, double *xf_rec, double *jac_rec, double *act_rec,
+                             unsigned char *clamped) {
+    const size_t nx = m->nx, nu = m->nu;
+    hf_jacobian_source source;
+    source.method = jac_method;
+    source.x_scale = x_scale;
+    source.u_scale = u_scale;
+    source.rel = rel;
+    source.dfdx = work;
+    source.dfdu = work + nx * nx;
+    source.column = work + nx * (nx + nu);
+    return hf_neural_loop(m, n_steps, batch, h, rk4, x0, u_grid, u_half, z_grid, z_half, n_act, widths, params,
+                          i_pos, i_rate, lower, upper, states, work + nx * (nx + nu) + nx, steps_done, &source,
+                          xf_rec, jac_rec, act_rec, clamped);
+}
+
+/* Reverse sweep of one stage (record j of row r) for the output gradient gy (nx): accumulates the weight
+   gradients into g_params (layout of params), adds the input gradient to gu (nu) and the first layer's
+   input-term gradient to gz (H_0), and writes the state gradient to gx (nx).
+   work: 3 * nx + 2 * max(H) doubles. */
+static void hf_neural_stage_backward(size_t nx, size_t nu, const double *xf, const double *jac, const double *act,
+                                     size_t n_act, const size_t *widths, const double *params, double *g_params,
+                                     const double *gy, double *gx, double *gu, double *gz, double *work) {
+    size_t width_max = 0, offsets[64], p_off[64], l, i, j, width, prev;
+    size_t p = 2 * nx * widths[0];
+    const double *f = xf + nx, *a, *w;
+    double *g_h, *g_a, *g_xf = work, *g_fmu = work + 2 * nx;
+    offsets[0] = 0;
+    for (l = 0; l < n_act; ++l) {
         if (widths[l] > width_max) width_max = widths[l];
-    double *k1 = work, *k2 = k1 + nx, *k3 = k2 + nx, *k4 = k3 + nx, *xs = k4 + nx, *f = xs + nx;
-    double *next = work + 6 * nx, *act0 = next + batch * nx, *act1 = act0 + width_max;
-    int st;
-    m->failed_function = HF_FN_NONE;
-    memcpy(states, x0, batch * nx * sizeof(double));
-    *steps_done = 0;
-    for (k = 0; k < n_steps; ++k) {
-        const double *x_k = states + k * batch * nx;
-        int finite = 1;
-        for (r = 0; r < batch; ++r) {
-            const double *x = x_k + r * nx, *ug = u_grid + (k * batch + r) * nu;
-            const double *zg = z_grid + (k * batch + r) * h0;
-            double *x_new = next + r * nx;
-            const long long row = (long long)r;
-            if ((st = hf_neural_rhs(m, x, ug, zg, n_act, widths, params, f, act0, act1, k1, row))) return st;
-            if (rk4) {
-                const double *uh = u_half + (k * batch + r) * nu, *zh = z_half + (k * batch + r) * h0;
-                const double *ue = ug + batch * nu, *ze = zg + batch * h0;
-                for (i = 0; i < nx; ++i) xs[i] = x[i] + 0.5 * h * k1[i];
-                if ((st = hf_neural_rhs(m, xs, uh, zh, n_act, widths, params, f, act0, act1, k2, row))) return st;
-                for (i = 0; i < nx; ++i) xs[i] = x[i] + 0.5 * h * k2[i];
-                if ((st = hf_neural_rhs(m, xs, uh, zh, n_act, widths, params, f, act0, act1, k3, row))) return st;
-                for (i = 0; i < nx; ++i) xs[i] = x[i] + h * k3[i];
-                if ((st = hf_neural_rhs(m, xs, ue, ze, n_act, widths, params, f, act0, act1, k4, row))) return st;
-                for (i = 0; i < nx; ++i)
-                    x_new[i] = x[i] + h / 6.0 * (k1[i] + k4[i]) + h / 3.0 * (k2[i] + k3[i]);
-            } else {
-                for (i = 0; i < nx; ++i) x_new[i] = x[i] + h * k1[i];
-            }
-            if (i_pos >= 0 && (x_new[i_pos] <= lower || x_new[i_pos] >= upper)) {
-                x_new[i_pos] = x_new[i_pos] < lower ? lower : (x_new[i_pos] > upper ? upper : x_new[i_pos]);
-                x_new[i_rate] = 0.0;
-            }
-            for (i = 0; i < nx; ++i)
-                if (!isfinite(x_new[i])) finite = 0;
+        if (l > 0) {
+            offsets[l] = offsets[l - 1] + widths[l - 1];
+            p_off[l] = p; /* W_l, then b_l */
+            p += widths[l - 1] * widths[l] + widths[l];
         }
-        if (!finite) return 0;
-        memcpy(states + (k + 1) * batch * nx, next, batch * nx * sizeof(double));
-        *steps_done = k + 1;
+    }
+    g_h = work + 3 * nx;
+    g_a = g_h + width_max;
+    /* output layer: y = f * g + b_out + a_L W_out */
+    width = widths[n_act - 1];
+    a = act + offsets[n_act - 1];
+    w = params + p;
+    {
+        double *gw = g_params + p, *gb = gw + width * nx, *gg = gb + nx;
+        const double *g = params + p + width * nx + nx;
+        for (j = 0; j < width; ++j) {
+            double acc = 0.0;
+            for (i = 0; i < nx; ++i) {
+                gw[j * nx + i] += a[j] * gy[i];
+                acc += gy[i] * w[j * nx + i];
+            }
+            g_h[j] = acc;
+        }
+        for (i = 0; i < nx; ++i) {
+            gb[i] += gy[i];
+            gg[i] += f[i] * gy[i];
+            g_fmu[i] = gy[i] * g[i];
+        }
+    }
+    /* hidden layers, last to first */
+    for (l = n_act - 1; l > 0; --l) {
+        width = widths[l];
+        prev = widths[l - 1];
+        a = act + offsets[l];
+        for (j = 0; j < width; ++j) g_a[j] = g_h[j] - g_h[j] * a[j] * a[j];
+        {
+            const double *wl = params + p_off[l], *a_prev = act + offsets[l - 1];
+            double *gw = g_params + p_off[l], *gb = gw + prev * width;
+            for (j = 0; j < width; ++j) gb[j] += g_a[j];
+            for (i = 0; i < prev; ++i) {
+                double acc = 0.0;
+                for (j = 0; j < width; ++j) {
+                    gw[i * width + j] += a_prev[i] * g_a[j];
+                    acc += g_a[j] * wl[i * width + j];
+                }
+                g_h[i] = acc; /* now the gradient of layer l-1's output */
+            }
+        }
+    }
+    /* first layer: a_0 = tanh(z + xf W_xd) */
+    width = widths[0];
+    for (j = 0; j < width; ++j) {
+        g_a[j] = g_h[j] - g_h[j] * act[j] * act[j];
+        gz[j] += g_a[j];
+    }
+    for (i = 0; i < 2 * nx; ++i) {
+        double acc = 0.0;
+        const double *wi = params + i * width;
+        double *gwi = g_params + i * width;
+        for (j = 0; j < width; ++j) {
+            gwi[j] += xf[i] * g_a[j];
+            acc += g_a[j] * wi[j];
+        }
+        g_xf[i] = acc;
+    }
+    /* through the FMU: f enters the first layer and the output */
+    for (i = 0; i < nx; ++i) g_fmu[i] += g_xf[nx + i];
+    for (j = 0; j < nx + nu; ++j) {
+        double acc = 0.0;
+        for (i = 0; i < nx; ++i) acc += g_fmu[i] * jac[i * (nx + nu) + j];
+        if (j < nx)
+            gx[j] = g_xf[j] + acc;
+        else
+            gu[j - nx] += acc;
+    }
+}
+
+/* Reverse sweep of a recorded rollout (hf_neural_forward_record): grad_states (n_steps + 1, B, nx) = dL/dstates
+   -> g_x0 (B, nx), and added into the zero-initialised g_u_grid (n_steps + 1, B, nu), g_u_half (n_steps, B, nu),
+   g_z_grid (n_steps + 1, B, H_0), g_z_half (n_steps, B, H_0) and g_params (layout of params). A clamped step
+   passes no gradient to the end stop's position and rate. n_act <= 64.
+   work: 10 * nx + 2 * max(H) doubles. */
+int hf_neural_backward(size_t nx, size_t nu, size_t n_steps, size_t batch, double h, int rk4, size_t n_act,
+                       const size_t *widths, const double *params, const double *xf_rec, const double *jac_rec,
+                       const double *act_rec, const unsigned char *clamped, long long i_pos, long long i_rate,
+                       const double *grad_states, double *g_x0, double *g_u_grid, double *g_u_half,
+                       double *g_z_grid, double *g_z_half, double *g_params, double *work) {
+    const size_t h0 = widths[0], stages = rk4 ? 4 : 1;
+    size_t width_sum = 0, l, r, i, s;
+    long long k;
+    double *lam = work, *gy = lam + nx, *gx[4], *stage_work = gy + 5 * nx;
+    if (n_act > 64) return HF_ERR_NO_MEMORY;
+    for (l = 0; l < n_act; ++l) width_sum += widths[l];
+    for (s = 0; s < 4; ++s) gx[s] = gy + (s + 1) * nx;
+    for (r = 0; r < batch; ++r) {
+        for (i = 0; i < nx; ++i) lam[i] = grad_states[(n_steps * batch + r) * nx + i];
+        for (k = (long long)n_steps - 1; k >= 0; --k) {
+            const size_t kk = (size_t)k;
+            double *gus[4], *gzs[4];
+            if (clamped[kk * batch + r] && i_pos >= 0) lam[i_pos] = 0.0, lam[i_rate] = 0.0;
+            gus[0] = g_u_grid + (kk * batch + r) * nu;
+            gzs[0] = g_z_grid + (kk * batch + r) * h0;
+            if (rk4) {
+                gus[1] = gus[2] = g_u_half + (kk * batch + r) * nu;
+                gzs[1] = gzs[2] = g_z_half + (kk * batch + r) * h0;
+                gus[3] = gus[0] + batch * nu;
+                gzs[3] = gzs[0] + batch * h0;
+            }
+            for (s = stages; s-- > 0;) {
+                const size_t j = (kk * stages + s) * batch + r;
+                if (!rk4) {
+                    for (i = 0; i < nx; ++i) gy[i] = lam[i] * h;
+                } else if (s == 3) {
+                    for (i = 0; i < nx; ++i) gy[i] = lam[i] * (h / 6.0);
+                } else if (s == 0) {
+                    for (i = 0; i < nx; ++i) gy[i] = lam[i] * (h / 6.0) + 0.5 * h * gx[1][i];
+                } else {
+                    const double c = s == 2 ? h : 0.5 * h;
+                    for (i = 0; i < nx; ++i) gy[i] = lam[i] * (h / 3.0) + c * gx[s + 1][i];
+                }
+                hf_neural_stage_backward(nx, nu, xf_rec + j * 2 * nx, jac_rec + j * nx * (nx + nu),
+                                         act_rec + j * width_sum, n_act, widths, params, g_params, gy, gx[s],
+                                         gus[s], gzs[s], stage_work);
+            }
+            for (i = 0; i < nx; ++i) {
+                if (rk4)
+                    lam[i] += ((gx[0][i] + gx[1][i]) + (gx[2][i] + gx[3][i]));
+                else
+                    lam[i] += gx[0][i];
+                lam[i] += grad_states[(kk * batch + r) * nx + i];
+            }
+        }
+        for (i = 0; i < nx; ++i) g_x0[r * nx + i] = lam[i];
     }
     return 0;
 }

@@ -119,3 +119,12 @@ def neural_rollout_function(rhs: Rhs):
         rhs = rhs.rhs
     method = getattr(getattr(rhs, "model", None), "neural_rollout", None)
     return method if callable(method) else None
+
+
+def neural_recorder_function(rhs: Rhs):
+    """The bridge's ``neural_recorder`` (a neural FMU's training rollout and reverse sweep in C) behind an
+    FMU-backed ``rhs``, or None for other right-hand sides."""
+    if isinstance(rhs, FmuLayer):
+        rhs = rhs.rhs
+    method = getattr(getattr(rhs, "model", None), "neural_recorder", None)
+    return method if callable(method) else None

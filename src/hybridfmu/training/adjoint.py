@@ -14,8 +14,9 @@ import torch
 
 import numpy as np
 
-from hybridfmu.model.fmu_layer import (jacobian_function, jacobian_kernel, neural_rollout_function, numpy_function,
-                                       numpy_kernel, value_function)
+from hybridfmu.fmu.neural import NeuralWeights
+from hybridfmu.model.fmu_layer import (jacobian_function, jacobian_kernel, neural_recorder_function,
+                                       neural_rollout_function, numpy_function, numpy_kernel, value_function)
 from hybridfmu.model.neural_fmu import FusedDerivative
 from hybridfmu.training.numpy_adjoint import NumpyRollout, NumpyWeights
 
@@ -133,15 +134,9 @@ class SolverEngine:
     def _run_c(self, wts: _Weights, x0, u_grid, u_half, z_grid, z_half) -> torch.Tensor:
         """Gradient-free integration with the whole loop in C (the bridge's ``neural_rollout``); the same
         stages as ``_run_numpy`` (values equal to rounding), without Python per stage."""
-        as_np = lambda t: t.detach().numpy()  # noqa: E731
-        parts = [wts.w_xd_t]
-        for weight_t, bias in wts.hidden:
-            parts.extend([weight_t, bias])
-        parts.extend([wts.w_out, wts.b_out, wts.g_fmu])
-        params = np.concatenate([as_np(t).reshape(-1) for t in parts])
-        widths = [wts.w_xd_t.shape[1]] + [weight_t.shape[1] for weight_t, _ in wts.hidden]
-        states = self.c_rollout(as_np(x0), as_np(u_grid), as_np(u_half), as_np(z_grid), as_np(z_half), widths,
-                                params, self.h, self.method, self.clamp)
+        states = self.c_rollout(x0.detach().numpy(), u_grid.detach().numpy(), u_half.detach().numpy(),
+                                z_grid.detach().numpy(), z_half.detach().numpy(), _c_weights(wts), self.h,
+                                self.method, self.clamp)
         return torch.from_numpy(states)
 
     def _run_numpy(self, wts: _Weights, x0, u_grid, u_half, z_grid, z_half) -> torch.Tensor:
@@ -321,6 +316,38 @@ class _Rollout(torch.autograd.Function):
         return (None, g_x0, g_u_grid, g_u_half, g_z_grid, g_z_half, *weight_grads)
 
 
+def _c_weights(wts: _Weights) -> NeuralWeights:
+    as_np = lambda t: t.detach().numpy()  # noqa: E731
+    return NeuralWeights.from_arrays(as_np(wts.w_xd_t), [(as_np(w), as_np(b)) for w, b in wts.hidden],
+                                     as_np(wts.w_out), as_np(wts.b_out), as_np(wts.g_fmu))
+
+
+class _CRolloutFunction(torch.autograd.Function):
+    """``_Rollout`` with the forward pass and the reverse sweep in C (:mod:`hybridfmu.fmu.neural`)."""
+
+    @staticmethod
+    def forward(ctx, engine: SolverEngine, recorder, x0, u_grid, u_half, z_grid, z_half, w_xd_t, w_out, b_out,
+                g_fmu, *hidden_flat):
+        wts = _Weights(w_xd_t, w_out, b_out, g_fmu, list(zip(hidden_flat[0::2], hidden_flat[1::2])))
+        recorded = recorder(_c_weights(wts), engine.h, engine.method, engine.clamp)
+        as_np = lambda t: t.detach().numpy()  # noqa: E731
+        states = recorded.forward(as_np(x0), as_np(u_grid), as_np(u_half), as_np(z_grid), as_np(z_half))
+        ctx.recorded = recorded
+        ctx.has_half = u_half.numel() > 0
+        return torch.from_numpy(states)
+
+    @staticmethod
+    def backward(ctx, grad_states):
+        recorded, ctx.recorded = ctx.recorded, None
+        g_x0, g_u_grid, g_u_half, g_z_grid, g_z_half, *weight_grads = recorded.backward(
+            grad_states.detach().to(torch.float64).contiguous().numpy())
+        as_tensor = lambda a: None if a is None else torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
+        if not ctx.has_half:
+            g_u_half = g_z_half = None
+        return (None, None, as_tensor(g_x0), as_tensor(g_u_grid), as_tensor(g_u_half), as_tensor(g_z_grid),
+                as_tensor(g_z_half), *(as_tensor(g) for g in weight_grads))
+
+
 class _NumpyRolloutFunction(torch.autograd.Function):
     """``_Rollout`` with the stages in NumPy (:mod:`hybridfmu.training.numpy_adjoint`)."""
 
@@ -348,17 +375,25 @@ class _NumpyRolloutFunction(torch.autograd.Function):
                 as_tensor(g_z_half), *(as_tensor(g) for g in weight_grads))
 
 
+#: Engines of the reverse sweep, fastest first: "c" (forward pass and sweep in C, for an FMU behind the
+#: bridge), "numpy" (stages in NumPy through the bridge's derivatives-and-Jacobians kernel), "torch" (stages as
+#: torch operations, any right-hand side).
+ENGINES = ("c", "numpy", "torch")
+
+
 def rollout_adjoint(stage: FusedDerivative, h: float, method: str, clamp, x0, u_grid, u_half, z_grid, z_half,
                     engine: str = "auto"):
     """Time-major rollout: inputs u_grid (n+1, B, n_u), u_half (n, B, n_u) (empty for Euler), their first-layer
     terms z_grid, z_half (…, H), x0 (B, n_x) -> states (n+1, B, n_x), differentiable w.r.t. all tensors.
 
-    ``engine``: "numpy" (stages in NumPy; needs an FMU behind the bridge, whose
-    ``derivatives_and_jacobians_kernel`` it calls), "torch" (stages as torch operations; any right-hand side),
-    or "auto" (numpy where possible). Both give the same values and gradients to rounding.
+    ``engine``: one of :data:`ENGINES`, or "auto" (the fastest the right-hand side allows). All give the same
+    values and gradients to rounding.
+
+    Raises:
+        ValueError: an unknown engine, or one the right-hand side does not offer.
     """
-    if engine not in ("auto", "numpy", "torch"):
-        raise ValueError(f"rollout_adjoint: engine must be 'auto', 'numpy' or 'torch', got {engine!r}")
+    if engine not in ("auto",) + ENGINES:
+        raise ValueError(f"rollout_adjoint: engine must be 'auto' or one of {ENGINES}, got {engine!r}")
     solver = SolverEngine(stage, h, method, clamp)
     hidden_flat = [t for pair in stage.hidden for t in pair]
     tensors = (x0, u_grid, u_half, z_grid, z_half, stage.w_xd_t, stage.w_out, stage.b_out, stage.g_fmu, *hidden_flat)
@@ -366,12 +401,16 @@ def rollout_adjoint(stage: FusedDerivative, h: float, method: str, clamp, x0, u_
         wts = _Weights(stage.w_xd_t, stage.w_out, stage.b_out, stage.g_fmu, list(stage.hidden))
         with torch.no_grad():
             return solver.run(wts, x0, u_grid, u_half, z_grid, z_half, None)
-    kernel = None
-    if engine != "torch" and all(t.dtype == torch.float64 for t in tensors):
-        kernel = jacobian_kernel(stage.rhs, x0.shape[0])
-    if kernel is None and engine == "numpy":
-        raise ValueError("rollout_adjoint: engine 'numpy' needs an FMU-backed right-hand side in float64 "
-                         "(the bridge's derivatives_and_jacobians_kernel)")
-    if kernel is not None:
-        return _NumpyRolloutFunction.apply(solver, kernel, *tensors)
+    float64 = all(t.dtype == torch.float64 for t in tensors)
+    if engine in ("auto", "c"):
+        recorder = neural_recorder_function(stage.rhs) if float64 else None
+        if recorder is not None:
+            return _CRolloutFunction.apply(solver, recorder, *tensors)
+    if engine in ("auto", "numpy"):
+        kernel = jacobian_kernel(stage.rhs, x0.shape[0]) if float64 else None
+        if kernel is not None:
+            return _NumpyRolloutFunction.apply(solver, kernel, *tensors)
+    if engine != "auto" and engine != "torch":
+        raise ValueError(f"rollout_adjoint: engine {engine!r} needs an FMU-backed right-hand side in float64 "
+                         "(the bridge's neural_recorder or derivatives_and_jacobians_kernel)")
     return _Rollout.apply(solver, *tensors)

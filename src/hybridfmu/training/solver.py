@@ -5,7 +5,10 @@ from __future__ import annotations
 import torch
 
 from hybridfmu.model.neural_fmu import NeuralFmu
-from hybridfmu.training.adjoint import rollout_adjoint
+from hybridfmu.training.adjoint import ENGINES, rollout_adjoint
+
+#: ``rollout``'s gradients options that name one engine of the adjoint.
+GRADIENT_ENGINES = {f"adjoint_{engine}": engine for engine in ENGINES}
 
 
 def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.Tensor, n_steps: int,
@@ -19,10 +22,10 @@ def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.T
         start_index: index in ``u_seq`` of the window's first instant (where ``x0`` applies).
         x0: initial states (B, n_x).
         n_steps: number of steps.
-        gradients: "adjoint" (hand-written reverse sweep, fast; ``training.adjoint``: its stages in NumPy for an
-            FMU behind the bridge, as torch operations otherwise), "adjoint_torch" (the same sweep, always as
-            torch operations) or "autograd" (the reference: every operation recorded by autograd). All give the
-            same values and gradients to rounding.
+        gradients: "adjoint" (the solver's discrete adjoint, ``training.adjoint``, with the fastest engine the
+            right-hand side allows: in C for an FMU behind the bridge), "adjoint_c", "adjoint_numpy",
+            "adjoint_torch" (that engine of the adjoint) or "autograd" (the reference: every operation recorded
+            by autograd). All give the same values and gradients to rounding.
 
     Returns:
         states (B, n_steps + 1, n_x) at t_start + k h, k = 0..n_steps (row 0 is ``x0``).
@@ -38,13 +41,14 @@ def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.T
     z_grid_t = stage.input_term(u_grid_t)  # (n+1, B, H)
     u_half_t = model.delay(u_seq, start_index, n_steps if rk4 else 0, 0.5).transpose(0, 1).contiguous()
     z_half_t = stage.input_term(u_half_t)
-    if gradients in ("adjoint", "adjoint_torch"):
+    if gradients == "adjoint" or gradients in GRADIENT_ENGINES:
         states_t = rollout_adjoint(stage, h, spec.solver, _end_stop_indices(model), x0,
                                    u_grid_t, u_half_t, z_grid_t, z_half_t,
-                                   engine="auto" if gradients == "adjoint" else "torch")
+                                   engine=GRADIENT_ENGINES.get(gradients, "auto"))
         return states_t.transpose(0, 1)
     if gradients != "autograd":
-        raise ValueError(f"rollout: gradients must be 'adjoint', 'adjoint_torch' or 'autograd', got {gradients!r}")
+        raise ValueError(f"rollout: gradients must be 'adjoint', {', '.join(repr(g) for g in GRADIENT_ENGINES)} or "
+                         f"'autograd', got {gradients!r}")
     # Time-major sequences split once (one backward node each instead of one per step).
     u_grid, z_grid = u_grid_t.unbind(0), z_grid_t.unbind(0)
     u_half, z_half = u_half_t.unbind(0), z_half_t.unbind(0)
