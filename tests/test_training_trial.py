@@ -273,6 +273,13 @@ def test_gradient_free_rollout_in_c_matches_the_numpy_one(case, solver):
     assert torch.isfinite(in_c).all()
     assert (in_c[0, :, 2] == 4.9).any(), "the end stop must be reached in this test"
     assert torch.allclose(in_c, in_numpy, rtol=1e-10, atol=1e-9)
+    with torch.no_grad():  # segments of different lengths: each row integrated over its own steps, then held
+        short = rollout(model, u, 10, x0, 700, row_steps=torch.tensor([700, 300, 0]))
+    assert torch.equal(short[0], in_c[0]) and torch.equal(short[1, :301], in_c[1, :301])
+    assert (short[1, 301:] == in_c[1, 300]).all() and (short[2] == x0[2]).all()
+    with pytest.raises(ValueError, match="row_steps"):
+        with torch.no_grad():
+            rollout(model, u, 10, x0, 700, row_steps=torch.tensor([701, 0, 0]))
     if solver != "euler":
         return
     with torch.no_grad():

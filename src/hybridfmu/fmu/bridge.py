@@ -865,12 +865,12 @@ class FmuModel:
 
     def neural_rollout(self, x0: np.ndarray, u_grid: np.ndarray, u_half: np.ndarray, z_grid: np.ndarray,
                        z_half: np.ndarray, weights, h_s: float, method: str,
-                       clamp: tuple[int, int, float, float] | None = None) -> np.ndarray:
+                       clamp: tuple[int, int, float, float] | None = None, row_steps=None) -> np.ndarray:
         """Gradient-free rollout of a neural FMU around this FMU, the whole loop in C
         (:func:`hybridfmu.fmu.neural.rollout`; ``weights`` a :class:`hybridfmu.fmu.neural.NeuralWeights`)."""
         from hybridfmu.fmu.neural import rollout
 
-        return rollout(self, x0, u_grid, u_half, z_grid, z_half, weights, h_s, method, clamp)
+        return rollout(self, x0, u_grid, u_half, z_grid, z_half, weights, h_s, method, clamp, row_steps)
 
     def neural_recorder(self, weights, h_s: float, method: str, clamp: tuple[int, int, float, float] | None = None):
         """A recorded training rollout of a neural FMU around this FMU with its reverse sweep, both in C

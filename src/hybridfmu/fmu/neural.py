@@ -125,8 +125,11 @@ def _clamp_arguments(clamp) -> tuple[int, int, float, float]:
 
 
 def rollout(model, x0, u_grid, u_half, z_grid, z_half, weights: NeuralWeights, h_s: float, method: str,
-            clamp: tuple[int, int, float, float] | None = None) -> np.ndarray:
+            clamp: tuple[int, int, float, float] | None = None, row_steps=None) -> np.ndarray:
     """Gradient-free rollout around ``model`` (an open ``hybridfmu.fmu.FmuModel``).
+
+    ``row_steps``: optional (B,) number of steps each row needs (at most n); a row's state is held after them
+    (e.g. segments of different lengths side by side).
 
     Returns:
         states (n + 1, B, n_x); the rows from the first step with a non-finite state on are NaN.
@@ -138,6 +141,12 @@ def rollout(model, x0, u_grid, u_half, z_grid, z_half, weights: NeuralWeights, h
     x0, u_grid, u_half, z_grid, z_half, n_steps, batch = _checked(model, x0, u_grid, u_half, z_grid, z_half,
                                                                   weights, method)
     nx = model.n_states
+    steps = None
+    if row_steps is not None:
+        steps = np.ascontiguousarray(row_steps, dtype=np.int64)
+        if steps.shape != (batch,) or (steps < 0).any() or (steps > n_steps).any():
+            raise ValueError(f"neural rollout: row_steps must be {batch} integers in [0, {n_steps}], got {row_steps}")
+        steps = steps.astype(np.uintp)
     widths = np.asarray(weights.widths, dtype=np.uintp)
     states = np.full((n_steps + 1, batch, nx), np.nan)
     work = np.empty(6 * nx + batch * nx + sum(weights.widths))
@@ -146,7 +155,7 @@ def rollout(model, x0, u_grid, u_half, z_grid, z_half, weights: NeuralWeights, h
         model._m, n_steps, batch, float(h_s), int(method == "rk4"), x0.ctypes.data, u_grid.ctypes.data,
         _address(u_half), _address(z_grid), _address(z_half), len(weights.widths), widths.ctypes.data,
         weights.params.ctypes.data, *_clamp_arguments(clamp), states.ctypes.data, work.ctypes.data,
-        done.ctypes.data)
+        done.ctypes.data, steps.ctypes.data if steps is not None and batch else 0)
     if status:
         model._raise_shim_error(status, "neural FMU rollout")
     states[int(done[0]) + 1:] = np.nan

@@ -581,13 +581,14 @@ static int hf_neural_rhs(hf_model *m, const double *x, const double *u, const do
 /* The rollout shared by hf_neural_rollout and hf_neural_forward_record (records when jac_source->method > 0:
    per stage j = k * S + s, S = 4 for RK4 and 1 for Euler, and row r: xf_rec (R, B, 2 nx), jac_rec
    (R, B, nx, nx + nu), act_rec (R, B, H_0 + ... + H_L); clamped (n_steps, B) = 1 where the end stop held the
-   step's new state). work: 6 * nx + batch * nx + H_0 + ... + H_L doubles. */
+   step's new state). row_steps (batch,) or NULL: each row's own number of steps, after which its state is
+   held. work: 6 * nx + batch * nx + H_0 + ... + H_L doubles. */
 static int hf_neural_loop(hf_model *m, size_t n_steps, size_t batch, double h, int rk4, const double *x0,
                           const double *u_grid, const double *u_half, const double *z_grid, const double *z_half,
                           size_t n_act, const size_t *widths, const double *params, long long i_pos,
                           long long i_rate, double lower, double upper, double *states, double *work,
-                          size_t *steps_done, hf_jacobian_source *jac_source, double *xf_rec, double *jac_rec,
-                          double *act_rec, unsigned char *clamped) {
+                          size_t *steps_done, const size_t *row_steps, hf_jacobian_source *jac_source,
+                          double *xf_rec, double *jac_rec, double *act_rec, unsigned char *clamped) {
     const size_t nx = m->nx, nu = m->nu, h0 = widths[0], stages = rk4 ? 4 : 1;
     const int record = jac_source && jac_source->method;
     size_t width_sum = 0, k, r, i, l, s;
@@ -606,6 +607,10 @@ static int hf_neural_loop(hf_model *m, size_t n_steps, size_t batch, double h, i
             const double *us[4], *zs[4], *xin[4];
             double *x_new = next + r * nx;
             const long long row = (long long)r;
+            if (row_steps && k >= row_steps[r]) { /* the row's own steps are done: hold its state */
+                memcpy(x_new, x, nx * sizeof(double));
+                continue;
+            }
             us[0] = u_grid + (k * batch + r) * nu;
             zs[0] = z_grid + (k * batch + r) * h0;
             if (rk4) {
@@ -656,15 +661,17 @@ static int hf_neural_loop(hf_model *m, size_t n_steps, size_t batch, double h, i
    u_half (n_steps, batch, nu), z_grid (n_steps + 1, batch, H_0), z_half (n_steps, batch, H_0); weights as in
    hf_neural_stage. End stop (i_pos >= 0): after a step, a position at or beyond [lower, upper] is clamped and
    its rate set to 0. states (n_steps + 1, batch, nx): row 0 = x0, then each step while every state stays
-   finite; *steps_done = the steps written (n_steps unless a state became non-finite).
+   finite; *steps_done = the steps written (n_steps unless a state became non-finite). row_steps (batch,) or
+   NULL: each row's own number of steps (at most n_steps), after which its state is held.
    work: 6 * nx + batch * nx + H_0 + ... + H_L doubles. */
 int hf_neural_rollout(hf_model *m, size_t n_steps, size_t batch, double h, int rk4, const double *x0,
                       const double *u_grid, const double *u_half, const double *z_grid, const double *z_half,
                       size_t n_act, const size_t *widths, const double *params, long long i_pos,
                       long long i_rate, double lower, double upper, double *states, double *work,
-                      size_t *steps_done) {
+                      size_t *steps_done, const size_t *row_steps) {
     return hf_neural_loop(m, n_steps, batch, h, rk4, x0, u_grid, u_half, z_grid, z_half, n_act, widths, params,
-                          i_pos, i_rate, lower, upper, states, work, steps_done, NULL, NULL, NULL, NULL, NULL);
+                          i_pos, i_rate, lower, upper, states, work, steps_done, row_steps, NULL, NULL, NULL, NULL,
+                          NULL);
 }
 
 /* hf_neural_rollout for training: records what the reverse sweep (hf_neural_backward) needs, see
@@ -688,8 +695,8 @@ int hf_neural_forward_record(hf_model *m, size_t n_steps, size_t batch, double h
     source.dfdu = work + nx * nx;
     source.column = work + nx * (nx + nu);
     return hf_neural_loop(m, n_steps, batch, h, rk4, x0, u_grid, u_half, z_grid, z_half, n_act, widths, params,
-                          i_pos, i_rate, lower, upper, states, work + nx * (nx + nu) + nx, steps_done, &source,
-                          xf_rec, jac_rec, act_rec, clamped);
+                          i_pos, i_rate, lower, upper, states, work + nx * (nx + nu) + nx, steps_done, NULL,
+                          &source, xf_rec, jac_rec, act_rec, clamped);
 }
 
 /* Reverse sweep of one stage (record j of row r) for the output gradient gy (nx): accumulates the weight

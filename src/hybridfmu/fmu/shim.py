@@ -180,7 +180,7 @@ def _declare(lib: ctypes.CDLL) -> None:
         "hf_completed_step": (c_int, [ptr, ptr]),
         "hf_simulate": (c_int, [ptr, c_size_t, ptr, ptr, c_size_t, c_double, ptr, ptr, ptr, ptr]),
         "hf_neural_rollout": (c_int, [ptr, c_size_t, c_size_t, c_double, c_int, ptr, ptr, ptr, ptr, ptr, c_size_t,
-                                      ptr, ptr, c_longlong, c_longlong, c_double, c_double, ptr, ptr, ptr]),
+                                      ptr, ptr, c_longlong, c_longlong, c_double, c_double, ptr, ptr, ptr, ptr]),
         "hf_neural_forward_record": (c_int, [ptr, c_size_t, c_size_t, c_double, c_int, ptr, ptr, ptr, ptr, ptr,
                                              c_size_t, ptr, ptr, c_longlong, c_longlong, c_double, c_double, ptr,
                                              ptr, ptr, c_int, ptr, ptr, c_double, ptr, ptr, ptr, ptr]),

@@ -97,16 +97,17 @@ class SolverEngine:
         mask[:, i_rate] = (~outside).to(x.dtype)
         return x, mask
 
-    def run(self, wts: _Weights, x0, u_grid, u_half, z_grid, z_half, records: list | None):
+    def run(self, wts: _Weights, x0, u_grid, u_half, z_grid, z_half, records: list | None, row_steps=None):
         """Integrate; returns states (n+1, B, n_x). ``records`` (a list) receives per step
         (stage records, clamp mask) for the reverse sweep; None runs without them (and, for an FMU, in
-        NumPy; rows from the first non-finite state on are NaN).
+        C or NumPy; rows from the first non-finite state on are NaN). ``row_steps`` (B,), gradient-free only:
+        the steps each row needs; the loop in C holds a row's state after them, the others integrate on.
 
         Raises:
             FloatingPointError: a state became non-finite while recording (training).
         """
         if records is None and self.c_rollout is not None:
-            return self._run_c(wts, x0, u_grid, u_half, z_grid, z_half)
+            return self._run_c(wts, x0, u_grid, u_half, z_grid, z_half, row_steps)
         if records is None and self.numpy_rhs is not None:
             return self._run_numpy(wts, x0, u_grid, u_half, z_grid, z_half)
         n_steps = u_grid.shape[0] - 1
@@ -131,12 +132,12 @@ class SolverEngine:
             states.append(x)
         return torch.stack(states, dim=0)
 
-    def _run_c(self, wts: _Weights, x0, u_grid, u_half, z_grid, z_half) -> torch.Tensor:
+    def _run_c(self, wts: _Weights, x0, u_grid, u_half, z_grid, z_half, row_steps=None) -> torch.Tensor:
         """Gradient-free integration with the whole loop in C (the bridge's ``neural_rollout``); the same
         stages as ``_run_numpy`` (values equal to rounding), without Python per stage."""
         states = self.c_rollout(x0.detach().numpy(), u_grid.detach().numpy(), u_half.detach().numpy(),
                                 z_grid.detach().numpy(), z_half.detach().numpy(), _c_weights(wts), self.h,
-                                self.method, self.clamp)
+                                self.method, self.clamp, row_steps)
         return torch.from_numpy(states)
 
     def _run_numpy(self, wts: _Weights, x0, u_grid, u_half, z_grid, z_half) -> torch.Tensor:
@@ -382,12 +383,13 @@ ENGINES = ("c", "numpy", "torch")
 
 
 def rollout_adjoint(stage: FusedDerivative, h: float, method: str, clamp, x0, u_grid, u_half, z_grid, z_half,
-                    engine: str = "auto"):
+                    engine: str = "auto", row_steps=None):
     """Time-major rollout: inputs u_grid (n+1, B, n_u), u_half (n, B, n_u) (empty for Euler), their first-layer
     terms z_grid, z_half (…, H), x0 (B, n_x) -> states (n+1, B, n_x), differentiable w.r.t. all tensors.
 
     ``engine``: one of :data:`ENGINES`, or "auto" (the fastest the right-hand side allows). All give the same
-    values and gradients to rounding.
+    values and gradients to rounding. ``row_steps`` (B,), gradient-free rollouts only: the steps each row needs
+    (its states after them are not meaningful).
 
     Raises:
         ValueError: an unknown engine, or one the right-hand side does not offer.
@@ -400,7 +402,7 @@ def rollout_adjoint(stage: FusedDerivative, h: float, method: str, clamp, x0, u_
     if not torch.is_grad_enabled() or not any(t.requires_grad for t in tensors):
         wts = _Weights(stage.w_xd_t, stage.w_out, stage.b_out, stage.g_fmu, list(stage.hidden))
         with torch.no_grad():
-            return solver.run(wts, x0, u_grid, u_half, z_grid, z_half, None)
+            return solver.run(wts, x0, u_grid, u_half, z_grid, z_half, None, row_steps)
     float64 = all(t.dtype == torch.float64 for t in tensors)
     if engine in ("auto", "c"):
         recorder = neural_recorder_function(stage.rhs) if float64 else None

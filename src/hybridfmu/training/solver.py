@@ -12,7 +12,7 @@ GRADIENT_ENGINES = {f"adjoint_{engine}": engine for engine in ENGINES}
 
 
 def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.Tensor, n_steps: int,
-            gradients: str = "adjoint") -> torch.Tensor:
+            gradients: str = "adjoint", row_steps: torch.Tensor | None = None) -> torch.Tensor:
     """Simulate ``n_steps`` solver steps of size h (the sample period) from ``x0``.
 
     Args:
@@ -26,6 +26,9 @@ def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.T
             right-hand side allows: in C for an FMU behind the bridge), "adjoint_c", "adjoint_numpy",
             "adjoint_torch" (that engine of the adjoint) or "autograd" (the reference: every operation recorded
             by autograd). All give the same values and gradients to rounding.
+        row_steps: optional (B,) steps each row needs (e.g. segments of different lengths side by side), for
+            gradient-free rollouts through the adjoint: a row's states after its own steps are not meaningful
+            (an FMU's loop in C holds them and saves the work).
 
     Returns:
         states (B, n_steps + 1, n_x) at t_start + k h, k = 0..n_steps (row 0 is ``x0``).
@@ -44,7 +47,8 @@ def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.T
     if gradients == "adjoint" or gradients in GRADIENT_ENGINES:
         states_t = rollout_adjoint(stage, h, spec.solver, _end_stop_indices(model), x0,
                                    u_grid_t, u_half_t, z_grid_t, z_half_t,
-                                   engine=GRADIENT_ENGINES.get(gradients, "auto"))
+                                   engine=GRADIENT_ENGINES.get(gradients, "auto"),
+                                   row_steps=None if row_steps is None else row_steps.numpy())
         return states_t.transpose(0, 1)
     if gradients != "autograd":
         raise ValueError(f"rollout: gradients must be 'adjoint', {', '.join(repr(g) for g in GRADIENT_ENGINES)} or "

@@ -55,11 +55,12 @@ def simulate_segments(model: NeuralFmu, arrays: ManeuverArrays,
 
     ``batch``: :func:`validation_batch` of ``arrays`` for ``model.spec`` (built here when None).
 
-    Returns (states (S, n_max + 1, n_x), mask (S, n_max + 1) True where a sample lies inside its segment).
+    Returns (states (S, n_max + 1, n_x), mask (S, n_max + 1) True where a sample lies inside its segment; the
+    states outside a segment are not meaningful).
     """
     batch = batch or validation_batch(model.spec, arrays)
-    with torch.no_grad():
-        states = rollout(model, batch.u_seq, batch.pad, batch.x0, batch.n_steps)
+    with torch.no_grad():  # each segment integrated over its own length only
+        states = rollout(model, batch.u_seq, batch.pad, batch.x0, batch.n_steps, row_steps=batch.mask.sum(1) - 1)
     return states, batch.mask
 
 
