@@ -12,6 +12,11 @@ Each job process is observed from the inside (a ``sitecustomize`` hook on PYTHON
 benchmark): start-up = process start to the first training step (interpreter, imports, FMU, data,
 checkpoint), the open-loop validations' seconds, and the process's wall time.
 
+With several ``--jobs`` (e.g. ``--jobs 1 --jobs 2``) the slice runs at each; ``--markdown FILE`` writes the
+scaling table of the first checkout for the README (rung-job seconds at each -j, the projected wall time of
+the ``--project`` search here and on N nodes like this one; ``python -m hybridfmu.evaluation.summary README.md
+--block search_scaling=FILE``).
+
 Prints a table (medians over the repeats) and, last line, a JSON object:
 ``s_per_s_data`` (slice wall s per s of training data), ``job_s_per_s_data`` (job-process s per s of data),
 ``startup_s_per_job``, ``validation_s_per_rung``, ``validation_s_per_call``, ``after_training_s_per_job``
@@ -19,13 +24,14 @@ Prints a table (medians over the repeats) and, last line, a JSON object:
 the largest difference of the trials' objectives from the first checkout's.
 
     python benchmarks/search_slice.py [--repo /tmp/before --repo .] [--bracket 2] [--rung 0] [--configs 4]
-        [--jobs 2] [--repeats 1] [--inputs DIR] [--keep DIR]
+        [--jobs 1 --jobs 2] [--repeats 1] [--inputs DIR] [--keep DIR] [--markdown FILE]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shutil
 import statistics
@@ -151,8 +157,8 @@ def slice_targets(plan: dict, bracket: int, rung: int, configs: int | None) -> l
     return [f"{hpo}/b{bracket}/r{rung}/selection.json"]
 
 
-def run_slice(repo: Path, inputs: Path, folder: Path, args: argparse.Namespace, hook_dir: Path) -> dict:
-    """Plan the search with ``repo`` in a copy of ``inputs``, then time the slice."""
+def run_slice(repo: Path, inputs: Path, folder: Path, args: argparse.Namespace, hook_dir: Path, jobs: int) -> dict:
+    """Plan the search with ``repo`` in a copy of ``inputs``, then time the slice, ``jobs`` at a time."""
     shutil.copytree(inputs, folder, symlinks=True)
     for stale in ("results/ipb/hpo/plan.json", "results/mlflow.db", "results/mlartifacts"):
         path = folder / stale
@@ -169,7 +175,7 @@ def run_slice(repo: Path, inputs: Path, folder: Path, args: argparse.Namespace, 
     records_dir.mkdir()
     env["HYBRIDFMU_SLICE_RECORDS"] = str(records_dir)
     targets = slice_targets(plan, args.bracket, args.rung, args.configs)
-    wall = run(snakemake(repo, folder, targets, args.jobs, ["--allowed-rules", "train_rung", "select_rung"]),
+    wall = run(snakemake(repo, folder, targets, jobs, ["--allowed-rules", "train_rung", "select_rung"]),
                folder, env, folder / "slice.log")
     records = [json.loads(path.read_text()) for path in sorted(records_dir.glob("*.json"))]
     train = [r for r in records if r["rule"] == "train_rung"]
@@ -219,11 +225,10 @@ FIGURES = [("jobs", "train_rung jobs", "{:.0f}"), ("select_jobs", "select_rung j
            ("other_s_per_job", "rest of a job, s", "{:.2f}")]
 
 
-def project(figures: dict, config_path: Path, jobs: int) -> dict:
-    """Wall time of a whole search (the Hyperband plan of ``config_path``) from the slice's per-job figures:
-    each train_rung job costs start-up + rest + after-training + its validations + training s per s of
-    data times its resource increment; each (bracket, rung) adds a select_rung job; ``jobs`` run at once
-    (the figures were measured with as many running at once, so they include the sharing of the cores)."""
+def _plan_jobs(figures: dict, config_path: Path) -> list[list[tuple[int, float]]]:
+    """Per bracket, per rung: (configurations, seconds of one train_rung job) of the Hyperband plan of
+    ``config_path``, from the slice's per-job figures: start-up + rest + after-training + its validations +
+    training s per s of data times its resource increment."""
     import yaml
 
     from hybridfmu.training.hyperband import hyperband_brackets
@@ -233,21 +238,65 @@ def project(figures: dict, config_path: Path, jobs: int) -> dict:
     hpo, training = config["hpo"], config.get("training", {})
     unit_s = float(hpo["max_resource_s"]) / float(hpo["R"])
     fixed_s = figures["startup_s_per_job"] + figures["other_s_per_job"] + figures["after_training_s_per_job"]
-    job_s, n_jobs, n_select, data_s = 0.0, 0, 0, 0.0
+    brackets = []
     for bracket in hyperband_brackets(hpo["R"], hpo["eta"]):
-        previous_s = 0.0
+        previous_s, rungs = 0.0, []
         for rung in bracket.rungs:
             target_s = rung.resource_units * unit_s
             validations = len(validation_points(previous_s, target_s, training.get("validation_every_s")))
-            job_s += rung.n_configs * (fixed_s + validations * figures["validation_s_per_call"]
-                                       + figures["train_s_per_s_data"] * (target_s - previous_s))
-            data_s += rung.n_configs * (target_s - previous_s)
-            n_jobs += rung.n_configs
-            n_select += 1
+            rungs.append((rung.n_configs, fixed_s + validations * figures["validation_s_per_call"]
+                          + figures["train_s_per_s_data"] * (target_s - previous_s), target_s - previous_s))
             previous_s = target_s
+        brackets.append(rungs)
+    return brackets
+
+
+def project(figures: dict, config_path: Path, jobs: int) -> dict:
+    """Wall time of a whole search (the Hyperband plan of ``config_path``) from the slice's per-job figures
+    (:func:`_plan_jobs`); each (bracket, rung) adds a select_rung job; ``jobs`` run at once (the figures were
+    measured with as many running at once, so they include the sharing of the cores)."""
+    brackets = _plan_jobs(figures, config_path)
+    job_s = sum(n * seconds for rungs in brackets for n, seconds, _ in rungs)
+    n_select = sum(len(rungs) for rungs in brackets)
     total_s = job_s + n_select * figures["select_s_per_job"]
-    return {"config": str(config_path), "train_rung_jobs": n_jobs, "select_rung_jobs": n_select,
-            "training_data_s": data_s, "projected_min": total_s / jobs / 60.0}
+    return {"config": str(config_path), "train_rung_jobs": sum(n for rungs in brackets for n, _, _ in rungs),
+            "select_rung_jobs": n_select,
+            "training_data_s": sum(n * data for rungs in brackets for n, _, data in rungs),
+            "projected_min": total_s / jobs / 60.0}
+
+
+def project_nodes(figures: dict, config_path: Path, workers: int) -> float:
+    """Projected wall time (min) of the whole search with ``workers`` jobs at once, each costing what it cost
+    in the slice: the larger of the total job time shared by the workers and the longest chain of rungs (a
+    rung's jobs wait for the previous rung of their bracket; brackets run side by side)."""
+    brackets = _plan_jobs(figures, config_path)
+    select_s = figures["select_s_per_job"]
+    total_s = sum(n * seconds + select_s for rungs in brackets for n, seconds, _ in rungs)
+    chain_s = max(sum(seconds * math.ceil(n / workers) + select_s for n, seconds, _ in rungs) for rungs in brackets)
+    return max(total_s / workers, chain_s) / 60.0
+
+
+def scaling_markdown(summary: dict, jobs_list: list[int], args: argparse.Namespace) -> str:
+    """The README's scaling table from one checkout's figures at each ``-j``."""
+    what = (f"rung 0 of configurations 0..{args.configs - 1}" if args.configs
+            else f"bracket {args.bracket}, rungs 0..{args.rung}")
+    lines = [f"Search jobs measured on this machine ({os.cpu_count()} cores; `benchmarks/search_slice.py "
+             f"--jobs {' --jobs '.join(str(j) for j in jobs_list)}`: the demo's plan, {what}):", "",
+             "| snakemake | train_rung job | start-up | validation | after training | training per s of data "
+             f"| {args.project.name} projected |", "|---|---|---|---|---|---|---|"]
+    for jobs in jobs_list:
+        f = summary[jobs]
+        lines.append(f"| -j{jobs} | {f['job_s']:.1f} s | {f['startup_s_per_job']:.1f} s | "
+                     f"{f['validation_s_per_call']:.2f} s | {f['after_training_s_per_job']:.1f} s | "
+                     f"{f['train_s_per_s_data']:.2f} s | {f['projection']['projected_min']:.0f} min |")
+    widest = max(jobs_list)
+    lines += ["", f"Projected wall time of the {args.project.name} search on N nodes like this one (-j{widest} per "
+                  f"node, each job costing what it cost here at -j{widest}):", "",
+              "| nodes | jobs at once | projected |", "|---|---|---|"]
+    for nodes in (1, 2, 4, 8, 16):
+        workers = nodes * widest
+        lines.append(f"| {nodes} | {workers} | {project_nodes(summary[widest], args.project, workers):.0f} min |")
+    return "\n".join(lines) + "\n"
 
 
 def main() -> None:
@@ -256,15 +305,20 @@ def main() -> None:
     parser.add_argument("--bracket", type=int, default=2, help="bracket s of the demo's plan (default 2)")
     parser.add_argument("--rung", type=int, default=0, help="up to this rung of the bracket (default 0)")
     parser.add_argument("--configs", type=int, default=None, help="only rung 0 of the first N configurations")
-    parser.add_argument("--jobs", type=int, default=2, help="jobs at a time (snakemake -j, default 2)")
+    parser.add_argument("--jobs", type=int, action="append",
+                        help="jobs at a time (snakemake -j; repeatable, e.g. --jobs 1 --jobs 2; default 2)")
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--inputs", type=Path, help="a folder prepared by an earlier run (--keep)")
     parser.add_argument("--keep", type=Path, help="keep the prepared inputs in this folder")
     parser.add_argument("--project", type=Path, default=HERE / "config" / "paper.yaml",
                         help="project the wall time of this case's whole search (default config/paper.yaml)")
+    parser.add_argument("--markdown", type=Path, default=None,
+                        help="write the scaling table (first checkout, each --jobs) as Markdown to this file")
     args = parser.parse_args()
+    jobs_list = args.jobs or [2]
     repos = [repo.resolve() for repo in (args.repo or [HERE])]
-    labels = [str(repo) for repo in repos]
+    runs_of = [(repo, jobs) for jobs in jobs_list for repo in repos]
+    labels = [str(repo) if len(jobs_list) == 1 else f"{repo} -j{jobs}" for repo, jobs in runs_of]
     with tempfile.TemporaryDirectory(prefix="hybridfmu-slice-") as tmp:
         tmp = Path(tmp)
         hook_dir = tmp / "hook"
@@ -272,22 +326,22 @@ def main() -> None:
         (hook_dir / "sitecustomize.py").write_text(HOOK)
         inputs = args.inputs or args.keep or tmp / "inputs"
         if not (inputs / "results/ipb/hpo/prepared/statistics.json").is_file():
-            prepare_inputs(inputs, args.jobs)
+            prepare_inputs(inputs, max(jobs_list))
         runs: dict[str, list[dict]] = {label: [] for label in labels}
         for repeat in range(args.repeats):
-            order = list(zip(repos, labels))
+            order = list(zip(runs_of, labels))
             if repeat % 2:
                 order.reverse()
-            for index, (repo, label) in enumerate(order):
+            for (repo, jobs), label in order:
                 folder = tmp / f"run{repeat}_{labels.index(label)}"
                 print(f"repeat {repeat + 1}/{args.repeats}: {label} ...", file=sys.stderr)
-                runs[label].append(run_slice(repo, inputs, folder, args, hook_dir))
+                runs[label].append(run_slice(repo, inputs, folder, args, hook_dir, jobs))
                 shutil.rmtree(folder)
         summary = {label: {key: statistics.median(r[key] for r in runs[label]) for key, *_ in FIGURES}
                    for label in labels}
     what = (f"rung 0 of configurations 0..{args.configs - 1}" if args.configs else f"rungs 0..{args.rung}")
-    print(f"search slice: demo plan, bracket {args.bracket}, {what}, snakemake -j{args.jobs}, "
-          f"median of {args.repeats} run(s)")
+    print(f"search slice: demo plan, bracket {args.bracket}, {what}, snakemake "
+          f"{', '.join(f'-j{j}' for j in jobs_list)}, median of {args.repeats} run(s)")
     width = max(28, *(len(label) for label in labels))
     names = [f"[{i}]" for i in range(len(labels))]
     for name, label in zip(names, labels):
@@ -295,7 +349,7 @@ def main() -> None:
     print(f"{'':<26}" + "".join(f"{name:>12}" for name in names))
     for key, text, fmt in FIGURES:
         print(f"{text:<26}" + "".join(f"{fmt.format(summary[label][key]):>12}" for label in labels))
-    output = {"slice": {"bracket": args.bracket, "rung": args.rung, "configs": args.configs, "jobs": args.jobs,
+    output = {"slice": {"bracket": args.bracket, "rung": args.rung, "configs": args.configs, "jobs": jobs_list,
                         "repeats": args.repeats}, "repos": summary}
     if len(labels) > 1:
         first = runs[labels[0]][0]["objectives"]
@@ -309,13 +363,17 @@ def main() -> None:
             print(f"objectives of {label} vs {labels[0]}: max abs diff {summary[label]['objective_max_abs_diff']}, "
                   f"max rel diff {summary[label]['objective_max_rel_diff']} ({len(diffs)} trials)")
     if args.project:
-        for label in labels:
-            summary[label]["projection"] = project(summary[label], args.project, args.jobs)
+        for (_, jobs), label in zip(runs_of, labels):
+            summary[label]["projection"] = project(summary[label], args.project, jobs)
         first = summary[labels[0]]["projection"]
         print(f"projection for {args.project.name}: {first['train_rung_jobs']} train_rung + "
-              f"{first['select_rung_jobs']} select_rung jobs, {first['training_data_s']:.0f} s of training data, "
-              f"-j{args.jobs}: " + ", ".join(f"{name} {summary[label]['projection']['projected_min']:.1f} min"
-                                            for name, label in zip(names, labels)))
+              f"{first['select_rung_jobs']} select_rung jobs, {first['training_data_s']:.0f} s of training data: "
+              + ", ".join(f"{name} {summary[label]['projection']['projected_min']:.1f} min"
+                          for name, label in zip(names, labels)))
+        if args.markdown:
+            first_repo = {jobs: summary[label] for (repo, jobs), label in zip(runs_of, labels) if repo == repos[0]}
+            args.markdown.parent.mkdir(parents=True, exist_ok=True)
+            args.markdown.write_text(scaling_markdown(first_repo, jobs_list, args))
     for label in labels:
         summary[label]["objectives"] = runs[label][0]["objectives"]
     print(json.dumps(output))

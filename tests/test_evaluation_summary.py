@@ -39,3 +39,22 @@ def test_missing_markers_and_missing_summary_are_named(tmp_path):
     readme.write_text("<!-- measured:ipb -->\n<!-- /measured:ipb -->\n")
     with pytest.raises(FileNotFoundError, match="summary.md"):
         update_readme(readme, [tmp_path / "ipb"])
+
+
+def test_a_benchmark_block_is_copied_from_its_file(tmp_path):
+    """``--block NAME=FILE``: a benchmark script's Markdown goes into the README's block NAME; a missing file is
+    named and leaves the README as it was."""
+    from hybridfmu.evaluation.summary import main
+
+    readme = tmp_path / "README.md"
+    original = "a\n<!-- measured:workflow_wall -->\nold\n<!-- /measured:workflow_wall -->\nb\n"
+    readme.write_text(original)
+    with pytest.raises(FileNotFoundError, match="wall.md"):
+        main([str(readme), "--block", f"workflow_wall={tmp_path / 'wall.md'}"])
+    assert readme.read_text() == original
+    (tmp_path / "wall.md").write_text("| commit | wall time |\n| abc | 9.5 min |\n")
+    assert main([str(readme), "--block", f"workflow_wall={tmp_path / 'wall.md'}"]) == 0
+    assert readme.read_text() == ("a\n<!-- measured:workflow_wall -->\n| commit | wall time |\n| abc | 9.5 min |\n"
+                                  "<!-- /measured:workflow_wall -->\nb\n")
+    with pytest.raises(SystemExit):
+        main([str(readme), "--block", "no-equals-sign"])

@@ -4,8 +4,8 @@ Rule ``summary`` renders ``{RESULTS}/summary.md`` from the run's own outputs: th
 of the (calibrated) FMU, the neural FMU and the diagnosis-corrected FMU per target signal, and the
 improvement factors. ``python -m hybridfmu.evaluation.summary README.md results/<case> ...`` copies
 each case's ``summary.md`` into the README between the markers
-``<!-- measured:<case> -->`` and ``<!-- /measured:<case> -->``, so no measured number in the README is
-typed by hand.
+``<!-- measured:<case> -->`` and ``<!-- /measured:<case> -->``, and ``--block NAME=FILE`` the Markdown a
+benchmark script wrote into the block NAME, so no measured number in the README is typed by hand.
 """
 
 from __future__ import annotations
@@ -87,11 +87,14 @@ def replace_block(document: str, case: str, block: str) -> str:
     return pattern.sub(lambda _: f"{start}\n{block.rstrip()}\n{end}", document, count=1)
 
 
-def update_readme(readme_path: str | Path, case_dirs: list[str | Path]) -> Path:
-    """Copy ``<case_dir>/summary.md`` of each case into the README's block of that case (atomic write).
+def update_readme(readme_path: str | Path, case_dirs: list[str | Path],
+                  blocks: dict[str, str | Path] | None = None) -> Path:
+    """Copy ``<case_dir>/summary.md`` of each case into the README's block of that case, and each file of
+    ``blocks`` (block name -> Markdown file written by a benchmark script) into its block (atomic write).
 
     Raises:
-        FileNotFoundError: a case has no ``summary.md`` (run its workflow first); names the file.
+        FileNotFoundError: a case has no ``summary.md`` (run its workflow first) or a block's file is missing;
+            names the file.
     """
     readme_path = Path(readme_path)
     document = readme_path.read_text()
@@ -101,17 +104,33 @@ def update_readme(readme_path: str | Path, case_dirs: list[str | Path]) -> Path:
         if not summary.is_file():
             raise FileNotFoundError(f"{summary}: no summary of case {case_dir.name}; run its workflow first")
         document = replace_block(document, case_dir.name, summary.read_text())
+    for name, path in (blocks or {}).items():
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no such file for the README's block {name!r}; run its benchmark first")
+        document = replace_block(document, name, path.read_text())
     with atomic_path(readme_path) as tmp:
         Path(tmp).write_text(document)
     return readme_path
 
 
+def _block(text: str) -> tuple[str, str]:
+    name, sep, path = text.partition("=")
+    if not sep or not name or not path:
+        raise argparse.ArgumentTypeError(f"--block: expected NAME=FILE, got {text!r}")
+    return name, path
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Copy the measured figures of finished runs into the README.")
     parser.add_argument("readme", help="README.md")
-    parser.add_argument("case_dirs", nargs="+", help="results/<case> folders with a summary.md")
+    parser.add_argument("case_dirs", nargs="*", help="results/<case> folders with a summary.md")
+    parser.add_argument("--block", type=_block, action="append", default=[], metavar="NAME=FILE",
+                        help="a Markdown file written by a benchmark script, for the README's block NAME")
     args = parser.parse_args(argv)
-    update_readme(args.readme, args.case_dirs)
+    if not args.case_dirs and not args.block:
+        parser.error("nothing to copy: give results/<case> folders and/or --block NAME=FILE")
+    update_readme(args.readme, args.case_dirs, dict(args.block))
     return 0
 
 
