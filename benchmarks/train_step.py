@@ -4,8 +4,10 @@ Builds the demo IPBMotor FMU into a temporary folder, wraps it in the bridge's F
 training step's rollout and gradient (RK4 on the 10 kHz grid, windows of 0.02 s) at B = 1, 4 (the demo's
 batch) and 64 windows per batch, side by side: the discrete adjoint used in training (``adjoint``: forward pass
 and reverse sweep in C, ``hybridfmu.fmu.neural``), the same adjoint with its stages in NumPy through the bridge's
-derivatives-and-Jacobians kernel (``adjoint_numpy``) and as torch operations (``adjoint_torch``), and plain
-autograd for reference.
+derivatives-and-Jacobians kernel (``adjoint_numpy``) and as torch operations (``adjoint_torch``), plain
+autograd through the hand-written RK4, and the library: torchdiffeq's fixed-grid RK4 with backpropagation through
+its steps (``torchdiffeq``) and with its adjoint (``torchdiffeq_adjoint``). ``--markdown FILE`` writes the table
+for the README (``python -m hybridfmu.evaluation.summary README.md --block train_step=FILE``).
 Prints a table; the last line is a JSON object (``samples_per_s_b1``, ``samples_per_s_b64`` of the training
 path, and every row as ``<gradients>_w<width>_d<depth>_b<B>``).
 
@@ -64,6 +66,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--window-s", type=float, default=0.02)
+    parser.add_argument("--markdown", type=Path, default=None, help="write the table as Markdown to this file")
     args = parser.parse_args()
     torch.set_num_threads(1)
     n_steps = int(round(args.window_s / SAMPLE_PERIOD_S))
@@ -85,7 +88,8 @@ def main() -> None:
                                  delay_min_s=-3e-4, delay_max_s=3e-4)
             torch.manual_seed(0)
             model = NeuralFmu(rhs, spec, stats)
-            for gradients in ("adjoint", "adjoint_numpy", "adjoint_torch", "autograd"):
+            for gradients in ("adjoint", "adjoint_numpy", "adjoint_torch", "autograd", "torchdiffeq",
+                              "torchdiffeq_adjoint"):
                 for batch in (1, 4, 64):
                     repeats = args.repeats if gradients == "adjoint" else max(1, args.repeats // 2)
                     rate = measure(model, batch, n_steps, repeats, gradients)
@@ -98,7 +102,41 @@ def main() -> None:
         print(f"{mlp:>6} {gradients:>13} {batch:>4} {rate:>15,.0f}")
     summary = {"samples_per_s_b1": results["adjoint_w8_d2_b1"], "samples_per_s_b64": results["adjoint_w8_d2_b64"],
                "window_steps": n_steps, "mlp": "8x2", **results}
+    if args.markdown:
+        args.markdown.parent.mkdir(parents=True, exist_ok=True)
+        args.markdown.write_text(markdown(rows, args.window_s, n_steps))
     print(json.dumps(summary))
+
+
+#: What each gradients option of ``hybridfmu.training.solver.rollout`` is, for the Markdown table.
+DESCRIPTIONS = {
+    "adjoint": "discrete adjoint, forward pass and reverse sweep in C (training's default)",
+    "adjoint_numpy": "discrete adjoint, stages in NumPy",
+    "adjoint_torch": "discrete adjoint, stages as torch operations",
+    "autograd": "autograd through the hand-written RK4",
+    "torchdiffeq": "torchdiffeq.odeint, fixed-grid RK4, autograd through its steps",
+    "torchdiffeq_adjoint": "torchdiffeq.odeint_adjoint, fixed-grid RK4",
+}
+
+
+def markdown(rows: list[tuple[str, str, int, float]], window_s: float, n_steps: int) -> str:
+    """The table as Markdown: sample-steps/s per MLP, method and batch, and each method's ratio to torchdiffeq."""
+    batches = sorted({batch for _, _, batch, _ in rows})
+    rate = {(mlp, gradients, batch): value for mlp, gradients, batch, value in rows}
+    lines = [f"Training step (rollout + gradient) of the demo's neural FMU around the IPBMotor FMU, RK4 on the "
+             f"10 kHz grid, windows of {window_s} s ({n_steps} steps), one core, in simulated sample-steps/s "
+             f"(`benchmarks/train_step.py`; ratio: against torchdiffeq.odeint at the same B):", "",
+             "| MLP | method | " + " | ".join(f"B = {b}" for b in batches) + " |",
+             "|---|---|" + "---|" * len(batches)]
+    for mlp in dict.fromkeys(m for m, _, _, _ in rows):
+        for gradients in dict.fromkeys(g for m, g, _, _ in rows if m == mlp):
+            cells = []
+            for batch in batches:
+                value, library = rate.get((mlp, gradients, batch)), rate.get((mlp, "torchdiffeq", batch))
+                ratio = f" (×{value / library:.3g})" if value and library and gradients != "torchdiffeq" else ""
+                cells.append(f"{value:,.0f}{ratio}" if value else "–")
+            lines.append(f"| {mlp} | {DESCRIPTIONS.get(gradients, gradients)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

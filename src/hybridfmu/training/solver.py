@@ -25,7 +25,11 @@ def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.T
         gradients: "adjoint" (the solver's discrete adjoint, ``training.adjoint``, with the fastest engine the
             right-hand side allows: in C for an FMU behind the bridge), "adjoint_c", "adjoint_numpy",
             "adjoint_torch" (that engine of the adjoint) or "autograd" (the reference: every operation recorded
-            by autograd). All give the same values and gradients to rounding.
+            by autograd). All give the same values and gradients to rounding. "torchdiffeq" and
+            "torchdiffeq_adjoint": the library's fixed-grid solver (``torchdiffeq.odeint``, backpropagation
+            through its steps, or ``odeint_adjoint``), for comparison (``benchmarks/train_step.py``); its RK4 is
+            the 3/8 rule, so its states differ from the classical RK4's at the order of the truncation error,
+            and it has no end stop.
         row_steps: optional (B,) steps each row needs (e.g. segments of different lengths side by side), for
             gradient-free rollouts through the adjoint: a row's states after its own steps are not meaningful
             (an FMU's loop in C holds them and saves the work).
@@ -36,6 +40,8 @@ def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.T
     Inputs at the stage times are the delayed, linearly interpolated samples ``model.delay``; all of them
     (and their first-layer contributions) are computed before the time loop.
     """
+    if gradients in ("torchdiffeq", "torchdiffeq_adjoint"):
+        return _rollout_torchdiffeq(model, u_seq, start_index, x0, n_steps, gradients == "torchdiffeq_adjoint")
     spec = model.spec
     h = spec.sample_period_s
     stage = model.fused()
@@ -51,8 +57,8 @@ def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.T
                                    row_steps=None if row_steps is None else row_steps.numpy())
         return states_t.transpose(0, 1)
     if gradients != "autograd":
-        raise ValueError(f"rollout: gradients must be 'adjoint', {', '.join(repr(g) for g in GRADIENT_ENGINES)} or "
-                         f"'autograd', got {gradients!r}")
+        raise ValueError(f"rollout: gradients must be 'adjoint', {', '.join(repr(g) for g in GRADIENT_ENGINES)}, "
+                         f"'autograd', 'torchdiffeq' or 'torchdiffeq_adjoint', got {gradients!r}")
     # Time-major sequences split once (one backward node each instead of one per step).
     u_grid, z_grid = u_grid_t.unbind(0), z_grid_t.unbind(0)
     u_half, z_half = u_half_t.unbind(0), z_half_t.unbind(0)
@@ -72,6 +78,40 @@ def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.T
             x = clamp(x)
         states.append(x)
     return torch.stack(states, dim=1)
+
+
+class _DelayedDerivative(torch.nn.Module):
+    """The neural FMU's derivative as a function of (t, x) for torchdiffeq: the inputs at t come from the
+    model's input delay (linear interpolation of the window's samples, shifted by the learned offset)."""
+
+    def __init__(self, model: NeuralFmu, u_seq: torch.Tensor, start_index: int) -> None:
+        super().__init__()
+        self.model, self.u_seq, self.start_index = model, u_seq, start_index
+
+    def forward(self, t: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        offset = float(t.detach()) / self.model.spec.sample_period_s  # the grid is fixed: t carries no gradient
+        u = self.model.delay(self.u_seq, self.start_index, 1, offset)[:, 0]
+        return self.model.derivative(x, u)
+
+
+def _rollout_torchdiffeq(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.Tensor,
+                         n_steps: int, adjoint: bool) -> torch.Tensor:
+    """``rollout`` with torchdiffeq's fixed-grid solver on the sample grid: (B, n_steps + 1, n_x)."""
+    import torchdiffeq
+
+    spec = model.spec
+    if spec.end_stop is not None:
+        raise ValueError("rollout: torchdiffeq's fixed-grid solvers have no end stop; use gradients='adjoint' for a "
+                         "model with model.end_stop")
+    h = spec.sample_period_s
+    func = _DelayedDerivative(model, u_seq, start_index)
+    times = torch.arange(n_steps + 1, dtype=torch.float64) * h
+    options = {"method": "rk4" if spec.solver == "rk4" else "euler", "options": {"step_size": h}}
+    if adjoint:
+        states = torchdiffeq.odeint_adjoint(func, x0, times, adjoint_params=tuple(model.parameters()), **options)
+    else:
+        states = torchdiffeq.odeint(func, x0, times, **options)
+    return states.transpose(0, 1)
 
 
 def _end_stop_indices(model: NeuralFmu) -> tuple[int, int, float, float] | None:
