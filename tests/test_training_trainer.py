@@ -269,3 +269,18 @@ def test_validation_batch_is_shared_without_changing_the_result(arrays, statisti
     batch = validation_batch(model.spec, arrays)
     assert validate(model, arrays, "MSE", WEIGHTS, objective, statistics, batch) == alone
     assert validate(model, arrays, "MSE", WEIGHTS, objective, statistics, batch) == alone
+
+
+def test_the_gradients_setting_chooses_how_a_step_is_differentiated(arrays, statistics):
+    """``training.gradients``: the adjoint's engines and autograd train the same numbers to rounding;
+    torchdiffeq's RK4 (3/8 rule) trains nearly the same; an unknown method fails the step loudly."""
+    losses = {}
+    for gradients in ("adjoint", "adjoint_torch", "autograd", "torchdiffeq"):
+        trainer = make_trainer(arrays, statistics, settings=TrainerSettings(gradients=gradients))
+        losses[gradients] = [trainer.step()["loss"] for _ in range(3)]
+    assert np.allclose(losses["adjoint_torch"], losses["adjoint"], rtol=1e-10)
+    assert np.allclose(losses["autograd"], losses["adjoint"], rtol=1e-10)
+    assert np.allclose(losses["torchdiffeq"], losses["adjoint"], rtol=1e-3)
+    trainer = make_trainer(arrays, statistics, settings=TrainerSettings(gradients="backprop"))
+    with pytest.raises(ValueError, match="gradients must be"):
+        trainer.step()

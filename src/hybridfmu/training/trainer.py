@@ -69,10 +69,12 @@ class Hyperparameters:
 @dataclass(frozen=True)
 class TrainerSettings:
     """max_skipped_steps: a trial with more skipped steps ends as diverged; max_grad_norm: a step whose
-    gradient norm exceeds it (or is not finite) is skipped."""
+    gradient norm exceeds it (or is not finite) is skipped; gradients: how a step's gradient is computed
+    (``rollout``'s option of that name)."""
 
     max_skipped_steps: int = 20
     max_grad_norm: float = 1e8
+    gradients: str = "adjoint"
 
 
 class TrialDiverged(RuntimeError):
@@ -131,7 +133,8 @@ class Trainer:
         batch = self.sampler.gather(self.sampler.sample_starts(self.rng, self.hyper.batch_windows))
         self.optimizer.zero_grad(set_to_none=True)
         try:
-            states = rollout(self.model, batch.u_seq, batch.start_index, batch.x0, batch.n_steps)
+            states = rollout(self.model, batch.u_seq, batch.start_index, batch.x0, batch.n_steps,
+                             gradients=self.settings.gradients)
         except FloatingPointError as err:  # the simulation diverged within a window
             LOG.warning("step %d: %s", self.steps + 1, err)
             states = None

@@ -179,7 +179,8 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
     spec = model_spec(model_config, fmu_model, train.sample_period_s, hyper.width, hyper.depth, hyper.gate_opening)
     model = build_neural_fmu(FmuRhs(fmu_model), spec, statistics, entry["seed"])
     settings = TrainerSettings(max_skipped_steps=int(training_config["max_skipped_steps"]),
-                               max_grad_norm=float(training_config["max_grad_norm"]))
+                               max_grad_norm=float(training_config["max_grad_norm"]),
+                               gradients=str(training_config.get("gradients", "adjoint")))
     validations: list[dict[str, Any]] = []
     mlflow_run_id = None
     status, reason = "ok", ""
