@@ -144,6 +144,26 @@ def test_keys_with_characters_mlflow_refuses_are_logged_under_a_safe_name(tmp_pa
     assert logged.metrics == {"gap/coulomb_v___u_": 0.5}
 
 
+def test_log_sends_params_tags_and_metrics_in_the_fewest_batches_mlflow_accepts(tmp_path):
+    from mlflow.tracking import MlflowClient
+
+    from hybridfmu.tracking.mlflow_store import Tracker, log_batches
+
+    assert log_batches([], [], []) == []
+    assert [tuple(map(len, b)) for b in log_batches(list(range(5)), list(range(3)), list(range(40)))] == [(5, 3, 40)]
+    sizes = [tuple(map(len, b)) for b in log_batches(list(range(150)), list(range(120)), list(range(2500)))]
+    assert sizes == [(100, 100, 800), (50, 20, 930), (0, 0, 770)]
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    tracker = Tracker(uri)
+    run_id = tracker.call("create_run", tracker.experiment_id("batches")).info.run_id
+    tracker.log(run_id, params={f"p{k}": k for k in range(150)}, tags={f"t{k}": k for k in range(120)},
+                metrics=[("m", float(k), k) for k in range(2500)])
+    client = MlflowClient(tracking_uri=uri)
+    logged = client.get_run(run_id).data
+    assert len(logged.params) == 150 and len([t for t in logged.tags if t.startswith("t")]) == 120
+    assert sorted(m.step for m in client.get_metric_history(run_id, "m")) == list(range(2500))
+
+
 # --- faults: store check, bounded retries, idempotent logging, stale runs, moved stores ----------------
 
 def test_check_tracking_store_fails_fast_and_creates_nothing(tmp_path):

@@ -123,6 +123,25 @@ def bound_http_requests(request_timeout_s: float, http_retries: int) -> None:
     os.environ["MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR"] = "1"
 
 
+#: MLflow's limits of one ``log_batch`` call: params, tags (each), and entries in all.
+MAX_PARAMS_TAGS_PER_BATCH = 100
+MAX_ENTRIES_PER_BATCH = 1000
+
+
+def log_batches(params: list[Any], tags: list[Any],
+                metrics: list[Any]) -> list[tuple[list[Any], list[Any], list[Any]]]:
+    """``(params, tags, metrics)`` split into the fewest batches within MLflow's limits (params and tags first,
+    metrics filling each batch up); none for nothing to log."""
+    batches = []
+    while params or tags or metrics:
+        batch_params, params = params[:MAX_PARAMS_TAGS_PER_BATCH], params[MAX_PARAMS_TAGS_PER_BATCH:]
+        batch_tags, tags = tags[:MAX_PARAMS_TAGS_PER_BATCH], tags[MAX_PARAMS_TAGS_PER_BATCH:]
+        room = MAX_ENTRIES_PER_BATCH - len(batch_params) - len(batch_tags)
+        batch_metrics, metrics = metrics[:room], metrics[room:]
+        batches.append((batch_params, batch_tags, batch_metrics))
+    return batches
+
+
 class Tracker:
     """An MLflow client with retries. ``artifact_root``: folder for the artifacts of experiments this
     tracker creates (default: ``mlartifacts`` beside a SQLite database). ``create``: create a missing SQLite
@@ -184,6 +203,11 @@ class Tracker:
         found = self.find_run(experiment_id, tags)
         if found is not None:
             return found
+        return self.create_run(experiment_id, tags, run_name, parent_run_id)
+
+    def create_run(self, experiment_id: str, tags: dict[str, str], run_name: str,
+                   parent_run_id: str | None = None) -> str:
+        """A new run (status RUNNING) with ``tags``, a child of ``parent_run_id`` if given; returns its id."""
         all_tags = dict(tags)
         if parent_run_id:
             all_tags["mlflow.parentRunId"] = parent_run_id
@@ -192,19 +216,16 @@ class Tracker:
 
     def log(self, run_id: str, params: dict[str, Any] | None = None,
             metrics: list[tuple[str, float, int]] | None = None, tags: dict[str, Any] | None = None) -> None:
-        """Log params, metrics ``(key, value, step)`` and tags in batches (MLflow's batch limits)."""
+        """Log params, metrics ``(key, value, step)`` and tags in as few ``log_batch`` calls as MLflow's batch
+        limits allow (one for up to 100 params, 100 tags and 1000 entries in all)."""
         from mlflow.entities import Metric, Param, RunTag
 
         timestamp = int(time.time() * 1000)
         params = [Param(mlflow_key(k), str(v)[:6000]) for k, v in (params or {}).items()]
         tags = [RunTag(mlflow_key(k), str(v)[:5000]) for k, v in (tags or {}).items()]
         metric_rows = [Metric(mlflow_key(k), float(v), timestamp, int(step)) for k, v, step in (metrics or [])]
-        for start in range(0, max(len(params), 1), 100):
-            chunk = params[start:start + 100]
-            if chunk or start == 0:
-                self.call("log_batch", run_id, params=chunk, tags=tags if start == 0 else [])
-        for start in range(0, len(metric_rows), 1000):
-            self.call("log_batch", run_id, metrics=metric_rows[start:start + 1000])
+        for batch_params, batch_tags, batch_metrics in log_batches(params, tags, metric_rows):
+            self.call("log_batch", run_id, params=batch_params, tags=batch_tags, metrics=batch_metrics)
 
     def log_artifact(self, run_id: str, path: str | Path, artifact_path: str | None = None) -> None:
         self.call("log_artifact", run_id, str(path), artifact_path=artifact_path)

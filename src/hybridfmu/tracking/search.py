@@ -122,10 +122,14 @@ def log_trial_rung(tracking: dict[str, str], search_id: str, result: dict[str, A
     tracker = tracker or Tracker(tracking["uri"], create=False)
     experiment_id = tracking["experiment_id"]
     tags = {"hybridfmu.search_id": search_id, "hybridfmu.trial": result["trial_id"]}
+    owner = owner_tags()
     if run_id is None:
-        run_id = tracker.get_or_create_run(experiment_id, tags, run_name=result["trial_id"],
-                                           parent_run_id=tracking["parent_run_id"])
-    _mark_running(tracker, run_id, owner_tags())
+        run_id = tracker.find_run(experiment_id, tags)
+    if run_id is None:  # the trial's first rung: a new run, RUNNING from the start and tagged with its writer
+        run_id = tracker.create_run(experiment_id, {**tags, **owner}, run_name=result["trial_id"],
+                                    parent_run_id=tracking["parent_run_id"])
+    else:
+        _mark_running(tracker, run_id, owner)
     params = {f"hp.{key}": value for key, value in result["hyperparameters"].items()}
     params.update({"bracket": result["bracket"], "config": result["config"]})
     run_tags = {"bracket": result["bracket"], "rung": result["rung"], "config_hash": result["hash"],
@@ -315,13 +319,16 @@ def finish_search(tracking: dict[str, str], best: dict[str, Any] | None, summary
 
 def plot_training_curve(history: list[list[float]], result: dict[str, Any], path: str | Path) -> Path:
     """Training loss per step against the resource (s of data), skipped steps marked, validation objective
-    at the rung ends."""
-    import matplotlib
+    at the rung ends.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    Drawn on a figure of its own with the Agg canvas, without pyplot: no global figure state, and a job
+    that only writes this PNG imports less of matplotlib."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig = Figure(figsize=(7, 4))
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
     ok = [(r, l) for r, l, skipped, *_ in history if not skipped and math.isfinite(l)]
     bad = [(r, l) for r, l, skipped, *_ in history if skipped and math.isfinite(l)]
     if ok:
@@ -340,7 +347,6 @@ def plot_training_curve(history: list[list[float]], result: dict[str, Any], path
     ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return Path(path)
 
 

@@ -105,8 +105,9 @@ class ManeuverArrays:
             names = {key: [str(s) for s in data[key]] for key in ("state_names", "input_names", "target_states",
                                                                   "target_signals", "measured_states")
                      if key in data}
-            return cls(name=str(data["name"]), time_s=data["time_s"], u=data["u"].reshape(data["time_s"].size, -1),
-                       x_init=data["x_init"], targets=data["targets"].reshape(data["time_s"].size, -1),
+            time_s = data["time_s"]  # each access of an npz entry reads (and decompresses) it again
+            return cls(name=str(data["name"]), time_s=time_s, u=data["u"].reshape(time_s.size, -1),
+                       x_init=data["x_init"], targets=data["targets"].reshape(time_s.size, -1),
                        spans=data["spans"].astype(np.int64).reshape(-1, 2), **names)
 
 
