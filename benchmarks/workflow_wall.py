@@ -80,9 +80,10 @@ def run_workflow(checkout: Path, configfile: str | None, jobs: int, label: str) 
 
 def markdown(summary: dict, configfile: str | None, jobs: int) -> str:
     """The table of the runs as Markdown."""
-    case = configfile or "config/config.yaml (the demo)"
-    lines = [f"`snakemake -j{jobs}` on `{case}` from a fresh clone, side by side on this machine "
-             f"(`benchmarks/workflow_wall.py`):", "", "| commit | jobs | wall time | runs |", "|---|---|---|---|"]
+    case = f"--configfile {configfile}" if configfile else "(the demo)"
+    how = "side by side on this machine" if len(summary) > 1 else "on this machine"
+    lines = [f"`snakemake -j{jobs} {case}` from a fresh clone, {how} ({os.cpu_count()} cores; "
+             f"`benchmarks/workflow_wall.py`):", "", "| commit | jobs | wall time | runs |", "|---|---|---|---|"]
     for commit, figures in summary.items():
         runs = ", ".join(f"{s / 60:.1f} min" for s in figures["wall_s"])
         lines.append(f"| {commit[:10]} | {figures['jobs']} | {figures['median_s'] / 60:.1f} min | {runs} |")

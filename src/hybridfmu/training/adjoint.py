@@ -1,18 +1,21 @@
 """Fast rollout of the neural FMU with a hand-written discrete adjoint (reverse sweep) of the solver.
 
-Same result and gradients as ``solver.rollout`` with autograd, with far fewer tensor operations:
-the forward pass runs without building an autograd graph and records the stage values; the reverse
-sweep propagates the adjoint through the solver stages, the MLP and the FMU Jacobians; the weight
-gradients of all stages are summed in one matrix product per layer at the end.
+Same result and gradients as ``solver.rollout`` with autograd, with far fewer operations: the forward pass
+runs without building an autograd graph and records the stage values; the reverse sweep propagates the
+adjoint through the solver stages, the MLP and the FMU Jacobians. Three engines (:data:`ENGINES`) do this:
+in C next to the FMU shim (``hybridfmu.fmu.neural``, for an FMU behind the bridge), in NumPy
+(``training.numpy_adjoint``, for a right-hand side with the bridge's derivatives-and-Jacobians kernel) and
+as torch operations (``SolverEngine``, any right-hand side; the weight gradients of all stages summed in one
+matrix product per layer at the end). Gradient-free rollouts (validation, inference) run in C, NumPy or torch
+the same way.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import torch
-
 import numpy as np
+import torch
 
 from hybridfmu.fmu.neural import NeuralWeights
 from hybridfmu.model.fmu_layer import (jacobian_function, jacobian_kernel, neural_recorder_function,
@@ -323,42 +326,18 @@ def _c_weights(wts: _Weights) -> NeuralWeights:
                                      as_np(wts.w_out), as_np(wts.b_out), as_np(wts.g_fmu))
 
 
-class _CRolloutFunction(torch.autograd.Function):
-    """``_Rollout`` with the forward pass and the reverse sweep in C (:mod:`hybridfmu.fmu.neural`)."""
+class _ArrayRollout(torch.autograd.Function):
+    """``_Rollout`` with an engine working on NumPy arrays. ``make(w_xd_t, hidden, w_out, b_out, g_fmu)`` (the
+    fused derivative's weights as arrays, ``hidden`` a list of (weight_t, bias)) returns an object whose
+    ``forward(x0, u_grid, u_half, z_grid, z_half)`` integrates and records, and whose ``backward(grad_states)``
+    returns (g_x0, g_u_grid, g_u_half, g_z_grid, g_z_half, then the gradients of w_xd_t, w_out, b_out, g_fmu
+    and of weight_t and bias per hidden layer)."""
 
     @staticmethod
-    def forward(ctx, engine: SolverEngine, recorder, x0, u_grid, u_half, z_grid, z_half, w_xd_t, w_out, b_out,
-                g_fmu, *hidden_flat):
-        wts = _Weights(w_xd_t, w_out, b_out, g_fmu, list(zip(hidden_flat[0::2], hidden_flat[1::2])))
-        recorded = recorder(_c_weights(wts), engine.h, engine.method, engine.clamp)
+    def forward(ctx, make, x0, u_grid, u_half, z_grid, z_half, w_xd_t, w_out, b_out, g_fmu, *hidden_flat):
         as_np = lambda t: t.detach().numpy()  # noqa: E731
-        states = recorded.forward(as_np(x0), as_np(u_grid), as_np(u_half), as_np(z_grid), as_np(z_half))
-        ctx.recorded = recorded
-        ctx.has_half = u_half.numel() > 0
-        return torch.from_numpy(states)
-
-    @staticmethod
-    def backward(ctx, grad_states):
-        recorded, ctx.recorded = ctx.recorded, None
-        g_x0, g_u_grid, g_u_half, g_z_grid, g_z_half, *weight_grads = recorded.backward(
-            grad_states.detach().to(torch.float64).contiguous().numpy())
-        as_tensor = lambda a: None if a is None else torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
-        if not ctx.has_half:
-            g_u_half = g_z_half = None
-        return (None, None, as_tensor(g_x0), as_tensor(g_u_grid), as_tensor(g_u_half), as_tensor(g_z_grid),
-                as_tensor(g_z_half), *(as_tensor(g) for g in weight_grads))
-
-
-class _NumpyRolloutFunction(torch.autograd.Function):
-    """``_Rollout`` with the stages in NumPy (:mod:`hybridfmu.training.numpy_adjoint`)."""
-
-    @staticmethod
-    def forward(ctx, engine: SolverEngine, kernel, x0, u_grid, u_half, z_grid, z_half, w_xd_t, w_out, b_out, g_fmu,
-                *hidden_flat):
-        as_np = lambda t: t.detach().numpy()  # noqa: E731
-        weights = NumpyWeights(as_np(w_xd_t), as_np(w_out), as_np(b_out), as_np(g_fmu),
-                               [(as_np(w), as_np(b)) for w, b in zip(hidden_flat[0::2], hidden_flat[1::2])])
-        rollout = NumpyRollout(kernel, weights, engine.h, engine.method, engine.clamp)
+        hidden = [(as_np(w), as_np(b)) for w, b in zip(hidden_flat[0::2], hidden_flat[1::2])]
+        rollout = make(as_np(w_xd_t), hidden, as_np(w_out), as_np(b_out), as_np(g_fmu))
         states = rollout.forward(as_np(x0), as_np(u_grid), as_np(u_half), as_np(z_grid), as_np(z_half))
         ctx.rollout = rollout
         ctx.has_half = u_half.numel() > 0
@@ -372,7 +351,7 @@ class _NumpyRolloutFunction(torch.autograd.Function):
         as_tensor = lambda a: None if a is None else torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
         if not ctx.has_half:
             g_u_half = g_z_half = None
-        return (None, None, as_tensor(g_x0), as_tensor(g_u_grid), as_tensor(g_u_half), as_tensor(g_z_grid),
+        return (None, as_tensor(g_x0), as_tensor(g_u_grid), as_tensor(g_u_half), as_tensor(g_z_grid),
                 as_tensor(g_z_half), *(as_tensor(g) for g in weight_grads))
 
 
@@ -407,11 +386,17 @@ def rollout_adjoint(stage: FusedDerivative, h: float, method: str, clamp, x0, u_
     if engine in ("auto", "c"):
         recorder = neural_recorder_function(stage.rhs) if float64 else None
         if recorder is not None:
-            return _CRolloutFunction.apply(solver, recorder, *tensors)
+            def make_c(w_xd_t, hidden, w_out, b_out, g_fmu):
+                weights = NeuralWeights.from_arrays(w_xd_t, hidden, w_out, b_out, g_fmu)
+                return recorder(weights, solver.h, solver.method, solver.clamp)
+            return _ArrayRollout.apply(make_c, *tensors)
     if engine in ("auto", "numpy"):
         kernel = jacobian_kernel(stage.rhs, x0.shape[0]) if float64 else None
         if kernel is not None:
-            return _NumpyRolloutFunction.apply(solver, kernel, *tensors)
+            def make_numpy(w_xd_t, hidden, w_out, b_out, g_fmu):
+                weights = NumpyWeights(w_xd_t, w_out, b_out, g_fmu, hidden)
+                return NumpyRollout(kernel, weights, solver.h, solver.method, solver.clamp)
+            return _ArrayRollout.apply(make_numpy, *tensors)
     if engine != "auto" and engine != "torch":
         raise ValueError(f"rollout_adjoint: engine {engine!r} needs an FMU-backed right-hand side in float64 "
                          "(the bridge's neural_recorder or derivatives_and_jacobians_kernel)")
