@@ -360,12 +360,26 @@ def check_case(config: dict[str, Any], config_file: str = "") -> CaseRoles:
     """
     try:
         check_hpo(config)
+        check_gradients(config)
         roles = case_roles(config)
         check_maneuvers(config, roles)
         return roles
     except ConfigError as err:
         prefix = f"{config_file}: " if config_file else ""
         raise ConfigError(f"{prefix}{err}") from None
+
+
+def check_gradients(config: dict[str, Any]) -> None:
+    """``training.gradients`` fits the model: torchdiffeq's fixed-grid solvers have no end stop.
+
+    Raises:
+        ConfigError: naming ``config.training.gradients`` and ``config.model.end_stop``.
+    """
+    gradients = (config.get("training") or {}).get("gradients", "adjoint")
+    if str(gradients).startswith("torchdiffeq") and (config.get("model") or {}).get("end_stop"):
+        raise ConfigError(f"config.training.gradients: {gradients!r} has no end stop, but config.model.end_stop is "
+                          "set; expected an adjoint engine (adjoint, adjoint_c, adjoint_numpy, adjoint_torch) or "
+                          "autograd, or no model.end_stop")
 
 
 def check_hpo(config: dict[str, Any]) -> None:

@@ -294,3 +294,12 @@ def test_snakemake_on_malformed_yaml_stops_and_the_check_names_file_and_line(out
     line = TINY.read_text().splitlines().index("  R: 3") + 1
     assert_names(check.stderr, f"{path}:", "not valid YAML", "config.hpo")
     assert any(f"{path}:{n}:" in check.stderr for n in (line, line + 1)), check.stderr
+
+
+def test_torchdiffeq_gradients_with_an_end_stop(tmp_path, outputs):
+    """torchdiffeq's fixed-grid solvers have no end stop: refused at start, not in every training job."""
+    def edit(config):
+        config["training"]["gradients"] = "torchdiffeq"
+    path = edited_tiny(tmp_path, edit)
+    assert_names(config_error(path, outputs), str(path), "config.training.gradients", "config.model.end_stop",
+                 "no end stop", "expected")
