@@ -53,17 +53,18 @@ def test_row_functions_equal_the_regressors(library):
     rows = np.arange(0, inputs.n, 37)
     checked = 0
     for effect in effects[1]:
-        setting = effect.grid()[len(effect.grid()) // 2]
-        coef = np.linspace(0.5, 1.5, len(effect.coefficient_names(setting)))
-        func = effect.row_function(coef, setting)
-        if func is None:
-            continue
-        states = inputs.x if effect.kind in ("viscous", "periodic") else inputs.x_smooth
-        values = [func(states[r].tolist(), inputs.u[r].tolist()) for r in rows]
-        np.testing.assert_allclose(values, effect.regressors(inputs, setting)[rows] @ coef, rtol=1e-9, atol=1e-12,
-                                   err_msg=effect.name)
-        checked += 1
-    assert checked >= 10
+        grid = effect.grid()
+        for setting in (grid[0], grid[len(grid) // 2], grid[-1]):  # e.g. with and without a Stribeck term
+            coef = np.linspace(0.5, 1.5, len(effect.coefficient_names(setting)))
+            func = effect.row_function(coef, setting)
+            if func is None:
+                continue
+            states = inputs.x if effect.kind in ("viscous", "periodic") else inputs.x_smooth
+            values = [func(states[r].tolist(), inputs.u[r].tolist()) for r in rows]
+            np.testing.assert_allclose(values, effect.regressors(inputs, setting)[rows] @ coef, rtol=1e-9,
+                                       atol=1e-12, err_msg=f"{effect.name} at {setting}")
+            checked += 1
+    assert checked >= 30
 
 
 def test_corrected_model_applies_each_kind_of_change(library):
@@ -110,7 +111,7 @@ def test_the_motor_plugin_adds_dead_time_to_the_current_equations_only():
         parameter_values = {"p": 4.0}
 
     options = {"duty_inputs": ["d_a", "d_b", "d_c"], "current_states": ["i_d", "i_q"], "angle_state": "theta",
-               "pole_pairs_parameter": "p", "pwm_frequency_hz": 10000}
+               "pole_pairs_parameter": "p", "pwm_frequency_hz": 20000, "current_scales_a": [1.0, 3.0]}
     assert [e.name for e in effects_motor.plugin_effects(Stub(), 0, options, None)] == ["deadtime(d_a,d_b,d_c)"]
     assert effects_motor.plugin_effects(Stub(), 3, options, None) == []
     with pytest.raises(ConfigError, match="effects_motor"):

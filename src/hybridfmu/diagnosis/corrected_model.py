@@ -3,8 +3,10 @@
 A :class:`CorrectedModel` gathers the fitted terms by the way each adds itself to the model
 (:mod:`hybridfmu.diagnosis.effects`): additive derivative terms (the ``correction`` callable given
 to ``simulate_open_loop``, called with one state and input row per Runge-Kutta stage), modified
-logged inputs (gain, offset, time shift; where several equations chose an effect of the same input,
-the higher-ranked one is applied), and corrected model parameters (set on the simulating instance
+logged inputs (time shift, first-order lag, static nonlinearities such as a dead zone or a saturation,
+gain, offset; changes of different kinds to one input compose, in that order; where several
+equations chose an effect of the same kind on the same input, the higher-ranked one is applied), and
+corrected model parameters (set on the simulating instance
 for the simulation, restored afterwards). Terms that need model derivatives evaluate them with a
 second model instance (``helper``), so the simulation's own instance is never re-entered.
 
@@ -22,6 +24,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
+from hybridfmu.diagnosis.effects import input_derivative
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.selection import Term
 
@@ -106,7 +109,8 @@ class CorrectedModel:
 
     Args:
         terms: fitted terms in rank order.
-        problem: the problem (state and input counts).
+        problem: the problem (state and input counts; ``diagnosis.effects.lag_derivative_window_s``, the
+            window of the input rate of fitted input lags).
         helper: a second model instance for terms with a ``batch_function`` (may be None otherwise).
     """
 
@@ -115,7 +119,9 @@ class CorrectedModel:
         self.rows: list[tuple[int, Callable]] = []
         self.batches: list[tuple[int, Callable]] = []
         self.parameters: dict[str, float] = {}
-        self.input_changes: dict[int, dict[str, Any]] = {}
+        #: input column -> [(effect kind, change)] in rank order (see ``Effect.input_change``)
+        self.input_changes: dict[int, list[tuple[str, dict[str, Any]]]] = {}
+        self.lag_window_s = ((problem.settings or {}).get("effects") or {}).get("lag_derivative_window_s")
         self.notes: list[str] = []
         for term in terms:
             effect, coef, setting = term.effect, term.coef, term.setting
@@ -131,11 +137,12 @@ class CorrectedModel:
             change = effect.input_change(coef, setting)
             if change is not None:
                 columns = change["input"] if isinstance(change["input"], list) else [change["input"]]
-                if any(c in self.input_changes for c in columns):
-                    self.notes.append(f"{effect.name}: input(s) already changed by a higher-ranked term; not applied")
+                if any(kind == effect.kind for c in columns for kind, _ in self.input_changes.get(c, [])):
+                    self.notes.append(f"{effect.name}: input(s) already changed by a higher-ranked {effect.kind} "
+                                      "term; not applied")
                     continue
                 for c in columns:
-                    self.input_changes[c] = change
+                    self.input_changes.setdefault(c, []).append((effect.kind, change))
                 continue
             row = effect.row_function(coef, setting)
             if row is not None:
@@ -168,11 +175,31 @@ class CorrectedModel:
         return self if self.has_correction else None
 
     def inputs(self, u: np.ndarray, dt_s: float) -> np.ndarray:
-        """The logged inputs (N, n_u) as the corrected model sees them."""
+        """The logged inputs (N, n_u) as the corrected model sees them (``dt_s``: sampling interval, s).
+
+        Per changed input v (N,): the time shifts (v(t + s)), then the first-order lags (v + T dv/dt, dv/dt
+        by :func:`hybridfmu.diagnosis.effects.input_derivative` with ``diagnosis.effects.lag_derivative_window_s``,
+        the filter of the fitted regressors), the transforms (``transform(v, dt_s)``: dead zones, saturations,
+        slow actuators; in rank order), the gains ((1 + g) v) and the offsets (v + o).
+        """
+        u = np.asarray(u, dtype=float)
         out = np.array(u, dtype=float)
-        for column, change in sorted(self.input_changes.items()):
-            shifted = shift_inputs(u, change["shift_s"], dt_s, [column]) if change["shift_s"] else out
-            out[:, column] = (1.0 + change["gain"]) * shifted[:, column] + change["offset"]
+        for column, changes in sorted(self.input_changes.items()):
+            values = u[:, column]
+            for _, change in changes:
+                if change.get("shift_s", 0.0):
+                    values = shift_inputs(values[:, None], change["shift_s"], dt_s)[:, 0]
+            for _, change in changes:
+                if change.get("lag_s", 0.0):
+                    values = values + change["lag_s"] * input_derivative(values, dt_s, self.lag_window_s)
+            for _, change in changes:
+                if change.get("transform") is not None:
+                    values = np.asarray(change["transform"](values, dt_s), dtype=float)
+            for _, change in changes:
+                values = (1.0 + change.get("gain", 0.0)) * values
+            for _, change in changes:
+                values = values + change.get("offset", 0.0)
+            out[:, column] = values
         return out
 
     @contextlib.contextmanager

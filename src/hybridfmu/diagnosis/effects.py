@@ -2,16 +2,18 @@
 
 An effect in the equation of state i contributes ``A(x, u; s) @ c`` to dx_i/dt: regressors ``A``
 (M, n_coef) computed along the data, coefficients ``c`` fitted by least squares, an optional
-setting ``s`` of nonlinear parameters searched on a grid (and refined for one continuous
-parameter, e.g. a Stribeck velocity or a threshold). Effect names carry the variables they use
-(``viscous(v)``, ``periodic(angle)``, ``input_gain(F)``, ``parameter(m)``).
+setting ``s`` of nonlinear parameters searched on a grid and then refined continuously (one or more
+``continuous`` parameters, e.g. a Stribeck velocity and the smoothing of a friction sign, or a
+threshold). The shape of an effect is thus fitted to the data, not assumed. Effect names carry the
+variables they use (``viscous(v)``, ``periodic(angle)``, ``input_gain(F)``, ``parameter(m)``).
 
 For "how far" an effect adds itself to the model in one of four ways (the corrected model of
 :mod:`hybridfmu.diagnosis.corrected_model` collects them):
 
 - ``row_function``: a plain-float function (x row, u row) -> term value (fast, called per RK stage);
 - ``batch_function``: an array function using a helper model instance (x (N, n_x), u (N, n_u)) -> (N,);
-- ``input_change``: the logged input is modified (gain, offset, time shift) before the simulation;
+- ``input_change``: the logged input is modified (time shift, first-order lag, a static nonlinearity
+  such as a dead zone or a saturation, gain, offset) before the simulation;
 - ``parameter_change``: a model parameter is set to a corrected value.
 
 The library over roles lives in :mod:`hybridfmu.diagnosis.library`; case plugins add effects that
@@ -20,10 +22,86 @@ need machine knowledge (e.g. :mod:`hybridfmu.diagnosis.effects_motor`).
 
 from __future__ import annotations
 
+import math
 from functools import cached_property
 from typing import Any, Callable
 
 import numpy as np
+
+from hybridfmu.diagnosis.derivatives import odd_window, savgol_smooth
+
+#: Samples of the input derivative's Savitzky-Golay window when no window is configured.
+DEFAULT_LAG_DERIVATIVE_SAMPLES = 5
+
+
+def input_derivative(u: np.ndarray, dt_s: float, window_s: float | None = None) -> np.ndarray:
+    """Rate of change of logged input samples over the interval each sample starts, per column.
+
+    Row k is the difference quotient (v[k+1] - v[k]) / dt of the Savitzky-Golay smoothed samples v
+    (quadratic, odd window): the rate over the interval [t_k, t_k+1] over which u[k] is held (the last row
+    repeats the one before). For held inputs this is the discrete inverse of a first-order lag; a window
+    of 3 samples does not smooth (a quadratic through 3 points is exact).
+
+    Args:
+        u: (N, n_u) or (N,) input samples on a uniform grid (input units).
+        dt_s: sampling interval (s).
+        window_s: smoothing window (s), rounded to an odd number of samples (at least 3); None: 5 samples
+            (``diagnosis.effects.lag_derivative_window_s``).
+
+    Returns:
+        Same shape as ``u``, in input units per s (zeros for fewer than 2 samples; a record no longer than the
+        window is not smoothed).
+    """
+    u = np.asarray(u, dtype=float)
+    if dt_s <= 0:
+        raise ValueError(f"input_derivative: the sampling interval must be positive, got {dt_s}")
+    window = DEFAULT_LAG_DERIVATIVE_SAMPLES if window_s is None else odd_window(float(window_s), dt_s, minimum=3)
+    out = np.zeros_like(u)
+    if u.shape[0] < 2:
+        return out
+    smooth = savgol_smooth(u, window) if window > 3 else u
+    out[:-1] = (smooth[1:] - smooth[:-1]) / dt_s
+    out[-1] = out[-2]
+    return out
+
+
+def shift_samples(values: np.ndarray, offset_s: float, dt_s: float) -> np.ndarray:
+    """Samples seen ``offset_s`` later: linear interpolation at the fractional index k + offset / dt, the end
+    samples held beyond the ends. ``values`` (N, ...) -> (N, ...)."""
+    values = np.asarray(values, dtype=float)
+    if values.shape[0] == 0 or offset_s == 0.0:
+        return values.copy()
+    index = np.arange(values.shape[0]) + offset_s / dt_s
+    lower = np.clip(np.floor(index).astype(int), 0, values.shape[0] - 1)
+    upper = np.clip(lower + 1, 0, values.shape[0] - 1)
+    frac = (index - np.floor(index)).reshape((-1,) + (1,) * (values.ndim - 1))
+    return (1.0 - frac) * values[lower] + frac * values[upper]
+
+
+def first_order_lag(u: np.ndarray, lag_s: float, dt_s: float) -> np.ndarray:
+    """What a first-order lag (time constant ``lag_s``) makes of inputs held per sample, per interval.
+
+    The lag's output z (T dz/dt = u - z, starting at rest at u[0]) is exact for held inputs; row k is
+    its mean over the interval [t_k, t_k+1] (what a model holding one value per sample should see).
+
+    Args:
+        u: (N, n_u) or (N,) input samples (input units), held over each sampling interval.
+        lag_s: time constant (s), > 0.
+        dt_s: sampling interval (s), > 0.
+
+    Returns:
+        Same shape as ``u`` (input units).
+    """
+    from scipy.signal import lfilter
+
+    u = np.asarray(u, dtype=float)
+    if not lag_s > 0 or not dt_s > 0:
+        raise ValueError(f"first_order_lag: time constant and sampling interval must be positive, got {lag_s}, {dt_s}")
+    if u.shape[0] == 0:
+        return u.copy()
+    a = math.exp(-dt_s / lag_s)
+    z, _ = lfilter([0.0, 1.0 - a], [1.0, -a], u, axis=0, zi=u[:1])
+    return u + (z - u) * (lag_s / dt_s) * (1.0 - a)
 
 
 class EffectInputs:
@@ -36,6 +114,8 @@ class EffectInputs:
         f: (M, n_x) the model's derivatives at (x, u).
         dfdx: (M, n_x, n_x), dfdu: (M, n_x, n_u) model Jacobians at (x, u).
         du_dt: (M, n_u) centred rates of the held inputs (input units per s).
+        du_dt_smooth: (M, n_u) rate of the Savitzky-Golay smoothed input samples over each interval
+            (:func:`input_derivative`; input units per s), for input lags; None if not provided.
         model: the model (parameter sensitivities by finite differences; plugins' input responses).
         parameter_step: relative step of the parameter finite differences.
         u_samples: (M + 1, n_u) the logged input samples (for inputs shifted in time), with ``dt_s``.
@@ -43,8 +123,8 @@ class EffectInputs:
 
     def __init__(self, x: np.ndarray, u: np.ndarray, *, x_smooth: np.ndarray | None = None,
                  f: np.ndarray | None = None, dfdx: np.ndarray | None = None, dfdu: np.ndarray | None = None,
-                 du_dt: np.ndarray | None = None, model: Any = None, parameter_step: float = 1e-5,
-                 u_samples: np.ndarray | None = None, dt_s: float = 0.0) -> None:
+                 du_dt: np.ndarray | None = None, du_dt_smooth: np.ndarray | None = None, model: Any = None,
+                 parameter_step: float = 1e-5, u_samples: np.ndarray | None = None, dt_s: float = 0.0) -> None:
         self.x = np.asarray(x, dtype=float)
         self.u = np.asarray(u, dtype=float).reshape(self.x.shape[0], -1)
         self.x_smooth = self.x if x_smooth is None else np.asarray(x_smooth, dtype=float)
@@ -52,6 +132,8 @@ class EffectInputs:
         self.dfdx = dfdx
         self.dfdu = dfdu
         self.du_dt = du_dt if du_dt is not None else np.zeros_like(self.u)
+        self.du_dt_smooth = None if du_dt_smooth is None else \
+            np.asarray(du_dt_smooth, dtype=float).reshape(self.u.shape)
         self.model = model
         self.parameter_step = float(parameter_step)
         self._sensitivities: dict[str, np.ndarray | None] = {}
@@ -80,12 +162,7 @@ class EffectInputs:
         linear interpolation of the samples at the fractional index k + offset / dt (ends held)."""
         if self.u_samples is None or self.dt_s <= 0:
             raise RuntimeError("shifted inputs need the logged input samples and the sampling interval")
-        samples = self.u_samples
-        index = np.arange(self.n) + offset_s / self.dt_s
-        base = np.clip(np.floor(index).astype(int), 0, len(samples) - 1)
-        frac = (index - np.floor(index))[:, None]
-        upper = np.clip(base + 1, 0, len(samples) - 1)
-        return (1.0 - frac) * samples[base] + frac * samples[upper]
+        return shift_samples(self.u_samples, offset_s, self.dt_s)[:self.n]
 
     def sensitivity(self, parameter: str) -> np.ndarray | None:
         """p * df/dp (M, n_x) by central finite differences of the model's derivatives, or None when the
@@ -123,6 +200,25 @@ def parameter_sensitivity(model: Any, x: np.ndarray, u: np.ndarray, parameter: s
     return derivative * value if value != 0.0 else derivative
 
 
+def make_input_change(input_index: int | list[int], *, gain: float = 0.0, offset: float = 0.0,
+                      shift_s: float = 0.0, lag_s: float = 0.0,
+                      transform: Callable[[np.ndarray, float], np.ndarray] | None = None) -> dict[str, Any]:
+    """A change of logged input(s) for :meth:`Effect.input_change`.
+
+    Args:
+        input_index: the changed input column(s).
+        gain: relative gain error g (-): the model should see (1 + g) times the input.
+        offset: offset o (input units) added last.
+        shift_s: time shift s (s): the model sees u(t + s).
+        lag_s: first-order lag T (s): the model sees v + T dv/dt (T > 0: the logged channel lags the true
+            input, like a sensor; T < 0: the plant sees a lagged version, like a slow actuator).
+        transform: a change h of the input's samples, ``h(values (N,), dt_s) -> (N,)`` (a static
+            nonlinearity such as a dead zone or a saturation, or a dynamic one such as a slow actuator), or None.
+    """
+    return {"input": input_index, "gain": float(gain), "offset": float(offset), "shift_s": float(shift_s),
+            "lag_s": float(lag_s), "transform": transform}
+
+
 def smooth_sign(value: np.ndarray, scale: float) -> np.ndarray:
     """tanh(value / scale): a sign continuous through zero (friction-like terms)."""
     return np.tanh(np.asarray(value, dtype=float) / scale) if scale > 0 else np.sign(value)
@@ -151,13 +247,15 @@ class Effect:
         equation: index of the state whose equation it acts on.
         description: one line for the report.
         formula: the term as a formula.
-        continuous: the nonlinear setting refined continuously after the grid, or None.
-        log_scale: refine ``continuous`` on a logarithmic scale.
+        continuous: the nonlinear setting refined continuously after the grid (a name), several of them
+            (a tuple of names, refined coordinate-wise), or None.
+        log_scale: refine the ``continuous`` settings on a logarithmic scale (a setting at 0 then means
+            "absent" and is not refined).
         coefficient_unit: unit of the linear coefficients (for the report).
     """
 
     kind: str = ""
-    continuous: str | None = None
+    continuous: str | tuple[str, ...] | None = None
     log_scale: bool = False
 
     def __init__(self, name: str, equation: int, description: str, formula: str, coefficient_unit: str = ""):
@@ -175,8 +273,18 @@ class Effect:
         return [{}]
 
     def bounds(self) -> tuple[float, float] | None:
-        """Search interval of ``continuous``."""
+        """Search interval of ``continuous`` (a single continuous setting)."""
         return None
+
+    def continuous_parameters(self) -> list[str]:
+        """Names of the settings refined continuously after the grid ([] for none)."""
+        if not self.continuous:
+            return []
+        return [self.continuous] if isinstance(self.continuous, str) else list(self.continuous)
+
+    def refine_bounds(self, name: str) -> tuple[float, float] | None:
+        """Search interval of the continuous setting ``name`` (default: ``bounds()``)."""
+        return self.bounds()
 
     def coefficient_names(self, setting: dict[str, float]) -> list[str]:
         return ["coefficient"]
@@ -212,8 +320,10 @@ class Effect:
         return None
 
     def input_change(self, coef: np.ndarray, setting: dict[str, float]) -> dict[str, Any] | None:
-        """{"input": index, "gain": g, "offset": o, "shift_s": dt}: the logged input becomes
-        (1 + g) u(t + dt) + o in the corrected simulation; None for other effects."""
+        """How the logged input(s) change in the corrected simulation, or None for other effects:
+        ``{"input": index or [indices], "gain": g, "offset": o, "shift_s": s, "lag_s": T, "transform": h}``
+        (see :func:`make_input_change`); the input then becomes ``(1 + g) h(v + T dv/dt, dt) + o`` with
+        ``v = u(t + s)`` and ``dv/dt`` by :func:`input_derivative`."""
         return None
 
     def parameter_change(self, coef: np.ndarray, setting: dict[str, float]) -> tuple[str, float] | None:

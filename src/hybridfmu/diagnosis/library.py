@@ -1,32 +1,46 @@
 """The library of candidate effects over roles, built from the case config for each examined equation.
 
 For the equation of state i (x = a measured state, u = an input, p = a model parameter; every
-coefficient c is in the equation's unit per regressor unit):
+coefficient c is in the equation's unit per regressor unit). The nonlinear settings are searched on
+a grid and refined continuously (log scale for scales, with a standard error from the curvature of
+the residual sum of squares), so the shape of an effect is fitted to the data, not assumed:
 
-==========================  ============================================================  =================
-name                        term in dx_i/dt                                               nonlinear setting
-==========================  ============================================================  =================
-``viscous(x)``              -c x  (linear damping / stiffness)                            -
-``quadratic(x)``            -c x|x|                                                        -
-``polynomial(x)``           c_2 x^2 (+ c_3 x^3)                                            degree
-``coulomb(x)``              -(c + c_s exp(-(x/v_s)^2)) tanh(x/eps)                          v_s (grid, refined)
-``coulomb(x)*|u|``          -(c + c_a s) |u| s, s = tanh(x/eps)                             asymmetric on/off
-``periodic(x)``             sum_m a_m sin(m k 2 pi x/P) + b_m cos(m k 2 pi x/P)            order k in 1..N
-``saturation_above(x)``     c max(0, x - x_c)                                              x_c (grid, refined)
-``saturation_below(x)``     c max(0, x_c - x)                                              x_c (grid, refined)
-``input_gain(u)``           g (df_i/du) u                                                  -
-``input_offset(u)``         o (df_i/du)                                                    -
-``time_offset(u)``          c [f_i(x, u(t + s)) - f_i(x, u)]  (offset c s)                  s (grid, refined)
-``time_offset(u1,u2,..)``   the same with all inputs shifted together                      s (grid, refined)
-``parameter(p)``            r p (df_i/dp)  (relative parameter error r)                    -
-==========================  ============================================================  =================
+=============================  =========================================================  ==========================
+name                           term in dx_i/dt                                            nonlinear setting
+=============================  =========================================================  ==========================
+``viscous(x)``                 -c x  (linear damping / stiffness)                         -
+``quadratic(x)``               -c x|x|                                                     -
+``polynomial(x)``              c_2 x^2 (+ c_3 x^3)                                         degree
+``coulomb(x)``                 -(c + c_s exp(-(x/v_s)^2)) tanh(x/eps)                      eps and v_s (grid, refined)
+``coulomb(x)*|u|``             -(c + c_a s) |u| s, s = tanh(x/eps)                         eps (refined), asymmetric
+``periodic(x)``                sum_{m<=h} a_m sin(m k 2 pi x/P) + b_m cos(m k 2 pi x/P)   order k, harmonics h
+``saturation_above(x)``        c max(0, x - x_c)                                          x_c (grid, refined)
+``saturation_below(x)``        c max(0, x_c - x)                                          x_c (grid, refined)
+``input_gain(u)``              g (df_i/du) u                                              -
+``input_offset(u)``            o (df_i/du)                                                -
+``time_offset(u)``             c [f_i(x, u(t + s)) - f_i(x, u)]  (offset c s)              s (grid, refined)
+``time_offset(u1,u2,..)``      the same with all inputs shifted together                  s (grid, refined)
+``input_lag(u)``               T (df_i/du) du/dt  (the model should see u + T du/dt)      first-order or actuator
+                               or c (df_i/du) [L_tau(u) - u]  (plant sees u lagged by tau)  tau (grid, refined)
+``input_deadzone(u)``          -c (df_i/du) clip(u, -d, d)  (dead band of half width d)    d (grid, refined)
+``input_saturation_above(u)``  -c (df_i/du) max(u - u_c, 0)  (the model sees min(u, u_c))  u_c (grid, refined)
+``input_saturation_below(u)``  c (df_i/du) max(u_c - u, 0)  (the model sees max(u, u_c))   u_c (grid, refined)
+``parameter(p)``               r p (df_i/dp)  (relative parameter error r)                -
+=============================  =========================================================  ==========================
 
-eps (the Coulomb smoothing) and the Stribeck grid are relative to the state's spread
-(``diagnosis.effects.coulomb_smoothing_relative``, ``stribeck_relative``); periodic terms exist
-for the states of ``diagnosis.periodic`` ({state: period}); saturation thresholds are searched
-over quantiles of the state. Input effects exist where df_i/du is nonzero along the data, parameter
-effects where p df_i/dp is (candidates: ``diagnosis.parameters`` or every model parameter).
-Case plugins (``diagnosis.plugins``: module names) add effects through their
+eps (the Coulomb smoothing) and the Stribeck velocity are searched jointly on grids relative to the
+state's spread (``diagnosis.effects.coulomb_smoothing_relative``, ``stribeck_relative``; a single
+smoothing value fixes it). Periodic terms exist for the states of ``diagnosis.periodic``
+({state: period}); their grid holds every order k in 1..``periodic_max_order`` with 1..``periodic_harmonics``
+harmonics (settings with different numbers of coefficients are compared by BIC, so a term of order
+12 alone is order 12 with one harmonic). State saturation thresholds are searched over quantiles of
+the state (``saturation_quantiles``); input dead zones over quantiles of |u| and input saturation
+levels over upper/lower quantiles of u (``input_quantiles``, taken along the fitting maneuver the
+library is built on). The input lag's du/dt is the rate of the Savitzky-Golay smoothed logged input
+over each interval (``lag_derivative_window_s``); its exact slow-actuator form L_tau (a first-order lag of
+the held input) searches tau over ``actuator_lag_samples`` sampling intervals. Input effects exist
+where df_i/du is nonzero along the data, parameter effects where p df_i/dp is (candidates: ``diagnosis.parameters`` or every model parameter). Case
+plugins (``diagnosis.plugins``: module names) add effects through their
 ``plugin_effects(problem, equation, options, inputs)`` function.
 """
 
@@ -36,21 +50,44 @@ import fnmatch
 import importlib
 import logging
 import math
+import re
 from typing import Any
 
 import numpy as np
 
 from hybridfmu.config import ConfigError
-from hybridfmu.diagnosis.effects import Effect, EffectInputs, linear_estimate, param, smooth_sign
-from hybridfmu.diagnosis.problem import Problem
+from hybridfmu.diagnosis.effects import (Effect, EffectInputs, first_order_lag, linear_estimate, make_input_change,
+                                         param, shift_samples, smooth_sign)
+from hybridfmu.diagnosis.problem import Problem, positive_grid, quantile_grid
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
+
+WHERE = "config.diagnosis.effects"
 
 
 def _per(a: str, b: str) -> str:
     if not b or b in ("1", "dimensionless"):
         return a
     return f"{a}/({b})" if " " in b or "/" in b else f"{a}/{b}"
+
+
+def log_grid_bounds(values: list[float]) -> tuple[float, float] | None:
+    """Refinement interval of a positive grid refined on a log scale: one grid ratio beyond each end.
+
+    ``values``: the grid (positive, any order). None for fewer than two distinct values (a single value is fixed).
+    """
+    grid = sorted({float(v) for v in values if v > 0})
+    if len(grid) < 2:
+        return None
+    return grid[0] ** 2 / grid[1], grid[-1] ** 2 / grid[-2]
+
+
+def _linear_bounds(values: list[float], low: float, high: float) -> tuple[float, float] | None:
+    """Refinement interval of a grid refined on a linear scale: one grid step beyond each end, within [low, high]."""
+    grid = sorted({float(v) for v in values})
+    if len(grid) < 2:
+        return None
+    return max(grid[0] - (grid[1] - grid[0]), low), min(grid[-1] + (grid[-1] - grid[-2]), high)
 
 
 # ----------------------------------------------------------------------------- state functions
@@ -64,7 +101,9 @@ class StateEffect(Effect):
         self.problem = problem
         self.kind = kind
         var = problem.state_names[variable]
-        super().__init__(f"{kind}({var})", equation, description, formula.replace("x", var), coefficient_unit)
+        # the state is "x" in the formula; "x" inside a word (exp, max) stays
+        formula = re.sub(r"(?<![A-Za-z])x(?![A-Za-z])", var, formula)
+        super().__init__(f"{kind}({var})", equation, description, formula, coefficient_unit)
 
 
 class Viscous(StateEffect):
@@ -118,32 +157,49 @@ class Polynomial(StateEffect):
         return lambda x, u: sum(c * x[j] ** (k + 2) for k, c in enumerate(cs))
 
 
+def smoothing_grid(problem: Problem, variable: int, options: dict[str, Any]) -> list[float]:
+    """The tanh smoothings (state units) searched for friction signs of state ``variable``: the grid
+    ``coulomb_smoothing_relative`` (a number or a list) times the state's spread."""
+    spread = float(problem.spread[variable]) if len(problem.spread) else 0.0
+    relative = positive_grid(options["coulomb_smoothing_relative"], f"{WHERE}.coulomb_smoothing_relative")
+    return [r * (spread or 1.0) for r in relative]
+
+
 class Coulomb(StateEffect):
-    continuous = "stribeck_velocity"
+    """Coulomb friction with a Stribeck peak; the sign's smoothing eps and the Stribeck velocity v_s are
+    searched jointly (v_s = 0: no Stribeck term) and refined coordinate-wise on a log scale."""
+
+    continuous = ("smoothing", "stribeck_velocity")
     log_scale = True
 
     def __init__(self, problem, equation, variable, options):
         var = problem.state_names[variable]
         super().__init__(problem, equation, variable, "coulomb",
-                         f"Coulomb friction in {var} with a Stribeck peak near {var} = 0",
+                         f"Coulomb friction in {var} with a Stribeck peak near {var} = 0 (smoothing of the sign "
+                         "and Stribeck velocity fitted)",
                          "-(c + c_s exp(-(x/v_s)^2)) tanh(x/eps)", problem.rate_unit(equation))
-        spread = float(problem.spread[variable]) or 1.0
-        self.eps = float(options["coulomb_smoothing_relative"]) * spread
-        self.velocities = [float(r) * spread for r in options["stribeck_relative"]]
+        spread = float(problem.spread[variable]) if len(problem.spread) else 0.0
+        self.smoothings = smoothing_grid(problem, variable, options)
+        self.velocities = [r * (spread or 1.0) for r in positive_grid(
+            options["stribeck_relative"], f"{WHERE}.stribeck_relative", allow_empty=True)]
         self.state_unit = problem.unit(var)
 
     def grid(self):
-        return [{"stribeck_velocity": 0.0}] + [{"stribeck_velocity": v} for v in self.velocities]
+        return [{"smoothing": eps, "stribeck_velocity": v} for eps in self.smoothings
+                for v in [0.0] + self.velocities]
+
+    def refine_bounds(self, name):
+        return log_grid_bounds(self.smoothings if name == "smoothing" else self.velocities)
 
     def bounds(self):
-        return (min(self.velocities), max(self.velocities)) if self.velocities else None
+        return self.refine_bounds("stribeck_velocity")
 
     def coefficient_names(self, setting):
         return ["coulomb_level", "stribeck_excess"] if setting.get("stribeck_velocity", 0.0) > 0 else ["coulomb_level"]
 
     def regressors(self, inputs, setting):
         v = inputs.x_smooth[:, self.variable]
-        sign = smooth_sign(v, self.eps)
+        sign = smooth_sign(v, setting["smoothing"])
         columns = [-sign]
         v_s = setting.get("stribeck_velocity", 0.0)
         if v_s > 0:
@@ -151,7 +207,7 @@ class Coulomb(StateEffect):
         return np.stack(columns, axis=1)
 
     def row_function(self, coef, setting):
-        j, eps = self.variable, self.eps
+        j, eps = self.variable, float(setting["smoothing"])
         c = float(coef[0])
         c_s = float(coef[1]) if len(coef) > 1 else 0.0
         v_s = setting.get("stribeck_velocity", 0.0)
@@ -166,15 +222,20 @@ class Coulomb(StateEffect):
             out.append(param("breakaway_level", *linear_estimate(coef, cov, [1.0, 1.0]), unit,
                              "friction level at zero (Coulomb + Stribeck peak)"))
             out.append(param("stribeck_velocity", setting["stribeck_velocity"], setting_se.get("stribeck_velocity"),
-                             self.state_unit, "Stribeck velocity"))
-        out.append(param("smoothing", self.eps, None, self.state_unit, "tanh smoothing of the sign (fixed)"))
+                             self.state_unit, "Stribeck velocity (searched on a grid, refined)"))
+        fixed = len(self.smoothings) < 2
+        out.append(param("smoothing", setting["smoothing"], setting_se.get("smoothing"), self.state_unit,
+                         "tanh smoothing of the sign" + (" (fixed)" if fixed else " (searched on a grid, refined)")))
         return out
 
 
 class ScaledCoulomb(Effect):
-    """Coulomb friction of a state proportional to an input's magnitude (e.g. load-dependent friction)."""
+    """Coulomb friction of a state proportional to an input's magnitude (e.g. load-dependent friction); the
+    sign's smoothing is searched on the Coulomb smoothing grid and refined on a log scale."""
 
     kind = "scaled_coulomb"
+    continuous = "smoothing"
+    log_scale = True
 
     def __init__(self, problem, equation, variable, input_index, options):
         var, inp = problem.state_names[variable], problem.input_names[input_index]
@@ -183,22 +244,26 @@ class ScaledCoulomb(Effect):
                          f"-(c + c_a s) |{inp}| s, s = tanh({var}/eps)",
                          _per(problem.rate_unit(equation), problem.unit(inp)))
         self.variable, self.input = variable, input_index
-        self.eps = float(options["coulomb_smoothing_relative"]) * (float(problem.spread[variable]) or 1.0)
+        self.smoothings = smoothing_grid(problem, variable, options)
+        self.state_unit = problem.unit(var)
 
     def grid(self):
-        return [{"asymmetric": 0.0}, {"asymmetric": 1.0}]
+        return [{"asymmetric": a, "smoothing": eps} for a in (0.0, 1.0) for eps in self.smoothings]
+
+    def bounds(self):
+        return log_grid_bounds(self.smoothings)
 
     def coefficient_names(self, setting):
         return ["coefficient", "asymmetry"] if setting.get("asymmetric") else ["coefficient"]
 
     def regressors(self, inputs, setting):
-        s = smooth_sign(inputs.x_smooth[:, self.variable], self.eps)
+        s = smooth_sign(inputs.x_smooth[:, self.variable], setting["smoothing"])
         load = np.abs(inputs.u[:, self.input])
         columns = [-load * s] + ([-load * s * s] if setting.get("asymmetric") else [])
         return np.stack(columns, axis=1)
 
     def row_function(self, coef, setting):
-        j, k, eps = self.variable, self.input, self.eps
+        j, k, eps = self.variable, self.input, float(setting["smoothing"])
         c = float(coef[0])
         c_a = float(coef[1]) if len(coef) > 1 else 0.0
 
@@ -209,34 +274,46 @@ class ScaledCoulomb(Effect):
 
     def physical(self, coef, cov, setting, setting_se):
         unit = self.coefficient_unit
+        fixed = len(self.smoothings) < 2
+        smoothing = param("smoothing", setting["smoothing"], setting_se.get("smoothing"), self.state_unit,
+                          "tanh smoothing of the sign" + (" (fixed)" if fixed else " (searched on a grid, refined)"))
         if len(coef) == 1:
-            return [param("coefficient", *linear_estimate(coef, cov, [1.0]), unit, "friction per unit of |input|")]
+            return [param("coefficient", *linear_estimate(coef, cov, [1.0]), unit, "friction per unit of |input|"),
+                    smoothing]
         return [param("coefficient_positive", *linear_estimate(coef, cov, [1.0, 1.0]), unit,
                       "friction per unit of |input| while the state is positive"),
                 param("coefficient_negative", *linear_estimate(coef, cov, [1.0, -1.0]), unit,
-                      "friction per unit of |input| while the state is negative")]
+                      "friction per unit of |input| while the state is negative"), smoothing]
 
 
 class Periodic(StateEffect):
+    """A term periodic in a state: order k (periods per configured period P) with h harmonics (orders
+    k, 2k, .., hk), each a sine and a cosine; (k, h) searched over 1..max_order x 1..harmonics."""
+
     def __init__(self, problem, equation, variable, period, options):
         var = problem.state_names[variable]
         super().__init__(problem, equation, variable, "periodic",
-                         f"term periodic in {var} (period {period:g} {problem.unit(var)} / order)",
-                         "sum_m a_m sin(m k 2 pi x / P) + b_m cos(m k 2 pi x / P)", problem.rate_unit(equation))
+                         f"term periodic in {var} (period {period:g} {problem.unit(var)} / order, with harmonics)",
+                         "sum_m a_m sin(m k 2 pi x / P) + b_m cos(m k 2 pi x / P), m = 1..h",
+                         problem.rate_unit(equation))
         self.period = float(period)
         self.max_order = int(options["periodic_max_order"])
         self.harmonics = int(options["periodic_harmonics"])
 
     def grid(self):
-        return [{"order": float(k)} for k in range(1, self.max_order + 1)]
+        return [{"order": float(k), "harmonics": float(h)} for k in range(1, self.max_order + 1)
+                for h in range(1, self.harmonics + 1)]
+
+    def _count(self, setting) -> int:
+        return int(setting.get("harmonics", self.harmonics))
 
     def coefficient_names(self, setting):
         k = int(setting["order"])
-        return [f"{f}_{m * k}" for m in range(1, self.harmonics + 1) for f in ("sin", "cos")]
+        return [f"{f}_{m * k}" for m in range(1, self._count(setting) + 1) for f in ("sin", "cos")]
 
     def _phases(self, values: np.ndarray, setting) -> list[np.ndarray]:
         k = int(setting["order"])
-        return [2.0 * math.pi * m * k * values / self.period for m in range(1, self.harmonics + 1)]
+        return [2.0 * math.pi * m * k * values / self.period for m in range(1, self._count(setting) + 1)]
 
     def regressors(self, inputs, setting):
         columns = []
@@ -247,13 +324,16 @@ class Periodic(StateEffect):
     def row_function(self, coef, setting):
         j, k, scale = self.variable, int(setting["order"]), 2.0 * math.pi / self.period
         pairs = [(m * k * scale, float(coef[2 * (m - 1)]), float(coef[2 * (m - 1) + 1]))
-                 for m in range(1, self.harmonics + 1)]
+                 for m in range(1, self._count(setting) + 1)]
         return lambda x, u: sum(a * math.sin(w * x[j]) + b * math.cos(w * x[j]) for w, a, b in pairs)
 
     def physical(self, coef, cov, setting, setting_se):
-        k = int(setting["order"])
-        out = [param("order", k, None, "-", f"periods per {self.period:g} {self.problem.unit(self.problem.state_names[self.variable])}")]
-        for m in range(1, self.harmonics + 1):
+        k, h = int(setting["order"]), self._count(setting)
+        unit = self.problem.unit(self.problem.state_names[self.variable])
+        out = [param("order", k, None, "-", f"periods per {self.period:g} {unit}"),
+               param("harmonics", h, None, "-",
+                     f"harmonics fitted (orders {', '.join(str(m * k) for m in range(1, h + 1))})")]
+        for m in range(1, h + 1):
             a, b = float(coef[2 * (m - 1)]), float(coef[2 * (m - 1) + 1])
             amplitude = math.hypot(a, b)
             block = cov[2 * (m - 1):2 * m, 2 * (m - 1):2 * m] if cov.size else np.zeros((2, 2))
@@ -331,7 +411,7 @@ class InputGain(InputEffect):
         return (self._column(inputs) * inputs.u[:, self.input])[:, None]
 
     def input_change(self, coef, setting):
-        return {"input": self.input, "gain": float(coef[0]), "offset": 0.0, "shift_s": 0.0}
+        return make_input_change(self.input, gain=float(coef[0]))
 
 
 class InputOffset(InputEffect):
@@ -347,7 +427,7 @@ class InputOffset(InputEffect):
         return self._column(inputs)[:, None]
 
     def input_change(self, coef, setting):
-        return {"input": self.input, "gain": 0.0, "offset": float(coef[0]), "shift_s": 0.0}
+        return make_input_change(self.input, offset=float(coef[0]))
 
 
 class TimeOffset(InputEffect):
@@ -360,7 +440,8 @@ class TimeOffset(InputEffect):
         label = problem.input_names[input_index] if columns is None else ",".join(problem.input_names)
         super().__init__(problem, equation, input_index, "time_offset",
                          f"input(s) {label} offset in time against the states",
-                         "c * [f(x, u(t + s)) - f(x, u(t))]; the model should see u(t + c s)", "-")
+                         "c * [f(x, u(t + s)) - f(x, u(t))]; the model should see u + c [u(t + s) - u] "
+                         "(about u(t + c s))", "-")
         if name:
             self.name = name
         self.columns = [input_index] if columns is None else list(columns)
@@ -391,14 +472,195 @@ class TimeOffset(InputEffect):
                                            f"{shift:.4g} s)")]
 
     def input_change(self, coef, setting):
-        return {"input": self.columns if len(self.columns) > 1 else self.columns[0], "gain": 0.0, "offset": 0.0,
-                "shift_s": float(coef[0]) * float(setting["shift_s"])}
+        """The fitted form itself: the model sees u + c [u(t + s) - u] (= u(t + s) at c = 1; for c far from 1 the
+        scaled difference is what the data asked for, not a shift by c s)."""
+        c, shift = float(coef[0]), float(setting["shift_s"])
+        return make_input_change(self.columns if len(self.columns) > 1 else self.columns[0],
+                                 transform=lambda v, dt_s: v + c * (shift_samples(v, shift, dt_s) - v))
 
 
 def time_offset_all(problem, equation, max_offset_s):
     """``time_offset(u1,u2,...)``: all inputs offset together."""
     return TimeOffset(problem, equation, 0, max_offset_s, columns=list(range(problem.n_u)),
                       name=f"time_offset({','.join(problem.input_names)})")
+
+
+class InputLag(InputEffect):
+    """A first-order lag between the logged input and what the model should see.
+
+    Setting ``actuator_lag_s`` = 0 (the first-order form, linear in T): the model should see u + T du/dt,
+    regressor (df_i/du) du/dt with du/dt the rate of the smoothed logged samples
+    (:attr:`EffectInputs.du_dt_smooth`; the corrected model applies the same filter). T > 0: the
+    logged channel lags the true input (a sensor with a first-order lag; exact for held inputs);
+    T < 0: the plant sees a lagged version (a slow actuator; to first order in T).
+    Setting ``actuator_lag_s`` = tau > 0 (the exact slow-actuator form): the plant sees the logged input
+    through a first-order lag of time constant tau, regressor (df_i/du) [L_tau(u) - u] with scale c (1 at
+    the truth; :func:`hybridfmu.diagnosis.effects.first_order_lag`); tau searched on ``lags_s`` and refined
+    on a log scale. Both forms have one coefficient; the grid compares them by BIC.
+
+    Args (besides the problem, equation and input index): ``lags_s`` the grid of tau (s); empty: the
+    first-order form only.
+    """
+
+    continuous = "actuator_lag_s"
+    log_scale = True
+
+    def __init__(self, problem, equation, input_index, lags_s):
+        name = problem.input_names[input_index]
+        super().__init__(problem, equation, input_index, "input_lag",
+                         f"first-order lag between the logged {name} and what the model should see "
+                         "(a sensor lag if positive, a slow actuator if negative)",
+                         f"T * (df/d{name}) * d{name}/dt; the model should see {name} + T d{name}/dt (for T < 0 "
+                         f"also exactly: {name} through a lag of time constant -T)", "s")
+        self.lags_s = sorted(float(t) for t in lags_s if t > 0)
+
+    def grid(self):
+        return [{"actuator_lag_s": 0.0}] + [{"actuator_lag_s": t} for t in self.lags_s]
+
+    def bounds(self):
+        return log_grid_bounds(self.lags_s)
+
+    def coefficient_names(self, setting):
+        return ["scale"] if setting.get("actuator_lag_s", 0.0) > 0 else ["lag_s"]
+
+    def regressors(self, inputs, setting):
+        tau = float(setting.get("actuator_lag_s", 0.0))
+        if tau > 0:
+            if inputs.u_samples is None or inputs.dt_s <= 0:
+                raise RuntimeError(f"{self.name}: the logged input samples and the sampling interval are missing")
+            lagged = first_order_lag(np.asarray(inputs.u_samples, dtype=float)[:, self.input], tau, inputs.dt_s)
+            return (self._column(inputs) * (lagged[:inputs.n] - inputs.u[:, self.input]))[:, None]
+        if inputs.du_dt_smooth is None:
+            raise RuntimeError(f"{self.name}: the smoothed input derivative along the data is missing")
+        return (self._column(inputs) * inputs.du_dt_smooth[:, self.input])[:, None]
+
+    def physical(self, coef, cov, setting, setting_se):
+        tau = float(setting.get("actuator_lag_s", 0.0))
+        if tau > 0:
+            se = setting_se.get("actuator_lag_s")
+            return [param("lag_s", -tau, se, "s", "first-order lag T < 0: the plant sees the input through a lag "
+                                                  "of time constant -T (a slow actuator; searched, refined)"),
+                    param("scale", *linear_estimate(coef, cov, [1.0]), "-",
+                          "scale of the lag's effect (1 at the true time constant)")]
+        return [param("lag_s", *linear_estimate(coef, cov, [1.0]), "s",
+                      "first-order lag T: the model should see u + T du/dt (T > 0: the logged channel lags the "
+                      "true input; T < 0: the plant sees a lagged input)")]
+
+    def input_change(self, coef, setting):
+        tau = float(setting.get("actuator_lag_s", 0.0))
+        if tau > 0:
+            c = float(coef[0])
+            return make_input_change(self.input, transform=lambda v, dt_s: v + c * (first_order_lag(v, tau, dt_s) - v))
+        return make_input_change(self.input, lag_s=float(coef[0]))
+
+
+def _input_levels(values: np.ndarray, quantiles: list[float]) -> list[float]:
+    values = np.asarray(values, dtype=float)
+    values = values[np.isfinite(values)]
+    if not values.size or float(np.ptp(values)) == 0.0:
+        return []
+    return sorted({float(np.quantile(values, q)) for q in quantiles})
+
+
+class InputDeadzone(InputEffect):
+    """A dead band of half width d around zero: the model should see u - clip(u, -d, d).
+
+    Term: -c (df_i/du) clip(u, -d, d) with c = 1 at the truth; d searched over quantiles of |u| and
+    refined on a log scale.
+
+    Args (besides the problem, equation and input index): ``values`` (M,) the input along a fitting
+    maneuver (input units), ``quantiles`` the quantiles of |u| giving the grid of d.
+    """
+
+    continuous = "half_width"
+    log_scale = True
+
+    def __init__(self, problem, equation, input_index, values, quantiles):
+        name = problem.input_names[input_index]
+        super().__init__(problem, equation, input_index, "input_deadzone",
+                         f"dead zone of input {name} around zero",
+                         f"-c * (df/d{name}) * clip({name}, -d, d); the model should see "
+                         f"{name} - c clip({name}, -d, d)", "-")
+        self.input_unit = problem.unit(name)
+        self.half_widths = [d for d in _input_levels(np.abs(values), quantiles) if d > 0]
+
+    def grid(self):
+        return [{"half_width": d} for d in self.half_widths]
+
+    def bounds(self):
+        return log_grid_bounds(self.half_widths)
+
+    def coefficient_names(self, setting):
+        return ["scale"]
+
+    def regressors(self, inputs, setting):
+        d = float(setting["half_width"])
+        return (-self._column(inputs) * np.clip(inputs.u[:, self.input], -d, d))[:, None]
+
+    def physical(self, coef, cov, setting, setting_se):
+        return [param("half_width", setting["half_width"], setting_se.get("half_width"), self.input_unit,
+                      "half width d of the dead band around zero"),
+                param("scale", *linear_estimate(coef, cov, [1.0]), "-",
+                      "share of the dead band the model should see (1: a full dead zone)")]
+
+    def input_change(self, coef, setting):
+        c, d = float(coef[0]), float(setting["half_width"])
+        return make_input_change(self.input, transform=lambda v, dt_s: v - c * np.clip(v, -d, d))
+
+
+class InputSaturation(InputEffect):
+    """The model should see the input clipped at a level u_c: above, min(u, u_c) (change -max(u - u_c, 0));
+    below, max(u, u_c) (change max(u_c - u, 0)). Term: c (df_i/du) times that change (c = 1 at the truth);
+    u_c searched over upper (above) or lower (below) quantiles of u and refined (linear scale, at most one
+    grid step beyond the grid and within the data's range).
+
+    Args (besides the problem, equation and input index): ``side`` "above" or "below", ``values`` (M,)
+    the input along a fitting maneuver (input units), ``quantiles`` q giving the levels at the (1 - q)-
+    (above) or q-quantiles (below) of u.
+    """
+
+    continuous = "level"
+
+    def __init__(self, problem, equation, input_index, side, values, quantiles):
+        name = problem.input_names[input_index]
+        change = f"-max({name} - u_c, 0)" if side == "above" else f"max(u_c - {name}, 0)"
+        super().__init__(problem, equation, input_index, f"input_saturation_{side}",
+                         f"input {name} saturates {side} a level", f"c * (df/d{name}) * {change}; the model should see "
+                         f"{'min' if side == 'above' else 'max'}({name}, u_c)", "-")
+        self.side = side
+        self.input_unit = problem.unit(name)
+        values = np.asarray(values, dtype=float)
+        qs = [1.0 - q for q in quantiles] if side == "above" else list(quantiles)
+        self.levels = _input_levels(values, qs)
+        finite = values[np.isfinite(values)]
+        self.range = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+
+    def grid(self):
+        return [{"level": v} for v in self.levels]
+
+    def bounds(self):
+        return _linear_bounds(self.levels, *self.range)
+
+    def coefficient_names(self, setting):
+        return ["scale"]
+
+    def _change(self, values: np.ndarray, level: float) -> np.ndarray:
+        if self.side == "above":
+            return -np.maximum(values - level, 0.0)
+        return np.maximum(level - values, 0.0)
+
+    def regressors(self, inputs, setting):
+        return (self._column(inputs) * self._change(inputs.u[:, self.input], float(setting["level"])))[:, None]
+
+    def physical(self, coef, cov, setting, setting_se):
+        return [param("level", setting["level"], setting_se.get("level"), self.input_unit,
+                      f"level u_c the input saturates at ({self.side})"),
+                param("scale", *linear_estimate(coef, cov, [1.0]), "-", "share of the clipping the model should see "
+                                                                      "(1: a full saturation)")]
+
+    def input_change(self, coef, setting):
+        c, level = float(coef[0]), float(setting["level"])
+        return make_input_change(self.input, transform=lambda v, dt_s: v + c * self._change(v, level))
 
 
 # ----------------------------------------------------------------------------- parameters
@@ -480,9 +742,13 @@ def build_library(problem: Problem, inputs: EffectInputs, model: Any) -> tuple[d
     settings = problem.settings
     options = settings["effects"]
     kinds = set(options.get("kinds") or [])
+    input_quantiles = quantile_grid(options["input_quantiles"], f"{WHERE}.input_quantiles")
+    actuator_lags_s = [n * problem.dt_s for n in positive_grid(options["actuator_lag_samples"],
+                                                               f"{WHERE}.actuator_lag_samples", allow_empty=True)] \
+        if problem.dt_s > 0 else []
     unknown = kinds - set(DEFAULT_KINDS)
     if unknown:
-        raise ConfigError(f"config.diagnosis.effects.kinds: unknown {sorted(unknown)}; expected some of {DEFAULT_KINDS}")
+        raise ConfigError(f"{WHERE}.kinds: unknown {sorted(unknown)}; expected some of {DEFAULT_KINDS}")
     include = list(settings.get("candidates") or [])
     exclude = list(settings.get("exclude") or [])
     parameters = settings.get("parameters")
@@ -534,6 +800,13 @@ def build_library(problem: Problem, inputs: EffectInputs, model: Any) -> tuple[d
                 effects.append(InputOffset(problem, eq, k))
             if "time_offset" in kinds:
                 effects.append(TimeOffset(problem, eq, k, max_offset_s))
+            if "input_lag" in kinds:
+                effects.append(InputLag(problem, eq, k, actuator_lags_s))
+            if "input_deadzone" in kinds:
+                effects.append(InputDeadzone(problem, eq, k, inputs.u[:, k], input_quantiles))
+            if "input_saturation" in kinds:
+                effects += [InputSaturation(problem, eq, k, side, inputs.u[:, k], input_quantiles)
+                            for side in ("above", "below")]
         if "time_offset" in kinds and len(active_inputs) > 1:
             effects.append(time_offset_all(problem, eq, max_offset_s))
         if "parameter" in kinds:
@@ -563,4 +836,5 @@ def build_library(problem: Problem, inputs: EffectInputs, model: Any) -> tuple[d
 
 
 DEFAULT_KINDS = ["viscous", "quadratic", "polynomial", "coulomb", "scaled_coulomb", "periodic", "saturation",
-                 "input_gain", "input_offset", "time_offset", "parameter"]
+                 "input_gain", "input_offset", "time_offset", "input_lag", "input_deadzone", "input_saturation",
+                 "parameter"]

@@ -5,8 +5,9 @@ unit) and its segments into model-ordered arrays through the case's roles; measu
 in ``diagnosis.state_from_derivative`` are replaced by the time derivative of another measured state
 (e.g. a speed from the angle: an observer's logged speed lags). Unmeasured states are filled from an
 open-loop simulation of the calibrated model (``fill_unmeasured``). ``prepare_maneuver`` computes the
-equation error, the effect inputs along the data, the masks of usable samples (inside segments, away
-from configured end stops, not at a configured standstill) and the fitting centres.
+equation error, the effect inputs along the data (with the rate of the smoothed logged inputs for
+input lags, ``diagnosis.effects.lag_derivative_window_s``), the masks of usable samples (inside segments,
+away from configured end stops, not at a configured standstill) and the fitting centres.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import pandas as pd
 
 from hybridfmu.diagnosis.derivatives import (interval_means, odd_window, savgol_derivative, savgol_smooth,
                                              white_noise_std)
-from hybridfmu.diagnosis.effects import EffectInputs
+from hybridfmu.diagnosis.effects import EffectInputs, input_derivative
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.residual import EquationError, equation_error, noise_floor_std
 from hybridfmu.diagnosis.selection import ManeuverFitData
@@ -203,8 +204,10 @@ def prepare_maneuver(meas: MeasuredManeuver, model: Any, problem: Problem) -> Pr
                          one_step_states=one_step)
     smooth_n = odd_window(float(settings.get("smoothing_s") or max(kernel_n // 2, 5) * dt_s), dt_s, minimum=5)
     x_smooth = interval_means(savgol_smooth(meas.x, smooth_n))
+    # the input lag's du/dt: the filter CorrectedModel.inputs applies too, at the sample each interval holds
+    du_dt_smooth = input_derivative(meas.u, dt_s, settings["effects"].get("lag_derivative_window_s"))[:-1]
     inputs = EffectInputs(err.x, err.u, x_smooth=x_smooth, f=err.f_model, dfdx=err.dfdx, dfdu=err.dfdu,
-                          du_dt=input_rates(meas.u, dt_s), model=model,
+                          du_dt=input_rates(meas.u, dt_s), du_dt_smooth=du_dt_smooth, model=model,
                           parameter_step=float(settings["effects"].get("parameter_relative_step", 1e-5)),
                           u_samples=meas.u, dt_s=dt_s)
     masks = _masks(err, meas, problem, x_smooth, kernel_n)

@@ -14,11 +14,14 @@ API::
 
     diagnosis_settings(config) -> dict              # the diagnosis section with defaults
     build_problem(roles, model, settings, parameter_values, end_stop=None) -> Problem
+    positive_grid(value, where) -> list[float]     # a grid option (a number or a list of numbers > 0)
+    quantile_grid(value, where) -> list[float]     # a list of quantiles in (0, 1)
 """
 
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -33,7 +36,8 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "equations": [],                  # empty: every measured state
     "state_from_derivative": {},      # state -> measured state whose time derivative replaces it
     "one_step_states": [],            # states whose model rate is one RK4 step (fast states)
-    "input_lag_compensation_s": {},   # input -> first-order sensor lag (s) undone before everything
+    "input_lag_compensation_s": {},   # input -> known first-order sensor lag (s) undone before everything
+                                      # (the input_lag effect finds unknown lags from the data)
     "lag_compensation_window_s": None,
     "standstill": None,               # {state, below}: windows where |state| stays below are not fitted
     "end_stop_margin": None,          # state units; None: 1 % of the end-stop state's spread
@@ -54,12 +58,20 @@ DEFAULT_SETTINGS: dict[str, Any] = {
 
 DEFAULT_EFFECT_OPTIONS: dict[str, Any] = {
     "kinds": ["viscous", "quadratic", "polynomial", "coulomb", "scaled_coulomb", "periodic", "saturation",
-              "input_gain", "input_offset", "time_offset", "parameter"],
-    "coulomb_smoothing_relative": 0.002,
+              "input_gain", "input_offset", "time_offset", "input_lag", "input_deadzone", "input_saturation",
+              "parameter"],
+    # grid of the tanh smoothing of friction signs relative to the state's spread (refined on a log
+    # scale after the grid; a single number fixes it)
+    "coulomb_smoothing_relative": [0.001, 0.003, 0.01, 0.03, 0.1],
     "stribeck_relative": [0.005, 0.01, 0.02, 0.05, 0.1, 0.2],
-    "periodic_max_order": 12,
+    "periodic_max_order": 12,         # orders 1..N per period searched, each with 1..periodic_harmonics harmonics
     "periodic_harmonics": 1,
     "saturation_quantiles": [0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95],
+    # quantiles q of the inputs: dead-zone half widths at the q-quantiles of |u|, saturation levels at the
+    # (1 - q)- (above) and q-quantiles (below) of u; refined after the grid
+    "input_quantiles": [0.05, 0.1, 0.2, 0.3, 0.4, 0.5],
+    "lag_derivative_window_s": None,  # Savitzky-Golay window of the input derivative of input lags; None: 5 samples
+    "actuator_lag_samples": [1, 2, 4, 8, 16, 32, 64],  # time constants (sampling intervals) of slow-actuator lags
     "polynomial_degrees": [2, 3],
     "parameter_relative_step": 1.0e-5,
     "max_time_offset_s": None,        # None: one kernel length
@@ -226,6 +238,7 @@ def build_problem(roles: Any, model: Any, settings: dict[str, Any], parameter_va
         problem.state_index(name, "config.diagnosis.one_step_states")
     for name in settings.get("input_lag_compensation_s") or {}:
         problem.input_index(name, "config.diagnosis.input_lag_compensation_s")
+    check_effect_options(settings.get("effects") or {})
     for name, period in (settings.get("periodic") or {}).items():
         index = problem.state_index(name, "config.diagnosis.periodic")
         if index not in measured or not float(period) > 0:
@@ -243,6 +256,70 @@ def build_problem(roles: Any, model: Any, settings: dict[str, Any], parameter_va
         if index in measured and (lower is not None or upper is not None):
             problem.end_stop = {"state": index, "min": lower, "max": upper}
     return problem
+
+
+def _numbers(value: Any, where: str, expected: str) -> list[float]:
+    values = list(value) if isinstance(value, (list, tuple)) else [value]
+    out = []
+    for v in values:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+            raise ConfigError(f"{where}: expected {expected}, got {value!r}")
+        out.append(float(v))
+    return out
+
+
+def positive_grid(value: Any, where: str, allow_empty: bool = False) -> list[float]:
+    """A grid option: a positive number or a list of them -> the sorted distinct values.
+
+    Raises:
+        ConfigError: naming ``where`` for a value that is no positive number, or an empty list unless
+            ``allow_empty``.
+    """
+    expected = "a positive number or a " + ("" if allow_empty else "non-empty ") + "list of positive numbers"
+    values = _numbers(value, where, expected)
+    if any(v <= 0 for v in values) or (not values and not allow_empty):
+        raise ConfigError(f"{where}: expected {expected}, got {value!r}")
+    return sorted(set(values))
+
+
+def quantile_grid(value: Any, where: str) -> list[float]:
+    """A non-empty list of quantiles strictly between 0 and 1 -> the sorted distinct values.
+
+    Raises:
+        ConfigError: naming ``where`` otherwise.
+    """
+    expected = "a non-empty list of quantiles between 0 and 1 (exclusive)"
+    if not isinstance(value, (list, tuple)):
+        raise ConfigError(f"{where}: expected {expected}, got {value!r}")
+    values = _numbers(value, where, expected)
+    if not values or any(not 0.0 < v < 1.0 for v in values):
+        raise ConfigError(f"{where}: expected {expected}, got {value!r}")
+    return sorted(set(values))
+
+
+def check_effect_options(options: dict[str, Any]) -> None:
+    """Check the grid options of ``diagnosis.effects`` (the schema checks validated configs too).
+
+    Raises:
+        ConfigError: naming the field (``config.diagnosis.effects.<option>``) and what is expected.
+    """
+    where = "config.diagnosis.effects"
+    if options.get("coulomb_smoothing_relative") is not None:
+        positive_grid(options["coulomb_smoothing_relative"], f"{where}.coulomb_smoothing_relative")
+    if options.get("stribeck_relative") is not None:
+        positive_grid(options["stribeck_relative"], f"{where}.stribeck_relative", allow_empty=True)
+    if options.get("actuator_lag_samples") is not None:
+        positive_grid(options["actuator_lag_samples"], f"{where}.actuator_lag_samples", allow_empty=True)
+    if options.get("input_quantiles") is not None:
+        quantile_grid(options["input_quantiles"], f"{where}.input_quantiles")
+    window = options.get("lag_derivative_window_s")
+    if window is not None and (isinstance(window, bool) or not isinstance(window, (int, float)) or not window > 0):
+        raise ConfigError(f"{where}.lag_derivative_window_s: expected a positive window in s or null (5 samples), "
+                          f"got {window!r}")
+    for key in ("periodic_max_order", "periodic_harmonics"):
+        value = options.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise ConfigError(f"{where}.{key}: expected an integer of at least 1, got {value!r}")
 
 
 def set_data_statistics(problem: Problem, x_fit: list[np.ndarray], dt_s: float) -> None:

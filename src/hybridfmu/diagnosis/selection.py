@@ -4,8 +4,9 @@ Per examined state equation the kernel-averaged equation error ``y`` is sampled 
 the noise of neighbouring samples is nearly independent) inside the informative segments.
 Every effect's term is averaged with the same kernel at the same centres. Effects enter by
 stepwise forward selection: at each step every remaining candidate is fitted together with
-those already chosen (linear least squares in its coefficients, grid search plus bounded
-refinement in its nonlinear parameter) and the one with the lowest BIC enters if it lowers
+those already chosen (linear least squares in its coefficients; its nonlinear settings searched on
+a grid, the continuous ones refined by bounded minimisation, and settings with different numbers of
+coefficients compared by BIC) and the one with the lowest BIC enters if it lowers
 the BIC by ``min_bic_drop``, removes at least ``min_relative_improvement`` of the remaining
 residual sum of squares, explains a mean square of at least ``min_explained_to_noise`` times the
 noise floor's variance and at least ``min_share_of_initial`` of the equation's initial residual
@@ -25,8 +26,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.optimize import minimize_scalar
+from scipy.optimize import minimize, minimize_scalar
 
+from hybridfmu.config import ConfigError
 from hybridfmu.diagnosis.derivatives import smooth_at
 from hybridfmu.diagnosis.effects import Effect, EffectInputs
 
@@ -72,12 +74,22 @@ class SelectionSettings:
 
     @classmethod
     def from_config(cls, section: dict[str, Any] | None) -> "SelectionSettings":
-        section = section or {}
-        section = dict(section)
+        """The settings of ``diagnosis.selection`` (missing keys take the defaults above).
+
+        Raises:
+            ConfigError: an unknown key, or a value that is no number (``config.diagnosis.selection.<key>``).
+        """
+        section = dict(section or {})
         if "max_effects_per_group" in section:  # the name before equations were examined one by one
             section.setdefault("max_effects_per_equation", section.pop("max_effects_per_group"))
-        known = {k: v for k, v in section.items() if k in cls.__dataclass_fields__}
-        return cls(**known)
+        unknown = sorted(k for k in section if k not in cls.__dataclass_fields__)
+        if unknown:
+            raise ConfigError(f"config.diagnosis.selection: unknown {unknown}; expected some of "
+                              f"{sorted(cls.__dataclass_fields__)}")
+        for key, value in section.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+                raise ConfigError(f"config.diagnosis.selection.{key}: expected a number >= 0, got {value!r}")
+        return cls(**section)
 
 
 def _setting_key(setting: dict[str, float]) -> tuple:
@@ -135,9 +147,15 @@ class Term:
 
 
 def count_parameters(term: Term, grid_size: int) -> int:
-    """Parameters of a term for the information criterion: coefficients plus searched settings."""
-    n = len(term.effect.coefficient_names(term.setting))
-    if term.effect.continuous or grid_size > 1:
+    """Parameters of a term for the information criterion: its coefficients plus its searched settings
+    (each continuous setting in use, else one for a grid of several settings)."""
+    effect = term.effect
+    n = len(effect.coefficient_names(term.setting))
+    refined = [p for p in effect.continuous_parameters() if effect.refine_bounds(p) is not None
+               and not (effect.log_scale and term.setting.get(p, 0.0) == 0.0)]
+    if refined:
+        n += len(refined)
+    elif grid_size > 1:
         n += 1
     return n
 
@@ -198,63 +216,167 @@ def bic(rss: float, n: int, k: int) -> float:
     return n * math.log(max(rss, 1e-300) / max(n, 1)) + k * math.log(max(n, 2))
 
 
-def _refine(cache: DesignCache, active: list[Term], effect: Effect, best: dict[str, float], grid_values: list[float],
-            equation: int, names: list[str], iterations: int):
-    """Refine the continuous parameter of ``effect`` around the best grid value; return (setting, rss, se)."""
-    param = effect.continuous
-    bounds = effect.bounds()
-    centre = best[param]
-    if param is None or bounds is None or centre == 0.0 and effect.log_scale:
-        return best, None, {}
-    values = sorted(v for v in grid_values if v != 0.0 or not effect.log_scale)
-    pos = values.index(centre)
-    lower = values[pos - 1] if pos > 0 else bounds[0]
-    upper = values[pos + 1] if pos + 1 < len(values) else bounds[1]
-    transform = (math.log, math.exp) if effect.log_scale else (lambda v: v, lambda v: v)
+def _identity(value: float) -> float:
+    return value
 
-    def rss_at(z: float) -> float:
-        setting = dict(best)
-        setting[param] = float(transform[1](z))
+
+def _refine(cache: DesignCache, active: list[Term], effect: Effect, best: dict[str, float], best_rss: float,
+            grid: list[dict[str, float]], equation: int, names: list[str],
+            iterations: int) -> tuple[dict[str, float], float | None, dict[str, float]]:
+    """Refine the continuous settings of ``effect`` (added to ``active``) from the best grid setting ``best``.
+
+    Each continuous setting in turn is varied between its neighbouring grid values (or the effect's
+    ``refine_bounds`` beyond the ends) by a bounded scalar minimisation of the residual sum of squares,
+    the others held; several settings are then refined jointly (bounded Powell search within the same
+    brackets, as they are often correlated). On a log scale where ``effect.log_scale`` (a setting at 0
+    means "absent" there and is left alone). Standard errors from
+    the curvature of the RSS in the refinement coordinates z (the log of the setting on a log scale),
+    the linear coefficients refitted at every point: cov(z) = 2 (rss / n) H^-1 with H the Hessian of the
+    RSS (finite differences, steps 0.02 in log, 2 % of the bracketing grid interval otherwise).
+
+    Returns:
+        (setting, its RSS or None when nothing was refined, {setting name: standard error in its unit}).
+    """
+    log = effect.log_scale
+    forward, inverse = (math.log, math.exp) if log else (_identity, _identity)
+    params: list[str] = []
+    brackets: dict[str, tuple[float, float]] = {}
+    for name in effect.continuous_parameters():
+        bounds = effect.refine_bounds(name)
+        if name not in best or bounds is None or not bounds[0] < bounds[1] or (log and not best[name] > 0):
+            continue
+        params.append(name)
+        brackets[name] = (float(bounds[0]), float(bounds[1]))
+    if not params:
+        return best, None, {}
+
+    def rss_of(setting: dict[str, float]) -> float:
         return fit_terms(cache, active + [Term(effect, setting)], equation, names).rss
 
-    if lower >= upper:
-        return best, None, {}
-    result = minimize_scalar(rss_at, bounds=(transform[0](lower), transform[0](upper)), method="bounded",
-                             options={"maxiter": iterations,
-                                      "xatol": 1e-4 if effect.log_scale else 1e-4 * (upper - lower)})
-    z_opt = float(result.x)
-    setting = dict(best)
-    setting[param] = float(transform[1](z_opt))
-    rss_opt = float(result.fun)
-    # Profile standard error from the curvature of the residual sum of squares.
-    step = 0.02 if effect.log_scale else max(abs(upper - lower) * 0.02, 1e-12)
-    curvature = (rss_at(z_opt + step) - 2 * rss_opt + rss_at(z_opt - step)) / step ** 2
+    def bracket(name: str, centre: float) -> tuple[float, float]:
+        values = sorted({float(g[name]) for g in grid if name in g and (not log or g[name] > 0)})
+        low, high = brackets[name]
+        return (max(max((v for v in values if v < centre), default=low), low),
+                min(min((v for v in values if v > centre), default=high), high))
+
+    setting, rss_cur = dict(best), float(best_rss)
+    for name in params:  # one coordinate-wise pass
+        lower, upper = bracket(name, setting[name])
+        if not lower < upper or (log and not lower > 0):
+            continue
+
+        def rss_at(z: float, name: str = name) -> float:
+            trial = dict(setting)
+            trial[name] = float(inverse(z))
+            return rss_of(trial)
+
+        result = minimize_scalar(rss_at, bounds=(forward(lower), forward(upper)), method="bounded",
+                                 options={"maxiter": iterations,
+                                          "xatol": 1e-4 if log else 1e-4 * (upper - lower)})
+        if float(result.fun) < rss_cur:
+            setting[name] = float(inverse(float(result.x)))
+            rss_cur = float(result.fun)
+    if len(params) > 1:  # then jointly (the settings are often correlated), within the grid brackets of the best
+        boxes = [bracket(name, best[name]) for name in params]
+        boxes = [(min(lo, setting[n]), max(hi, setting[n])) for n, (lo, hi) in zip(params, boxes)]
+        if all(lo < hi and (not log or lo > 0) for lo, hi in boxes):
+            def rss_joint(z: np.ndarray) -> float:
+                trial = dict(setting)
+                for name, value in zip(params, z):
+                    trial[name] = float(inverse(float(value)))
+                return rss_of(trial)
+
+            result = minimize(rss_joint, np.array([forward(setting[n]) for n in params]), method="Powell",
+                              bounds=[(forward(lo), forward(hi)) for lo, hi in boxes],
+                              options={"maxiter": iterations, "xtol": 1e-4, "ftol": 1e-10})
+            if float(result.fun) < rss_cur:
+                for name, value in zip(params, result.x):
+                    setting[name] = float(inverse(float(value)))
+                rss_cur = float(result.fun)
+    # curvature of the RSS at the refined setting
+    z0 = np.array([forward(setting[p]) for p in params])
+    steps = []
+    for name in params:
+        lower, upper = bracket(name, setting[name])
+        steps.append(0.02 if log else max(0.02 * (upper - lower), 1e-12))
+    steps = np.array(steps)
+
+    def rss_z(z: np.ndarray) -> float:
+        trial = dict(setting)
+        for name, value in zip(params, z):
+            trial[name] = float(inverse(float(value)))
+        return rss_of(trial)
+
+    k = len(params)
+    hessian = np.zeros((k, k))
+    unit = np.eye(k)
+    for i in range(k):
+        step = steps[i] * unit[i]
+        hessian[i, i] = (rss_z(z0 + step) - 2.0 * rss_cur + rss_z(z0 - step)) / steps[i] ** 2
+        for j in range(i):
+            di, dj = steps[i] * unit[i], steps[j] * unit[j]
+            hessian[i, j] = hessian[j, i] = (rss_z(z0 + di + dj) - rss_z(z0 + di - dj) - rss_z(z0 - di + dj)
+                                             + rss_z(z0 - di - dj)) / (4.0 * steps[i] * steps[j])
     n = len(cache.target(equation, names))
+    scale = 2.0 * rss_cur / max(n, 1)
+    variances = np.full(k, np.nan)
+    if np.all(np.isfinite(hessian)):
+        if k > 1 and np.all(np.linalg.eigvalsh(hessian) > 0):
+            variances = scale * np.diag(np.linalg.inv(hessian))
+        else:  # not positive definite: the curvature of each setting alone where it is positive
+            diagonal = np.diag(hessian)
+            variances = np.where(diagonal > 0, scale / np.where(diagonal > 0, diagonal, 1.0), np.nan)
     se = {}
-    if curvature > 0:
-        z_se = math.sqrt(2.0 * rss_opt / (n * curvature))
-        se[param] = z_se * setting[param] if effect.log_scale else z_se
-    return setting, rss_opt, se
+    for name, variance in zip(params, variances):
+        if np.isfinite(variance) and variance >= 0:
+            z_se = math.sqrt(variance)
+            se[name] = z_se * setting[name] if log else z_se
+    return setting, rss_cur, se
+
+
+def _structure(effect: Effect, setting: dict[str, float]) -> tuple:
+    """What a setting fixes beyond its continuous values: coefficient names, discrete settings, and the
+    log-scale settings at 0 ("absent", e.g. no Stribeck term)."""
+    continuous = set(effect.continuous_parameters())
+    discrete = tuple(sorted((k, round(float(v), 12)) for k, v in setting.items() if k not in continuous))
+    absent = tuple(sorted(p for p in continuous if effect.log_scale and not setting.get(p, 0.0) > 0))
+    return tuple(effect.coefficient_names(setting)), discrete, absent
 
 
 def best_setting(cache: DesignCache, active: list[Term], effect: Effect, equation: int, names: list[str],
                  iterations: int) -> tuple[Term, float, list[dict[str, Any]]]:
-    """Best nonlinear setting of ``effect`` added to ``active``: (term, rss, profile over the grid)."""
+    """Best nonlinear setting of ``effect`` added to ``active``: (term, rss, profile over the grid).
+
+    Settings are compared by BIC, n log(rss / n) + n_coef log n (n fitted rows, n_coef the effect's
+    coefficients at that setting): a setting with more coefficients (a Stribeck term, more harmonics, an
+    asymmetry) must earn them. The grid's best setting of each structure (:func:`_structure`: the same
+    coefficients and discrete settings, differing only in continuous values) is refined (:func:`_refine`)
+    before the structures are compared, so a structure is not preferred for making up for a coarse grid.
+    The profile lists every grid setting's ``rss`` and ``bic``.
+    """
     grid = effect.grid()
+    n = len(cache.target(equation, names))
     profile = []
-    best_rss, best = math.inf, grid[0]
+    per_structure: dict[tuple, tuple[float, float, dict[str, float]]] = {}
     for setting in grid:
         rss = fit_terms(cache, active + [Term(effect, setting)], equation, names).rss
-        profile.append({"setting": dict(setting), "rss": rss})
-        if rss < best_rss:
-            best_rss, best = rss, setting
-    setting_se: dict[str, float] = {}
-    if effect.continuous:
-        grid_values = [g[effect.continuous] for g in grid]
-        refined, rss, setting_se = _refine(cache, active, effect, best, grid_values, equation, names, iterations)
-        if rss is not None and rss <= best_rss:
-            best, best_rss = refined, rss
-    return Term(effect, dict(best), setting_se=setting_se), best_rss, profile
+        score = bic(rss, n, len(effect.coefficient_names(setting)))
+        profile.append({"setting": dict(setting), "rss": rss, "bic": score})
+        key = _structure(effect, setting)
+        if key not in per_structure or score < per_structure[key][0]:
+            per_structure[key] = (score, rss, setting)
+    best_score, best_rss, best, best_se = math.inf, math.inf, grid[0], {}
+    for score, rss, setting in per_structure.values():
+        setting_se: dict[str, float] = {}
+        if effect.continuous_parameters():
+            refined, refined_rss, refined_se = _refine(cache, active, effect, setting, rss, grid, equation, names,
+                                                       iterations)
+            if refined_rss is not None and refined_rss <= rss:
+                setting, rss, setting_se = refined, refined_rss, refined_se
+            score = bic(rss, n, len(effect.coefficient_names(setting)))
+        if score < best_score:
+            best_score, best_rss, best, best_se = score, rss, setting, setting_se
+    return Term(effect, dict(best), setting_se=best_se), best_rss, profile
 
 
 @dataclass
