@@ -120,3 +120,63 @@ def msd_problem(model=None, **diagnosis):
                                        "selection": {"bootstrap_samples": 20}, **diagnosis}}
     settings = diagnosis_settings(config)
     return build_problem(msd_roles(), model, settings, model.get_parameters()), model
+
+
+def simulate_lagged_input(time_s: np.ndarray, u_cmd: np.ndarray, lag_s: float, sensor: bool,
+                          substeps: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """The mass-spring-damper with a first-order lag (time constant ``lag_s``) on its force channel.
+
+    The command ``u_cmd`` (T,) is held per sample; z follows it with lag_s dz/dt = u_cmd - z (from z = u_cmd[0]).
+    ``sensor``: the plant feels the command and the log records z (a sensor lag); else the plant feels z
+    and the log records the command (a slow actuator). Returns (states (T, 2), z (T,)).
+    """
+    model = MassSpringDamper()
+    dt = time_s[1] - time_s[0]
+    h = dt / substeps
+    s = np.array([0.0, 0.0, u_cmd[0]])
+    states, lagged = np.empty((len(time_s), 2)), np.empty(len(time_s))
+
+    def rhs(s, u):
+        force = u if sensor else s[2]
+        f = model.derivatives(s[None, :2], np.array([[force]]))[0]
+        return np.array([f[0], f[1], (u - s[2]) / lag_s])
+
+    for k in range(len(time_s)):
+        states[k], lagged[k] = s[:2], s[2]
+        if k == len(time_s) - 1:
+            break
+        for _ in range(substeps):
+            k1 = rhs(s, u_cmd[k])
+            k2 = rhs(s + 0.5 * h * k1, u_cmd[k])
+            k3 = rhs(s + 0.5 * h * k2, u_cmd[k])
+            k4 = rhs(s + h * k3, u_cmd[k])
+            s = s + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return states, lagged
+
+
+def msd_input_maneuvers(duration_s: float = 20.0, dt: float = 0.01, *, lag_s: float = 0.0, sensor: bool = True,
+                        plant_input: Callable[[np.ndarray], np.ndarray] | None = None,
+                        input_noise: float = 0.0) -> dict[str, MeasuredManeuver]:
+    """Train, validation and test maneuvers whose force channel differs from what the plant feels.
+
+    Either a first-order lag ``lag_s`` (``sensor``: the logged force lags the true one; else the plant feels a
+    lagged force, a slow actuator), or a static map ``plant_input`` (logged force (T,) -> felt force (T,), e.g.
+    a dead zone). ``input_noise``: white noise (N) on the logged force. Position noise 1e-4 m.
+    """
+    time_s = np.arange(0.0, duration_s, dt)
+    out = {}
+    for seed, role in enumerate(("train", "validation", "test")):
+        command = force_profile(time_s, seed)
+        if lag_s:
+            x, lagged = simulate_lagged_input(time_s, command, lag_s, sensor)
+            logged = lagged if sensor else command
+        else:
+            felt = plant_input(command) if plant_input is not None else command
+            x = simulate_truth(MassSpringDamper(), None, time_s, felt[:, None], [0.0, 0.0])
+            logged = command
+        rng = np.random.default_rng(100 + seed)
+        x = x + rng.standard_normal(x.shape) * np.array([1e-4, 0.0])
+        logged = logged + rng.standard_normal(logged.shape) * input_noise
+        out[role] = MeasuredManeuver(name=role, role=role, time_s=time_s, x=x, u=logged[:, None],
+                                     spans_s=[[0.0, float(time_s[-1])]])
+    return out
