@@ -1,10 +1,12 @@
-"""A small withheld-effect check through the Python entry points (two short cases), and the
-Snakemake rules' DAG for a tiny config."""
+"""A small withheld-effect check through the Python entry points (one seed: Coulomb friction and no effect, both
+with motor parameter offsets), and the Snakemake rules' DAG for a tiny config. Drawing and scoring have their own
+unit tests (tests/test_withheld_drawing.py, tests/test_withheld_scoring.py)."""
 
 from __future__ import annotations
 
 import copy
 import csv
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -12,29 +14,33 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hybridfmu.config import load_case_config
+from hybridfmu.config import read_config_file, validate_case_config
 from hybridfmu.diagnosis import withheld
+from hybridfmu.diagnosis.withheld_report import SUMMARY_COLUMNS, summarise
 
 ROOT = Path(__file__).resolve().parents[1]
 DURATION_S = 3.0
 
 
 @pytest.fixture(scope="module")
-def tiny_config(tmp_path_factory, ipbmotor_fmu):
-    """The demo config with a small withheld section (Coulomb friction alone, and no effect)."""
-    config = load_case_config(ROOT / "config" / "config.yaml")
-    config = copy.deepcopy(config)
+def tiny_config(tmp_path_factory):
+    """The demo config with a small withheld section of its own: seed 0, Coulomb friction at 1-1.5 x the demo's
+    (well detectable) and the none case; the maneuvers and the expected table are the demo's."""
+    config = read_config_file(ROOT / "config" / "config.yaml")
+    demo = config.get("withheld") or {}
     config["results_dir"] = str(tmp_path_factory.mktemp("withheld_results"))
-    config["withheld"].update({"duration_s": DURATION_S, "effects": ["coulomb_friction"], "pairs": [],
-                               "none_case": True})
-    config["withheld"]["diagnosis"] = {"selection": {"bootstrap_samples": 20}}
-    return config
+    config["withheld"] = {"duration_s": DURATION_S, "seeds": [0], "effects": ["coulomb_friction"], "pairs": [],
+                          "sizes_per_effect": 1, "size_range": [1.0, 1.5], "none_case": True,
+                          "maneuvers": copy.deepcopy(demo["maneuvers"]),
+                          "expected": {**demo.get("expected", {}), "coulomb_friction": ["coulomb(omega)"]},
+                          "diagnosis": {"selection": {"bootstrap_samples": 20}}}
+    return validate_case_config(config)
 
 
-def run_case(config, name, fmu_path) -> tuple[Path, Path]:
+def run_case(config, name, fmu_path) -> tuple[Path, Path, Path]:
     base = Path(config["results_dir"]) / "withheld"
-    case_path = base / "cases" / f"{name}.yaml"
-    withheld.write_case_config(config, name, fmu_path, case_path, duration_s=DURATION_S)
+    case_path, draw_path = base / "cases" / f"{name}.yaml", base / "cases" / f"{name}.draw.json"
+    withheld.write_case_config(config, name, fmu_path, case_path, draw_path, duration_s=DURATION_S)
     maneuvers = list(config["withheld"]["maneuvers"])
     data, segments = {}, {}
     for m in maneuvers:
@@ -47,125 +53,53 @@ def run_case(config, name, fmu_path) -> tuple[Path, Path]:
         withheld.segment_case(case_path, data[m], segments[m], segments[m].with_suffix(".png"), m)
     out = base / name / "diagnosis"
     withheld.diagnose_case(case_path, fmu_path, data, segments, out)
-    return out / "diagnosis.json", base / name / "raw" / f"{maneuvers[-1]}.truth.json"
+    return out / "diagnosis.json", base / name / "raw" / f"{maneuvers[-1]}.truth.json", draw_path
 
 
 @pytest.mark.slow
 def test_small_withheld_check(tiny_config, ipbmotor_fmu, tmp_path):
     names = withheld.case_names(tiny_config)
-    assert names == ["single_coulomb_friction", "none"]
-    diagnoses, truths = [], []
-    for name in names:
-        diagnosis, truth = run_case(tiny_config, name, ipbmotor_fmu)
-        diagnoses.append(diagnosis)
-        truths.append(truth)
-    rows = withheld.summarise(names, diagnoses, truths, tmp_path / "summary.csv", tmp_path / "confusion.png",
-                              tmp_path / "summary.md", expected=tiny_config["withheld"]["expected"])
-    by_case = {r["case"]: r for r in rows}
-    friction = by_case["single_coulomb_friction"]
-    assert friction["found_effects"].split(";")[0] == "coulomb_friction"
-    assert friction["named_effects"].split(";")[0] == "coulomb(omega)"
-    assert friction["correct"] is True
-    assert friction["shrink_factor"] >= 3.0
-    assert by_case["none"]["found_effects"] == "none" and by_case["none"]["correct"] is True
+    assert names == ["s0__single_coulomb_friction__size1", "s0__none"]
+    files = [run_case(tiny_config, name, ipbmotor_fmu) for name in names]
+    out = summarise(names, *map(list, zip(*files)), tmp_path / "summary.csv", tmp_path / "confusion.png",
+                    tmp_path / "detection.png", tmp_path / "summary.md", expected=tiny_config["withheld"]["expected"])
+    by_case = {r["case"]: r for r in out["rows"]}
+    friction = by_case["s0__single_coulomb_friction__size1"]
+    assert friction["detected"] == [True] and "coulomb_friction" in friction["found_effects"]
+    assert friction["where_correct"] is True and friction["named_in"] == ["omega"]
+    assert friction["parameter_error_pct"][0] < 25.0
+    assert friction["effect_size"][0] > 0.1 and 1.0 <= friction["size_scale"][0] <= 1.5
+    for row in out["rows"]:  # offsets like the demo bench's in every case, never counted as extras
+        assert set(row["offsets_true"]) == {"R", "L_d", "L_q", "psi"}
+        assert not any(e.startswith("parameter(") and e[10:-1] in row["offsets_true"] for e in row["extra_effects"])
     with open(tmp_path / "summary.csv") as handle:
         table = list(csv.DictReader(handle))
-    assert [r["case"] for r in table] == names
-    assert set(withheld.SUMMARY_COLUMNS) <= set(table[0])
-    assert (tmp_path / "confusion.png").stat().st_size > 1000
-    assert withheld.targets(rows) == {"single_top1_correct": True, "pairs_both_found": True,
-                                      "none_names_nothing": True, "gap_shrinks_3x_where_correct": True}
-    check_report_and_tracking(diagnoses[0], tmp_path)
+    assert [r["case"] for r in table] == names and set(SUMMARY_COLUMNS) <= set(table[0])
+    assert (tmp_path / "confusion.png").stat().st_size > 1000 and (tmp_path / "detection.png").stat().st_size > 1000
+    assert "| coulomb_friction | 1 | 1/1 |" in (tmp_path / "summary.md").read_text()
+    check_report(files[0][0])
 
 
-def check_report_and_tracking(diagnosis_json: Path, tmp_path: Path) -> None:
-    """The diagnosis folder holds the record, the report and its figures; the run is logged to MLflow."""
-    from mlflow.tracking import MlflowClient
-
-    from hybridfmu.diagnosis.report import log_to_mlflow
+def check_report(diagnosis_json: Path) -> None:
+    """The diagnosis folder holds the record, the report and its figures; the diagnosis never saw the bench."""
     from hybridfmu.io import read_json
 
     out = diagnosis_json.parent
     record = read_json(diagnosis_json)
     report = (out / "report.md").read_text()
-    for heading in ("## Where", "## Which", "## How far", "### 1. `coulomb(omega)`"):
+    rank = next(c["rank"] for c in record["which"]["chosen"] if c["effect"] == "coulomb(omega)")
+    for heading in ("## Where", "## Which", "## How far", f"### {rank}. `coulomb(omega)`"):
         assert heading in report
-    figures = sorted(out.glob("*.png"))
-    assert {p.name for p in figures} >= {"equation_error.png", "regions.png", "waterfall.png", "effects.png"}
-    assert record["where"]["equations"]["carrier"] == "omega"
-    assert record["which"]["chosen"][0]["equation"] == "omega"
-    assert record["which"]["chosen"][0]["stability"]["coulomb_level"]["relative_spread"] < 0.2
-    after = record["how_far"]["after"]
-    assert {"angle_rmse", "angle_mae", "speed_rmse", "speed_mae"} <= set(after)
-    assert after["angle_rmse"] < record["how_far"]["before"]["angle_rmse"]
-    config = {"case": "single_coulomb_friction", "results_dir": str(tmp_path), "mlflow": {}}
-    run_id = log_to_mlflow(record, {"json": diagnosis_json, "report": out / "report.md", "figures": figures}, config)
-    client = MlflowClient(f"sqlite:///{tmp_path.resolve()}/mlflow.db")
-    run = client.get_run(run_id)
-    assert run.data.tags["hybridfmu.role"] == "diagnosis"
-    assert run.data.metrics["gap/gap_before"] == pytest.approx(record["how_far"]["gap_before"])
-    assert run.data.params["found_effects"] == "coulomb(omega)"
-    assert "diagnosis/report.md" in {a.path for a in client.list_artifacts(run_id, "diagnosis")}
+    assert {p.name for p in out.glob("*.png")} >= {"equation_error.png", "regions.png", "waterfall.png", "effects.png"}
+    assert record["model_parameters"] == {}  # the FMU's nominal values, not the bench's
+    record.pop("case")  # the case id names the withheld effect; nothing else of the record may
+    text = json.dumps(record)
+    assert not [word for word in ("coulomb_friction", "bench", "truth") if word in text]
 
 
-def test_case_configs_withhold_exactly_the_effect(tiny_config, ipbmotor_fmu):
+def test_snakemake_plans_one_job_per_case_seed_and_maneuver(tiny_config, ipbmotor_fmu, tmp_path):
     config = copy.deepcopy(tiny_config)
-    config["withheld"]["pairs"] = [["cogging", "channel_time_offset"]]
-    names = withheld.case_names(config)
-    assert "pair_cogging__channel_time_offset" in names
-    case = withheld.case_config(config, "pair_cogging__channel_time_offset", ipbmotor_fmu)
-    assert sorted(case["bench"]["effects"]) == ["channel_time_offset", "cogging"]
-    assert case["bench"]["true_parameter_offsets"] == {}
-    assert case["fmu"]["source"] == "path" and case["fmu"]["path"] == str(ipbmotor_fmu)
-    assert case["maneuvers"]["test"]["role"] == "test"
-    offset = case["bench"]["effects"]["channel_time_offset"]["offset_s"]
-    assert 1e-4 <= abs(offset) <= 1.5e-4
-    again = withheld.case_config(config, "pair_cogging__channel_time_offset", ipbmotor_fmu)
-    assert again["bench"]["effects"] == case["bench"]["effects"]  # seeded draws
-    assert withheld.case_config(config, "none", ipbmotor_fmu)["bench"]["effects"] == {}
-
-
-def test_named_effects_are_translated_through_the_expected_table():
-    expected = {"cogging": ["periodic(theta)"], "channel_time_offset": ["time_offset(*)"]}
-    record = {"which": {"found_effects": ["time_offset(d_a,d_b)", "periodic(theta)", "viscous(omega)"], "chosen": []},
-              "where": {"equations": {"states": {"omega": {"ratio_to_noise": 3.0}}}},
-              "how_far": {"gap_before": 0.3, "gap_after": 0.05}}
-    truth = {"effects": [{"name": "cogging", "parameters": {}}, {"name": "channel_time_offset", "parameters": {}}]}
-    row = withheld.case_row("pair_cogging__channel_time_offset", record, truth, expected)
-    assert row["found_effects"] == "channel_time_offset;cogging;viscous(omega)"
-    assert row["correct"] is True and row["shrink_factor"] == pytest.approx(6.0)
-    single = withheld.case_row("single_cogging", record, {"effects": truth["effects"][:1]}, expected)
-    assert single["correct"] is False  # the top-ranked named effect is not the withheld one
-    assert withheld.bench_effect_of("periodic(omega)", expected) is None
-
-
-def test_confusion_matrix_counts_detections_misses_and_spurious_names():
-    rows = [{"true_effects": "cogging;channel_time_offset", "found_effects": "channel_time_offset"},
-            {"true_effects": "none", "found_effects": "none"},
-            {"true_effects": "cogging", "found_effects": "cogging;viscous_friction"}]
-    labels, matrix = withheld.confusion_matrix(rows)
-    assert labels == ["channel_time_offset", "cogging", "viscous_friction", "none"]
-    at = {(labels[i], labels[j]): int(matrix[i, j]) for i in range(len(labels)) for j in range(len(labels))
-          if matrix[i, j]}
-    assert at == {("channel_time_offset", "channel_time_offset"): 1, ("cogging", "none"): 1,
-                  ("cogging", "cogging"): 1, ("none", "viscous_friction"): 1, ("none", "none"): 1}
-
-
-def test_bad_withheld_sections_are_named(tiny_config, ipbmotor_fmu):
-    config = copy.deepcopy(tiny_config)
-    config["withheld"]["effects"] = ["no_such_effect"]
-    with pytest.raises(ValueError, match="config.withheld.effects"):
-        withheld.case_names(config)
-    config = copy.deepcopy(tiny_config)
-    config["withheld"]["parameter_ranges"] = {"coulomb_friction": {"coulomb_torque_nm": "large"}}
-    with pytest.raises(ValueError, match="parameter_ranges.coulomb_friction.coulomb_torque_nm"):
-        withheld.case_config(config, "single_coulomb_friction", ipbmotor_fmu)
-    with pytest.raises(ValueError, match="unknown withheld case name"):
-        withheld.case_effects("double_trouble")
-
-
-def test_snakemake_plans_one_job_per_case_and_maneuver(tiny_config, ipbmotor_fmu, tmp_path):
-    config = copy.deepcopy(tiny_config)
+    config["withheld"].update({"seeds": [0, 1], "sizes_per_effect": 2})
     config["fmu"] = {**config["fmu"], "source": "path", "path": str(ipbmotor_fmu)}
     config["results_dir"] = str(tmp_path / "results")
     config["maneuvers"] = {m: {"role": v["role"], "raw": f"{config['results_dir']}/{config['case']}/raw/{m}.mf4"}
@@ -179,5 +113,8 @@ def test_snakemake_plans_one_job_per_case_and_maneuver(tiny_config, ipbmotor_fmu
     text = result.stdout + result.stderr
     counts = {line.split()[0]: int(line.split()[1]) for line in text.splitlines()
               if len(line.split()) == 2 and line.split()[1].isdigit()}
-    assert counts.get("withheld_emulate") == 6 and counts.get("withheld_diagnose") == 2
+    cases = 2 * (2 + 1)  # seeds x (two sizes of one effect + none)
+    assert counts.get("withheld_case") == cases and counts.get("withheld_diagnose") == cases
+    assert counts.get("withheld_emulate") == counts.get("withheld_segments") == 3 * cases
     assert counts.get("withheld_summary") == 1
+    assert "s1__single_coulomb_friction__size2" in text

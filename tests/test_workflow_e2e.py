@@ -252,13 +252,14 @@ def test_withheld_cases_follow_the_sections_they_are_derived_from(tmp_path):
     demo = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
     configfile = tmp_path / "demo.yaml"
     configfile.write_text(yaml.safe_dump(demo, sort_keys=False))
-    target = f"{demo['results_dir']}/withheld/cases/none.yaml"
+    target = f"{demo['results_dir']}/withheld/cases/s0__none.yaml"
     snakemake(tmp_path, configfile, target)
     assert planned_rules(snakemake(tmp_path, configfile, "-n", target).stdout) == set()
     changes = {
         "diagnosis": (_set("diagnosis", "selection", "bootstrap_samples", 201), {"withheld_case"}),
         "withheld.diagnosis": (_set("withheld", "diagnosis", "selection", "bootstrap_samples", 51), {"withheld_case"}),
         "withheld.expected": (_set("withheld", "expected", "cogging", ["periodic(*)"]), set()),
+        "withheld.background": (_set("withheld", "background", "pressure_sensor_lag", ["input_lag(*)"]), set()),
         "hpo": (_set("hpo", "max_resource_s", 1.0), set()),
         "evaluation": (_set("evaluation", "plot", "dpi", 61), set()),
     }

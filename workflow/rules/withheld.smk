@@ -1,13 +1,16 @@
-# Withheld-effect check (target `withheld`): for every effect of the bench's catalog (plus configured
-# pairs and a case without any effect) a case whose bench has the effect while the FMU lacks it is
-# generated, emulated, ingested, segmented and diagnosed; the summary compares with the ground truth.
-# Cases are wildcards, so `snakemake -j2 withheld` runs them in parallel.
+# Withheld-effect check (target `withheld`): per seed of config.withheld.seeds, cases whose bench has an
+# effect the FMU lacks (every effect of the bench's catalog at withheld.sizes_per_effect sizes, configured
+# pairs, and none) plus motor parameter offsets are generated, emulated, ingested, segmented and diagnosed;
+# the summary scores the diagnoses against the ground truth (hybridfmu.diagnosis.withheld_report).
+# Cases (ids s<seed>__...) are wildcards, so `snakemake -j2 withheld` runs them in parallel.
 from hybridfmu.diagnosis.withheld import case_names as _withheld_case_names
 
 WITHHELD = f"{config.get('results_dir', 'results')}/withheld"
 WITHHELD_CASES = _withheld_case_names(config) if config.get("withheld", {}).get("maneuvers") else []
 WITHHELD_MANEUVERS = list(config.get("withheld", {}).get("maneuvers", {}))
 WITHHELD_DURATION_S = config.get("withheld", {}).get("duration_s", 6.0)
+# read by the summary only (a change of them rescores, it does not regenerate or rediagnose any case)
+WITHHELD_SUMMARY_KEYS = ("expected", "targets", "background")
 
 
 def withheld_case_sections():
@@ -15,7 +18,8 @@ def withheld_case_sections():
     search or evaluation happens for it, and its maneuvers are those of config.withheld."""
     sections = config_sections("case", "results_dir", "seed", "fmu", "bench", "signals", "transforms", "roles",
                                "ingest", "segments", "model", "diagnosis")
-    sections["withheld"] = {key: value for key, value in config.get("withheld", {}).items() if key != "expected"}
+    sections["withheld"] = {key: value for key, value in config.get("withheld", {}).items()
+                            if key not in WITHHELD_SUMMARY_KEYS}
     return sections
 
 
@@ -29,9 +33,10 @@ rule withheld_case:
         fmu=fmu_path(),
     output:
         case=f"{WITHHELD}/cases/{{wcase}}.yaml",
+        draw=f"{WITHHELD}/cases/{{wcase}}.draw.json",
     params:
         # the sections a generated case is derived from (hybridfmu.diagnosis.withheld.case_config) and that
-        # its emulation, ingestion, segments and diagnosis read; withheld.expected only reaches the summary
+        # its emulation, ingestion, segments and diagnosis read; withheld.expected/targets/background only reach the summary
         config=withheld_case_sections(),
         duration_s=WITHHELD_DURATION_S,
     log:
@@ -107,13 +112,17 @@ rule withheld_summary:
         diagnoses=expand(f"{WITHHELD}/{{c}}/diagnosis/diagnosis.json", c=WITHHELD_CASES),
         truths=expand(f"{WITHHELD}/{{c}}/raw/{{m}}.truth.json", c=WITHHELD_CASES,
                       m=WITHHELD_MANEUVERS[-1:]),
+        draws=expand(f"{WITHHELD}/cases/{{c}}.draw.json", c=WITHHELD_CASES),
     output:
         csv=f"{WITHHELD}/summary.csv",
         confusion=f"{WITHHELD}/confusion.png",
+        detection=f"{WITHHELD}/detection.png",
         markdown=f"{WITHHELD}/summary.md",
     params:
         cases=WITHHELD_CASES,
         expected=config.get("withheld", {}).get("expected", {}),
+        targets=config.get("withheld", {}).get("targets", {}),
+        background=config.get("withheld", {}).get("background", {}),
     log:
         f"{WITHHELD}/logs/withheld_summary/withheld_summary.log",
     script:
@@ -124,4 +133,5 @@ rule withheld:
     input:
         f"{WITHHELD}/summary.csv",
         f"{WITHHELD}/confusion.png",
+        f"{WITHHELD}/detection.png",
         f"{WITHHELD}/summary.md",

@@ -1,9 +1,10 @@
-"""Rule withheld_summary: compare the withheld cases' diagnoses with their ground truth."""
+"""Rule withheld_summary: score the withheld cases' diagnoses against their ground truth and aggregate."""
 
-from hybridfmu.diagnosis.withheld import summarise
+from hybridfmu.diagnosis.withheld_report import summarise
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 summarise(list(snakemake.params.cases), list(snakemake.input.diagnoses), list(snakemake.input.truths),
-          snakemake.output.csv, snakemake.output.confusion, snakemake.output.markdown,
-          expected=dict(snakemake.params.expected))
+          list(snakemake.input.draws), snakemake.output.csv, snakemake.output.confusion, snakemake.output.detection,
+          snakemake.output.markdown, expected=dict(snakemake.params.expected), targets=dict(snakemake.params.targets),
+          background=dict(snakemake.params.background))

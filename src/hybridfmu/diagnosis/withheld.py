@@ -1,72 +1,97 @@
 """The withheld-effect check: cases whose bench has an effect the FMU lacks; does the diagnosis name it?
 
-For every effect of the bench's catalog (and for configured pairs, and for no effect at all) a
-case config is generated from the main case: the bench's true motor parameters equal the FMU's
-nominal ones (no parameter offsets), only the withheld effect(s) are switched on with parameters
-drawn (seeded) from documented ranges, and the maneuvers are the short ones of the ``withheld``
-section. Each case is emulated, ingested, segmented and diagnosed by the ordinary stage
-functions (no neural FMU); ``summarise`` compares what was found with the ground truth (the only
-place that reads it) and writes ``summary.csv``, a confusion-matrix plot and ``summary.md``.
+For every effect of the bench's catalog (and for configured pairs, and for no effect at all) and for every seed
+of ``withheld.seeds`` a case config is generated from the main case. Its bench has
 
-The bench names its effects (coulomb_friction, cogging, ...), the diagnosis names generic terms over
-roles (``coulomb(<state>)``, ``periodic(<state>)``, ...). The table ``withheld.expected`` of the config maps
-each bench effect to fnmatch patterns of diagnosis effect names (``{bench effect: [patterns]}``); a
-named effect counts as the bench effect whose pattern it matches. No mapping lives in code.
+- the withheld effect(s), with parameters drawn relative to the main case's ``bench.effects.<effect>`` (the
+  demo's): the *size* parameters (torques, coefficients, amplitude, dead time, time offset, inertia deviation)
+  are the demo's times a size scale s, log-uniform in ``withheld.size_range``; the *shape* parameters (Stribeck
+  and smoothing speeds, current smoothing, cogging order and phase, signs) are drawn independently, so an effect
+  never has exactly the demo's shape. ``withheld.sizes_per_effect`` single cases per effect and seed split the
+  log range into equal strata with one draw each, so every seed covers the range from well below to well above
+  what the diagnosis can detect; pairs and the none case get one case per seed (pairs: s log-uniform over the
+  whole range for each of the two effects);
+- motor parameter offsets like the demo bench's (``bench.true_parameter_offsets``), each drawn with the demo's
+  sign and x ``withheld.offset_scale_range`` of its magnitude, while the FMU keeps its nominal values: the
+  diagnosis' parameter-error candidates compete with the withheld effect, as on a real bench.
+
+Each case is emulated (its maneuvers truncated to ``duration_s``), ingested, segmented and diagnosed by the
+ordinary stage functions (no calibration, no neural FMU). The diagnosis sees the logs, the FMU and the case
+config without its ``bench`` section; only the scoring (:mod:`hybridfmu.diagnosis.withheld_scoring`) reads
+the bench's ground truth and the draws, and :mod:`hybridfmu.diagnosis.withheld_report` aggregates the scores
+into ``summary.csv``, ``summary.md``, the detection-limit and confusion figures.
+
+Case ids (Snakemake wildcard ``wcase``): ``s<seed>__single_<effect>__size<k>`` (stratum k = 1 .. sizes_per_effect,
+1 = the smallest sizes), ``s<seed>__pair_<a>__<b>`` and ``s<seed>__none``.
 """
 
 from __future__ import annotations
 
 import copy
-import csv
-import fnmatch
-import io
-import json
 import logging
 import math
+import re
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
-from hybridfmu.io import read_json, write_text_atomic
+from hybridfmu.io import write_json_atomic, write_text_atomic
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis.withheld")
 
-#: Parameter ranges of the withheld effects (bench parameter names). A list [lo, hi] is drawn uniformly;
-#: {choices: [...]} picks one; {around: c, magnitude: [lo, hi]} gives c +- a uniform magnitude (random sign).
-#: The ranges make each effect matter for the open-loop simulation: its open-loop angle error on the test
-#: maneuver is clearly above the no-effect level (~2e-3 rad). Weaker effects (e.g. a viscous coefficient of
-#: 1e-4 N m s or an offset of 2e-5 s) are still named, but leave no gap to shrink.
-DEFAULT_PARAMETER_RANGES: dict[str, dict[str, Any]] = {
-    "coulomb_friction": {"coulomb_torque_nm": [0.025, 0.05], "breakaway_torque_nm": [0.06, 0.09],
-                         "stribeck_speed_rad_s": [2.0, 6.0]},
-    "viscous_friction": {"coefficient_nm_s": [2.5e-4, 4.0e-4]},
-    "load_dependent_friction": {"coefficient_apply": [0.06, 0.12], "coefficient_release": [0.04, 0.10]},
-    "cogging": {"order_per_rev": {"choices": [12, 24, 36]}, "amplitude_nm": [0.01, 0.02],
-                "phase_rad": [0.0, 6.283]},
-    "inverter_deadtime": {"deadtime_s": [5.0e-7, 1.5e-6]},
-    "channel_time_offset": {"offset_s": {"around": 0.0, "magnitude": [1.0e-4, 1.5e-4]}},
-    "inertia_mismatch": {"scale": {"around": 1.0, "magnitude": [0.08, 0.2]}},
+#: How each bench parameter of a withheld effect is drawn, relative to the main case's value of it (the
+#: "reference": ``bench.effects.<effect>.<parameter>`` of the main case, else the bench catalog's default):
+#:
+#: - ``size``: reference x s (s = the case's size scale);
+#: - ``signed_size``: random sign x |reference| x s;
+#: - ``deviation_size``: 1 + random sign x |reference - 1| x s (a factor around 1);
+#: - ``{factor: [lo, hi]}``: reference x a log-uniform factor in [lo, hi] (a shape parameter);
+#: - ``{choices: [...]}``: one of the values (uniform); ``{uniform: [lo, hi]}``: uniform in [lo, hi];
+#: - a number: that value. A parameter without a draw keeps the reference value.
+#:
+#: Cogging is drawn as one harmonic; its reference is the main case's strongest harmonic.
+#: ``withheld.parameter_draws.<effect>.<parameter>`` overrides an entry.
+DEFAULT_PARAMETER_DRAWS: dict[str, dict[str, Any]] = {
+    "coulomb_friction": {"coulomb_torque_nm": "size", "breakaway_torque_nm": "size",
+                         "stribeck_speed_rad_s": {"factor": [0.5, 2.0]},
+                         "smoothing_speed_rad_s": {"factor": [0.5, 2.0]}},
+    "viscous_friction": {"coefficient_nm_s": "size"},
+    "load_dependent_friction": {"coefficient_apply": "size", "coefficient_release": "size",
+                                "smoothing_speed_rad_s": {"factor": [0.5, 2.0]}},
+    "cogging": {"amplitude_nm": "size", "order_per_rev": {"choices": [6, 12, 24, 36, 48]},
+                "phase_rad": {"uniform": [0.0, 2.0 * math.pi]}},
+    "inverter_deadtime": {"deadtime_s": "size", "current_smoothing_a": {"factor": [0.5, 2.0]}},
+    "channel_time_offset": {"offset_s": "signed_size"},
+    "inertia_mismatch": {"scale": "deviation_size"},
 }
 
-#: Names of the checked cases: single_<effect>, pair_<a>__<b>, none.
+SIZE_KINDS = ("size", "signed_size", "deviation_size")
 NONE_CASE = "none"
+_SEED_RE = re.compile(r"^s(\d+)__(.+)$")
+_SINGLE_RE = re.compile(r"^single_([a-z0-9_]+?)__size(\d+)$")
+_PAIR_RE = re.compile(r"^pair_([a-z0-9_]+?)__([a-z0-9_]+)$")
 
 
 def withheld_section(config: dict[str, Any]) -> dict[str, Any]:
     """The ``withheld`` section with defaults (the schema fills them for validated configs)."""
     section = copy.deepcopy(config.get("withheld") or {})
     section.setdefault("duration_s", 6.0)
-    section.setdefault("seed", 0)
+    section.setdefault("seeds", [0, 1, 2])
+    section.setdefault("size_range", [0.1, 3.0])
+    section.setdefault("sizes_per_effect", 2)
+    section.setdefault("offset_scale_range", [0.5, 1.5])
     section.setdefault("effects", [])
     section.setdefault("pairs", [])
     section.setdefault("none_case", True)
-    section.setdefault("parameter_ranges", {})
+    section.setdefault("parameter_draws", {})
     section.setdefault("maneuvers", {})
     section.setdefault("diagnosis", {})
     section.setdefault("expected", {})
+    section.setdefault("targets", {})
     return section
 
 
@@ -82,94 +107,306 @@ def catalog_effects(section: dict[str, Any]) -> list[str]:
     return names
 
 
+def _seeds(section: dict[str, Any]) -> list[int]:
+    seeds = section["seeds"]
+    if not isinstance(seeds, list) or not seeds or any(isinstance(s, bool) or not isinstance(s, int) or s < 0
+                                                       for s in seeds):
+        raise ValueError(f"config.withheld.seeds: expected a non-empty list of integers >= 0, got {seeds!r}")
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"config.withheld.seeds: seeds listed twice in {seeds}")
+    return list(seeds)
+
+
+def _sizes_per_effect(section: dict[str, Any]) -> int:
+    n = section["sizes_per_effect"]
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"config.withheld.sizes_per_effect: expected an integer >= 1, got {n!r}")
+    return n
+
+
+def _positive_range(section: dict[str, Any], key: str) -> tuple[float, float]:
+    value = section[key]
+    if (not isinstance(value, (list, tuple)) or len(value) != 2
+            or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)
+            or not 0 < float(value[0]) <= float(value[1])):
+        raise ValueError(f"config.withheld.{key}: expected [low, high] with 0 < low <= high, got {value!r}")
+    return float(value[0]), float(value[1])
+
+
 def case_names(config: dict[str, Any]) -> list[str]:
-    """Names of the withheld cases of a config, in a fixed order."""
+    """Ids of the withheld cases of a config, in a fixed order (seed by seed: singles, pairs, none)."""
     section = withheld_section(config)
-    names = [f"single_{e}" for e in catalog_effects(section)]
+    effects = catalog_effects(section)
+    n_sizes = _sizes_per_effect(section)
+    _positive_range(section, "size_range")
+    bases = [f"single_{e}__size{k}" for e in effects for k in range(1, n_sizes + 1)]
     for pair in section["pairs"]:
-        if len(pair) != 2:
-            raise ValueError(f"config.withheld.pairs: expected pairs of two effects, got {pair}")
+        if not isinstance(pair, (list, tuple)) or len(pair) != 2 or pair[0] == pair[1]:
+            raise ValueError(f"config.withheld.pairs: expected pairs of two different effects, got {pair}")
         catalog_effects({"effects": list(pair)})
-        names.append(f"pair_{pair[0]}__{pair[1]}")
+        bases.append(f"pair_{pair[0]}__{pair[1]}")
     if section["none_case"]:
-        names.append(NONE_CASE)
-    return names
+        bases.append(NONE_CASE)
+    return [f"s{seed}__{base}" for seed in _seeds(section) for base in bases]
+
+
+@dataclass(frozen=True)
+class CaseId:
+    """A parsed case id: seed, kind (``single``, ``pair``, ``none``), withheld effects, size stratum (singles)."""
+
+    name: str
+    seed: int
+    kind: str
+    effects: tuple[str, ...]
+    stratum: int | None = None
+
+    @property
+    def base(self) -> str:
+        """The id without the seed (the same case in every seed)."""
+        return self.name.split("__", 1)[1]
+
+
+def parse_case(name: str) -> CaseId:
+    """Parse a case id (module docstring). Raises ValueError for anything else."""
+    match = _SEED_RE.match(name)
+    base = match.group(2) if match else ""
+    if match and base == NONE_CASE:
+        return CaseId(name, int(match.group(1)), "none", ())
+    single = _SINGLE_RE.match(base) if match else None
+    if single:
+        return CaseId(name, int(match.group(1)), "single", (single.group(1),), int(single.group(2)))
+    pair = _PAIR_RE.match(base) if match else None
+    if pair:
+        return CaseId(name, int(match.group(1)), "pair", (pair.group(1), pair.group(2)))
+    raise ValueError(f"unknown withheld case name {name!r} (expected s<seed>__single_<effect>__size<k>, "
+                     "s<seed>__pair_<a>__<b> or s<seed>__none)")
 
 
 def case_effects(name: str) -> list[str]:
     """The effects withheld in the case ``name``."""
-    if name == NONE_CASE:
-        return []
-    if name.startswith("single_"):
-        return [name[len("single_"):]]
-    if name.startswith("pair_"):
-        return name[len("pair_"):].split("__")
-    raise ValueError(f"unknown withheld case name {name!r} (expected single_<effect>, pair_<a>__<b> or none)")
+    return list(parse_case(name).effects)
 
 
-def draw_value(spec: Any, rng: np.random.Generator, where: str) -> Any:
-    """One parameter value from its range spec (see ``DEFAULT_PARAMETER_RANGES``)."""
-    if isinstance(spec, (int, float)) and not isinstance(spec, bool):
-        return float(spec)
-    if isinstance(spec, list) and len(spec) == 2:
-        return float(rng.uniform(float(spec[0]), float(spec[1])))
-    if isinstance(spec, dict) and "choices" in spec:
-        return spec["choices"][int(rng.integers(len(spec["choices"])))]
-    if isinstance(spec, dict) and "around" in spec and "magnitude" in spec:
-        lo, hi = spec["magnitude"]
-        return float(spec["around"]) + float(rng.choice([-1.0, 1.0])) * float(rng.uniform(lo, hi))
-    raise ValueError(f"{where}: expected [lo, hi], {{choices: [...]}} or {{around: c, magnitude: [lo, hi]}}, "
-                     f"got {spec!r}")
+# ----------------------------------------------------------------------------------------- drawing
+
+def case_rng(master_seed: int, case: CaseId, purpose: str) -> np.random.Generator:
+    """The generator of one purpose (``size``, ``shape``, ``offsets``, ``bench``) of a case: seeded by the master
+    seed, the case's seed and the case id without its seed, so each draw is reproducible and independent of the
+    other cases and purposes."""
+    sequence = np.random.SeedSequence([int(master_seed), int(case.seed), zlib.crc32(case.base.encode()),
+                                       zlib.crc32(purpose.encode())])
+    return np.random.default_rng(sequence)
 
 
-def draw_effect_parameters(effect: str, ranges: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
-    """Bench parameters of ``effect`` drawn from ``ranges`` (cogging becomes one harmonic)."""
-    where = f"config.withheld.parameter_ranges.{effect}"
-    values = {key: draw_value(spec, rng, f"{where}.{key}") for key, spec in ranges.items()}
+def stratified_log_uniform(rng: np.random.Generator, low: float, high: float, stratum: int, strata: int) -> float:
+    """One draw, log-uniform within stratum ``stratum`` (1-based) of ``strata`` equal parts of [low, high] in
+    log scale (stratum 1 holds the smallest values)."""
+    if not 1 <= stratum <= strata:
+        raise ValueError(f"size stratum {stratum} outside 1..{strata} (config.withheld.sizes_per_effect)")
+    a, b = math.log(low), math.log(high)
+    u = (stratum - 1 + float(rng.uniform())) / strata
+    return float(math.exp(a + u * (b - a)))
+
+
+def reference_parameters(effect: str, bench: dict[str, Any]) -> dict[str, Any]:
+    """The main case's parameters of ``effect`` (``bench.effects.<effect>`` over the catalog's defaults), cogging
+    flattened to its strongest harmonic (``order_per_rev``, ``amplitude_nm``, ``phase_rad``)."""
+    from hybridfmu.bench.effects import EFFECTS as BENCH_EFFECTS
+
+    values = copy.deepcopy(BENCH_EFFECTS[effect].PARAMETERS)
+    configured = dict((bench.get("effects") or {}).get(effect) or {})
+    configured.pop("enabled", None)
+    values.update(configured)
     if effect == "cogging":
-        return {"harmonics": [{"order_per_rev": int(values.get("order_per_rev", 24)),
-                               "amplitude_nm": float(values.get("amplitude_nm", 0.01)),
-                               "phase_rad": float(values.get("phase_rad", 0.0))}]}
+        harmonics = values.get("harmonics") or []
+        if not harmonics:
+            raise ValueError("config.bench.effects.cogging.harmonics: expected at least one harmonic")
+        strongest = max(harmonics, key=lambda h: abs(float(h.get("amplitude_nm", 0.0))))
+        return {"order_per_rev": int(strongest.get("order_per_rev", 24)),
+                "amplitude_nm": float(strongest.get("amplitude_nm", 0.0)),
+                "phase_rad": float(strongest.get("phase_rad", 0.0))}
     return values
 
 
-def case_config(config: dict[str, Any], name: str, fmu_path: str | Path) -> dict[str, Any]:
+def effect_draws(effect: str, section: dict[str, Any]) -> dict[str, Any]:
+    """The draw specs of ``effect``: the defaults updated with ``withheld.parameter_draws.<effect>``."""
+    draws = copy.deepcopy(DEFAULT_PARAMETER_DRAWS.get(effect, {}))
+    override = (section.get("parameter_draws") or {}).get(effect) or {}
+    if not isinstance(override, dict):
+        raise ValueError(f"config.withheld.parameter_draws.{effect}: expected a mapping parameter -> draw")
+    draws.update(override)
+    if not any(_size_kind(spec) for spec in draws.values()):
+        raise ValueError(f"config.withheld.parameter_draws.{effect}: no size parameter (one of {list(SIZE_KINDS)}); "
+                         "the effect's size could not be varied")
+    return draws
+
+
+def _size_kind(spec: Any) -> str | None:
+    return spec if isinstance(spec, str) and spec in SIZE_KINDS else None
+
+
+def draw_value(spec: Any, reference: Any, scale: float, rng: np.random.Generator,
+               where: str) -> tuple[Any, float | None]:
+    """One parameter value from its draw spec (see ``DEFAULT_PARAMETER_DRAWS``) and the reference value.
+
+    Returns the value and, for a ``factor`` draw, the factor (else None).
+    """
+    if isinstance(spec, (int, float)) and not isinstance(spec, bool):
+        return float(spec), None
+    numeric = isinstance(reference, (int, float)) and not isinstance(reference, bool)
+    if isinstance(spec, str) and spec in SIZE_KINDS:
+        if not numeric:
+            raise ValueError(f"{where}: a {spec!r} draw needs a numeric reference value, got {reference!r}")
+        if spec == "size":
+            return float(reference) * scale, None
+        sign = float(rng.choice([-1.0, 1.0]))
+        if spec == "signed_size":
+            return sign * abs(float(reference)) * scale, None
+        return 1.0 + sign * abs(float(reference) - 1.0) * scale, None
+    if isinstance(spec, dict) and set(spec) == {"factor"}:
+        lo, hi = _pair(spec["factor"], where + ".factor")
+        if not numeric or lo <= 0:
+            raise ValueError(f"{where}.factor: expected 0 < lo <= hi and a numeric reference, got {spec['factor']!r} "
+                             f"and {reference!r}")
+        factor = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+        return float(reference) * factor, factor
+    if isinstance(spec, dict) and set(spec) == {"choices"} and isinstance(spec["choices"], list) and spec["choices"]:
+        return spec["choices"][int(rng.integers(len(spec["choices"])))], None
+    if isinstance(spec, dict) and set(spec) == {"uniform"}:
+        lo, hi = _pair(spec["uniform"], where + ".uniform")
+        return float(rng.uniform(lo, hi)), None
+    raise ValueError(f"{where}: expected size, signed_size, deviation_size, {{factor: [lo, hi]}}, "
+                     f"{{choices: [...]}}, {{uniform: [lo, hi]}} or a number, got {spec!r}")
+
+
+def _pair(value: Any, where: str) -> tuple[float, float]:
+    if (not isinstance(value, (list, tuple)) or len(value) != 2
+            or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value) or value[0] > value[1]):
+        raise ValueError(f"{where}: expected [lo, hi] with lo <= hi, got {value!r}")
+    return float(value[0]), float(value[1])
+
+
+def draw_effect_parameters(effect: str, section: dict[str, Any], bench: dict[str, Any], scale: float,
+                           rng: np.random.Generator) -> tuple[dict[str, Any], dict[str, float]]:
+    """Bench parameters of ``effect`` at size scale ``scale`` (shapes drawn from ``rng``) and the shape factors.
+
+    Returns ``(bench parameters, {parameter: factor})``; cogging's parameters are one harmonic
+    (``{"harmonics": [{order_per_rev, amplitude_nm, phase_rad}]}``).
+    """
+    reference = reference_parameters(effect, bench)
+    draws = effect_draws(effect, section)
+    values = dict(reference)
+    factors = {}
+    for key, spec in draws.items():
+        where = f"config.withheld.parameter_draws.{effect}.{key}"
+        if key not in reference:
+            raise ValueError(f"{where}: {effect} has no parameter {key!r}, expected some of {sorted(reference)}")
+        values[key], factor = draw_value(spec, reference[key], scale, rng, where)
+        if factor is not None:
+            factors[key] = factor
+    if effect == "cogging":
+        order = values["order_per_rev"]
+        if isinstance(order, bool) or not isinstance(order, (int, float)) or int(order) != order or order < 1:
+            raise ValueError(f"config.withheld.parameter_draws.cogging.order_per_rev: expected positive integers, "
+                             f"got {order!r}")
+        values = {"harmonics": [{"order_per_rev": int(order), "amplitude_nm": float(values["amplitude_nm"]),
+                                 "phase_rad": float(values["phase_rad"])}]}
+    return values, factors
+
+
+def _check_drawn(effect: str, parameters: dict[str, Any], bench: dict[str, Any], name: str) -> None:
+    """The bench accepts the drawn parameters (else the error names the draws and the case, not the generated
+    config)."""
+    from hybridfmu.bench.effects import EFFECTS as BENCH_EFFECTS
+
+    try:
+        BENCH_EFFECTS[effect](parameters, pwm_frequency_hz=float(bench.get("pwm_frequency_hz", 10000.0)),
+                              where=f"config.withheld.parameter_draws.{effect} (drawn for case {name})")
+    except ValueError as err:
+        raise ValueError(f"{err}; narrow config.withheld.size_range or the draws of config.withheld.parameter_draws."
+                         f"{effect}") from None
+
+
+def draw_offsets(section: dict[str, Any], bench: dict[str, Any], rng: np.random.Generator) -> dict[str, float]:
+    """Motor parameter offsets of a case: each of the main bench's ``true_parameter_offsets`` with its sign and a
+    magnitude x U(``withheld.offset_scale_range``) of the main bench's."""
+    lo, hi = _positive_range(section, "offset_scale_range")
+    offsets = {}
+    for name, value in sorted((bench.get("true_parameter_offsets") or {}).items()):
+        offsets[name] = float(value) * float(rng.uniform(lo, hi))
+    return offsets
+
+
+def draw_case(config: dict[str, Any], name: str) -> dict[str, Any]:
+    """What the bench of case ``name`` has (the draw record written beside the case config, for the scoring only).
+
+    Returns ``case``, ``seed``, ``kind``, ``effects``, ``stratum``, ``strata``, ``size_range``,
+    ``offset_scale_range``, ``size_scales`` (effect -> s), ``shape_factors`` (effect -> {parameter: factor}),
+    ``reference`` (effect -> the main case's parameters), ``parameters`` (effect -> the bench parameters),
+    ``parameter_offsets`` and ``reference_offsets`` (parameter -> relative offset), ``bench_seed``.
+    """
+    section = withheld_section(config)
+    case = parse_case(name)
+    if name not in case_names(config):
+        raise ValueError(f"case {name!r} is not a case of config.withheld (seeds {section['seeds']}, effects, "
+                         "pairs, sizes_per_effect, none_case)")
+    bench = config.get("bench")
+    if not bench:
+        raise ValueError("config.bench: the withheld-effect check needs the main case's bench section "
+                         "(sensors, controller, hydraulics, effects and offsets as references) to emulate its cases")
+    master = int(config.get("seed", 0))
+    low, high = _positive_range(section, "size_range")
+    strata = _sizes_per_effect(section)
+    size_rng = case_rng(master, case, "size")
+    scales = {}
+    for effect in case.effects:
+        if case.kind == "single":
+            scales[effect] = stratified_log_uniform(size_rng, low, high, case.stratum, strata)
+        else:
+            scales[effect] = float(math.exp(size_rng.uniform(math.log(low), math.log(high))))
+    shape_rng = case_rng(master, case, "shape")
+    parameters, factors = {}, {}
+    for effect in case.effects:
+        parameters[effect], factors[effect] = draw_effect_parameters(effect, section, bench, scales[effect], shape_rng)
+        _check_drawn(effect, parameters[effect], bench, name)
+    return {
+        "case": name, "seed": case.seed, "kind": case.kind, "effects": list(case.effects), "stratum": case.stratum,
+        "strata": strata if case.kind == "single" else None, "size_range": [low, high],
+        "offset_scale_range": list(_positive_range(section, "offset_scale_range")), "size_scales": scales,
+        "shape_factors": factors, "reference": {e: reference_parameters(e, bench) for e in case.effects},
+        "parameters": parameters,
+        "parameter_offsets": draw_offsets(section, bench, case_rng(master, case, "offsets")),
+        "reference_offsets": {k: float(v) for k, v in (bench.get("true_parameter_offsets") or {}).items()},
+        "bench_seed": int(case_rng(master, case, "bench").integers(0, 2 ** 31 - 1)),
+    }
+
+
+def case_config(config: dict[str, Any], name: str, fmu_path: str | Path,
+                draw: dict[str, Any] | None = None) -> dict[str, Any]:
     """The full, validated case config of the withheld case ``name`` derived from the main case ``config``."""
     from hybridfmu.config import validate_case_config
 
     section = withheld_section(config)
-    if "bench" not in config:
-        raise ValueError("config.bench: the withheld-effect check needs the main case's bench section "
-                         "(sensors, controller, hydraulics) to emulate its cases")
     if not section["maneuvers"]:
         raise ValueError("config.withheld.maneuvers: expected the bench maneuvers of the withheld cases "
                          "(train, validation and test)")
-    ranges = copy.deepcopy(DEFAULT_PARAMETER_RANGES)
-    for effect, override in (section.get("parameter_ranges") or {}).items():
-        ranges.setdefault(effect, {}).update(override)
-    master = int(config.get("seed", 0))
-    rng = np.random.default_rng(np.random.SeedSequence([master, int(section["seed"]), zlib.crc32(name.encode())]))
-    effects = {}
-    for effect in case_effects(name):
-        if effect not in ranges:
-            raise ValueError(f"config.withheld.parameter_ranges: no range for effect {effect!r}")
-        effects[effect] = draw_effect_parameters(effect, ranges[effect], rng)
+    draw = draw_case(config, name) if draw is None else draw
     results_dir = f"{config.get('results_dir', 'results')}/withheld"
     case = copy.deepcopy(config)
     case.pop("withheld", None)
     case["case"] = name
     case["results_dir"] = results_dir
-    case["seed"] = master
+    case["seed"] = int(config.get("seed", 0))
     case["fmu"] = {**copy.deepcopy(config["fmu"]), "source": "path", "path": str(fmu_path)}
     bench = case["bench"]
-    bench["seed"] = int(rng.integers(0, 2 ** 31 - 1))
-    bench["true_parameter_offsets"] = {}
-    bench["effects"] = effects
+    bench["seed"] = draw["bench_seed"]
+    bench["true_parameter_offsets"] = dict(draw["parameter_offsets"])
+    bench["effects"] = copy.deepcopy(draw["parameters"])
     bench["maneuvers"] = copy.deepcopy(section["maneuvers"])
     case["maneuvers"] = {m: {"role": spec.get("role", m), "raw": f"{results_dir}/{name}/raw/{m}.mf4"}
                          for m, spec in section["maneuvers"].items()}
     for m in case["maneuvers"]:
-        case["bench"]["maneuvers"][m].pop("role", None)
+        bench["maneuvers"][m].pop("role", None)
     diagnosis = copy.deepcopy(config.get("diagnosis", {}))
     _deep_update(diagnosis, section.get("diagnosis") or {})
     case["diagnosis"] = diagnosis
@@ -186,12 +423,18 @@ def _deep_update(target: dict[str, Any], update: dict[str, Any]) -> None:
 
 
 def write_case_config(config: dict[str, Any], name: str, fmu_path: str | Path, out_path: str | Path,
-                      duration_s: float | None = None) -> dict[str, Any]:
-    """Write the case config of ``name`` (YAML, with the truncation of its maneuvers as a comment)."""
-    case = case_config(config, name, fmu_path)
+                      draw_path: str | Path | None = None, duration_s: float | None = None) -> dict[str, Any]:
+    """Write the case config of ``name`` (YAML, with the truncation of its maneuvers as a comment) and, with
+    ``draw_path``, the draw record (:func:`draw_case`, JSON) the scoring reads."""
+    draw = draw_case(config, name)
+    case = case_config(config, name, fmu_path, draw)
     duration = withheld_section(config)["duration_s"] if duration_s is None else duration_s
-    header = (f"# Withheld-effect case {name!r}: the bench has {case_effects(name) or 'no effect'}, the FMU lacks it.\n"
+    scales = ", ".join(f"{e} x{s:.3g}" for e, s in draw["size_scales"].items()) or "no effect"
+    header = (f"# Withheld-effect case {name!r}: the bench has {scales} (size scales against the main case's "
+              f"effects) and parameter offsets {draw['parameter_offsets']}; the FMU lacks them.\n"
               f"# Generated from the main case {config.get('case')!r}; maneuvers truncated to {duration:g} s.\n")
+    if draw_path is not None:
+        write_json_atomic(draw_path, draw)
     write_text_atomic(out_path, header + yaml.safe_dump(case, sort_keys=False))
     return case
 
@@ -201,6 +444,11 @@ def load_case(path: str | Path) -> dict[str, Any]:
     from hybridfmu.config import load_case_config
 
     return load_case_config(path)
+
+
+def without_bench(case: dict[str, Any]) -> dict[str, Any]:
+    """The case config the data stages and the diagnosis get: everything but the bench (the ground truth)."""
+    return {key: value for key, value in case.items() if key != "bench"}
 
 
 def emulate_case(case_path: str | Path, maneuver: str, mdf_path: str | Path, truth_path: str | Path,
@@ -217,7 +465,7 @@ def ingest_case(case_path: str | Path, raw_path: str | Path, out_path: str | Pat
     """Ingest one raw log of a withheld case with the case's ingest settings."""
     from hybridfmu.data.ingest import ingest_to_parquet
 
-    ingest_to_parquet(raw_path, out_path, load_case(case_path), maneuver=Path(raw_path).stem)
+    ingest_to_parquet(raw_path, out_path, without_bench(load_case(case_path)), maneuver=Path(raw_path).stem)
 
 
 def segment_case(case_path: str | Path, data_path: str | Path, json_path: str | Path, png_path: str | Path,
@@ -225,181 +473,15 @@ def segment_case(case_path: str | Path, data_path: str | Path, json_path: str | 
     """Select the segments of one ingested maneuver of a withheld case."""
     from hybridfmu.data.segments import select_segments_to_files
 
-    select_segments_to_files(data_path, json_path, png_path, maneuver, load_case(case_path))
+    select_segments_to_files(data_path, json_path, png_path, maneuver, without_bench(load_case(case_path)))
 
 
 def diagnose_case(case_path: str | Path, fmu_path: str | Path, data_paths: dict[str, str | Path],
                   segments_paths: dict[str, str | Path], out_dir: str | Path) -> dict[str, Any]:
-    """Diagnose a withheld case (the FMU with its nominal parameters: the bench's true ones; no calibration,
-    no neural FMU, no MLflow run)."""
+    """Diagnose a withheld case: the FMU with its nominal parameters (the bench's differ by the case's offsets), no
+    calibration, no neural FMU, no MLflow run; the diagnosis never sees the case's bench section."""
     from hybridfmu.diagnosis.report import diagnose
 
-    case = load_case(case_path)
+    case = without_bench(load_case(case_path))
     return diagnose(case, fmu_path, data_paths, segments_paths, out_dir, best_json=None, mlflow=False)
 
-
-# ----------------------------------------------------------------------------------------- summary
-
-def _truth_parameters(truth: dict[str, Any]) -> dict[str, Any]:
-    return {effect["name"]: effect["parameters"] for effect in truth.get("effects", [])}
-
-
-def _fitted_parameters(record: dict[str, Any]) -> dict[str, Any]:
-    out = {}
-    for item in record["which"]["chosen"]:
-        out[f"{item['effect']} in d{item['equation']}/dt"] = {p["name"]: p["value"] for p in item["parameters"]}
-    return out
-
-
-def bench_effect_of(name: str, expected: dict[str, list[str]]) -> str | None:
-    """The bench effect whose patterns (``withheld.expected``) match the diagnosis effect ``name``, or None."""
-    for bench_effect, patterns in expected.items():
-        if any(fnmatch.fnmatchcase(name, p) for p in patterns):
-            return bench_effect
-    return None
-
-
-def case_row(name: str, record: dict[str, Any], truth: dict[str, Any],
-             expected: dict[str, list[str]] | None = None) -> dict[str, Any]:
-    """One row of ``summary.csv``: the named effects translated to bench effects through ``expected``.
-
-    Named effects that match no pattern are kept under their own name (they count as spurious).
-    """
-    expected = expected or {}
-    true_effects = [e["name"] for e in truth.get("effects", [])]
-    named = list(record["which"]["found_effects"])
-    found = list(dict.fromkeys(bench_effect_of(n, expected) or n for n in named))
-    if not true_effects:
-        correct = not found
-    elif len(true_effects) == 1:
-        correct = bool(found) and found[0] == true_effects[0]
-    else:
-        correct = all(e in found for e in true_effects)
-    far = record.get("how_far") or {}
-    before, after = far.get("gap_before"), far.get("gap_after")
-    shrink = before / after if before is not None and after not in (None, 0) else None
-    ratios = {k: v.get("ratio_to_noise") for k, v in record["where"]["equations"]["states"].items()}
-    return {
-        "case": name, "true_effects": ";".join(true_effects) or "none",
-        "true_params": json.dumps(_truth_parameters(truth), sort_keys=True),
-        "found_effects": ";".join(found) or "none", "named_effects": ";".join(named) or "none", "correct": correct,
-        "fitted_params": json.dumps(_fitted_parameters(record), sort_keys=True, default=float),
-        "gap_before": before, "gap_after": after, "shrink_factor": shrink,
-        "window_gap_before": far.get("window_gap_before"), "window_gap_after": far.get("window_gap_after"),
-        "ratio_to_noise": json.dumps(ratios, sort_keys=True, default=float),
-    }
-
-
-SUMMARY_COLUMNS = ["case", "true_effects", "true_params", "found_effects", "named_effects", "correct", "fitted_params",
-                   "gap_before", "gap_after", "shrink_factor", "window_gap_before", "window_gap_after",
-                   "ratio_to_noise"]
-
-
-def confusion_matrix(rows: list[dict[str, Any]]) -> tuple[list[str], np.ndarray]:
-    """Detection matrix over the cases, rows = withheld effect, columns = named effect (same labels, "none" last).
-
-    Per case: a withheld effect that was named counts on the diagonal, one that was missed in the
-    "none" column; a named effect that was not withheld counts in the "none" row; a case without
-    effects that names nothing counts at ("none", "none").
-    """
-    effects = sorted({e for r in rows for key in ("true_effects", "found_effects")
-                      for e in r[key].split(";")} - {"none"})
-    labels = effects + ["none"]
-    matrix = np.zeros((len(labels), len(labels)), dtype=int)
-    for r in rows:
-        true = [e for e in r["true_effects"].split(";") if e != "none"]
-        found = [e for e in r["found_effects"].split(";") if e != "none"]
-        for effect in true:
-            column = effect if effect in found else "none"
-            matrix[labels.index(effect), labels.index(column)] += 1
-        for effect in found:
-            if effect not in true:
-                matrix[labels.index("none"), labels.index(effect)] += 1
-        if not true and not found:
-            matrix[labels.index("none"), labels.index("none")] += 1
-    return labels, matrix
-
-
-def confusion_figure(rows: list[dict[str, Any]], path: Path, dpi: int = 120) -> Path:
-    """Confusion matrix of withheld (rows) against found (columns) effects."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from hybridfmu.io import atomic_path
-
-    labels, matrix = confusion_matrix(rows)
-    fig, ax = plt.subplots(figsize=(2.5 + 0.8 * len(labels), 1.8 + 0.6 * len(labels)))
-    ax.imshow(matrix, cmap="Blues", vmin=0, vmax=max(int(matrix.max()), 1))
-    for i in range(matrix.shape[0]):
-        for j in range(matrix.shape[1]):
-            if matrix[i, j]:
-                ax.text(j, i, str(matrix[i, j]), ha="center", va="center",
-                        color="white" if matrix[i, j] > matrix.max() / 2 else "black")
-    ax.set_xticks(range(len(labels)), labels, rotation=40, ha="right", fontsize=8)
-    ax.set_yticks(range(len(labels)), labels, fontsize=8)
-    ax.set_xlabel("effect named by the diagnosis (none = missed)")
-    ax.set_ylabel("effect withheld from the FMU (none = named although not withheld)")
-    ax.set_title("Withheld-effect check: detections over all cases", fontsize=10)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=dpi, format="png")
-    plt.close(fig)
-    return path
-
-
-def _fmt(value: Any) -> str:
-    if value is None:
-        return ""
-    if isinstance(value, float):
-        return f"{value:.6g}" if math.isfinite(value) else ""
-    return str(value)
-
-
-def summarise(names: list[str], diagnosis_paths: list[str | Path], truth_paths: list[str | Path],
-              csv_path: str | Path, figure_path: str | Path, markdown_path: str | Path,
-              expected: dict[str, list[str]] | None = None) -> list[dict[str, Any]]:
-    """Compare every case's diagnosis with its ground truth; write the CSV, the confusion plot and a markdown
-    table with the targets' verdicts. ``truth_paths``: one truth file (any maneuver) per case; ``expected``:
-    the ``withheld.expected`` table (bench effect -> diagnosis effect name patterns)."""
-    rows = [case_row(n, read_json(d), read_json(t), expected) for n, d, t in zip(names, diagnosis_paths, truth_paths)]
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=SUMMARY_COLUMNS)
-    writer.writeheader()
-    for row in rows:
-        writer.writerow({k: _fmt(row[k]) for k in SUMMARY_COLUMNS})
-    write_text_atomic(csv_path, buffer.getvalue())
-    confusion_figure(rows, Path(figure_path))
-    write_text_atomic(markdown_path, summary_markdown(rows))
-    return rows
-
-
-def targets(rows: list[dict[str, Any]]) -> dict[str, bool]:
-    """The check's targets: single cases top-1 correct, pairs both found, none case names nothing,
-    gap shrinks >= 3x wherever correct (cases with effects)."""
-    singles = [r for r in rows if r["case"].startswith("single_")]
-    pairs = [r for r in rows if r["case"].startswith("pair_")]
-    nones = [r for r in rows if r["case"] == NONE_CASE]
-    shrink = [r for r in rows if r["correct"] and r["true_effects"] != "none"]
-    return {
-        "single_top1_correct": all(r["correct"] for r in singles),
-        "pairs_both_found": all(r["correct"] for r in pairs),
-        "none_names_nothing": all(r["correct"] for r in nones),
-        "gap_shrinks_3x_where_correct": all(r["shrink_factor"] is not None and r["shrink_factor"] >= 3.0
-                                            for r in shrink),
-    }
-
-
-def summary_markdown(rows: list[dict[str, Any]]) -> str:
-    """Markdown table of the cases and the targets."""
-    lines = ["# Withheld-effect check", "",
-             "| case | withheld | named (rank order) | as bench effects | correct | gap before | gap after | shrink |",
-             "|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r['case']} | {r['true_effects']} | {r['named_effects']} | {r['found_effects']} | "
-                     f"{r['correct']} | {_fmt(r['gap_before'])} | {_fmt(r['gap_after'])} | {_fmt(r['shrink_factor'])} |")
-    lines += ["", "Targets:", ""] + [f"- {k}: {'met' if v else 'NOT met'}" for k, v in targets(rows).items()]
-    lines += ["", "gap = normalised open-loop error over the whole held-out test maneuver (target-weighted MAE over "
-                  "each target's spread); named effects are translated to bench effects by withheld.expected.", ""]
-    return "\n".join(lines)
