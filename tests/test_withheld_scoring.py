@@ -30,15 +30,19 @@ def record(items: list[dict], first_step: dict[str, dict[str, float]] | None = N
            model_parameters: dict | None = None) -> dict:
     """A diagnosis.json: ``items`` chosen in rank order, ``first_step``: equation -> {candidate: relative
     improvement} of the first selection step."""
-    equations = {}
+    equations, every = {}, []
     for state, candidates in (first_step or {"omega": {}}).items():
-        rows = [{"effect": e, "relative_improvement": r, "rss": 100.0 * (1 - r), "bic": -r}
+        rows = [{"effect": e, "equations": [state], "relative_improvement": r, "rss": 100.0 * (1 - r), "bic": -r,
+                 "bic_drop": r, "explained_share": r, "explained_to_noise": r, "rejected_because": "BIC drop below 10"}
                 for e, r in sorted(candidates.items(), key=lambda kv: -kv[1])]
+        every += rows
         equations[state] = {"steps": [{"candidates": rows, "chosen": None, "reason": "BIC drop 1 below 10"}],
                             "n_samples": 100, "rss_without_effects": 100.0, "noise_variance": 0.5}
     return {"case": "x", "model_parameters": model_parameters or {},
             "which": {"found_effects": list(dict.fromkeys(i["effect"] for i in items)), "chosen": items,
-                      "equations": equations},
+                      "equations": equations,
+                      "steps": [{"candidates": sorted(every, key=lambda r: r["bic"]), "chosen": None,
+                                 "reason": "BIC drop below 10"}]},
             "where": {"equations": {"states": {"omega": {"ratio_to_noise": 2.0}}}},
             "how_far": {"gap_before": gaps[0], "gap_after": gaps[1], "window_gap_before": gaps[2],
                         "window_gap_after": gaps[3]},
@@ -189,23 +193,32 @@ def test_aggregate_judges_the_cases_above_the_limits():
 
 def test_rejected_candidates_report_the_margins_against_the_thresholds():
     rec = record([])
-    rec["which"]["equations"] = {"i_d": {
-        "n_samples": 100, "rss_without_effects": 200.0, "noise_variance": 0.4,
-        "steps": [{"chosen": "parameter(R)", "reason": "accepted",
-                   "candidates": [{"effect": "parameter(R)", "rss": 120.0, "bic": 50.0, "relative_improvement": 0.4}]},
-                  {"chosen": None, "reason": "BIC drop 4.0 below 10.0",
-                   "candidates": [{"effect": "parameter(psi)", "rss": 119.0, "bic": 40.0, "relative_improvement": 0.01,
-                                   "within_tolerance": True},
-                                  {"effect": "viscous(i_d)", "rss": 114.0, "bic": 46.0,
-                                   "relative_improvement": 0.05}]}]}}
-    (row,) = rejected_candidates(rec)
+    rec["which"]["equations"] = {"i_d": {}, "omega": {}}
+    rec["which"]["steps"] = [
+        {"chosen": "parameter(R)", "reason": "accepted",
+         "candidates": [{"effect": "parameter(R)", "equations": ["i_d", "i_q"], "rss": 120.0, "bic": 50.0,
+                         "bic_drop": 30.0, "relative_improvement": 0.4, "rejected_because": None}]},
+        {"chosen": None, "reason": "BIC drop 2.0 below 10.0",
+         "candidates": [{"effect": "parameter(psi)", "equations": ["i_q", "omega"], "rss": 119.0, "bic": 40.0,
+                         "relative_improvement": 0.01, "within_tolerance": True},
+                        {"effect": "coulomb(omega)", "equations": ["omega"], "rss": 116.0, "bic": 44.0,
+                         "bic_drop": 6.0, "relative_improvement": 0.02, "explained_share": 0.01,
+                         "explained_to_noise": 0.2, "rejected_because": "BIC drop 6.0 below 10.0"},
+                        {"effect": "viscous(i_d)", "equations": ["i_d"], "rss": 114.0, "bic": 46.0, "bic_drop": 4.0,
+                         "relative_improvement": 0.05, "explained_share": 0.03, "explained_to_noise": 0.15,
+                         "rejected_because": "BIC drop 4.0 below 10.0"}]}]
+    by_equation = {row["equation"]: row for row in rejected_candidates(rec)}
+    row = by_equation["i_d"]
     assert row["effect"] == "viscous(i_d)" and row["chosen_before"] == ["parameter(R)"]
     assert row["bic_drop"] == pytest.approx(4.0) and row["relative_improvement"] == pytest.approx(0.05)
-    assert row["explained_share"] == pytest.approx(6.0 / 200.0)
-    assert row["explained_to_noise"] == pytest.approx(0.06 / 0.4)
-    first = record([], first_step={"omega": {"coulomb(omega)": 0.02}})
-    (row,) = rejected_candidates(first)
-    assert row["bic_drop"] == pytest.approx(100 * math.log(100.0 / 100) - (-0.02))
+    assert row["explained_share"] == pytest.approx(0.03) and row["explained_to_noise"] == pytest.approx(0.15)
+    assert row["reason"] == "BIC drop 4.0 below 10.0"
+    row = by_equation["omega"]  # the parameter error within tolerance is not weighed
+    assert row["effect"] == "coulomb(omega)" and row["bic_drop"] == pytest.approx(6.0)
+    accepted = record([])
+    accepted["which"]["steps"] = rec["which"]["steps"][:1]
+    (row,) = rejected_candidates(accepted)
+    assert row["effect"] is None and "max_effects_per_equation" in row["reason"]
 
 
 def test_summary_files_from_synthetic_cases(tmp_path):

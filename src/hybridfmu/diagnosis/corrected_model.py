@@ -129,7 +129,7 @@ class CorrectedModel:
             if change is not None:
                 name, value = change
                 if name in self.parameters:
-                    self.notes.append(f"{effect.name} in equation {effect.equation}: parameter {name} already "
+                    self.notes.append(f"{effect.name}: parameter {name} already "
                                       "corrected by a higher-ranked term; not applied")
                 else:
                     self.parameters[name] = value
@@ -144,14 +144,15 @@ class CorrectedModel:
                 for c in columns:
                     self.input_changes.setdefault(c, []).append((effect.kind, change))
                 continue
-            row = effect.row_function(coef, setting)
-            if row is not None:
-                self.rows.append((effect.equation, row))
-                continue
-            batch = effect.batch_function(coef, setting, helper)
-            if batch is None:
-                raise ValueError(f"{effect.name}: the effect offers no way to be added to the model")
-            self.batches.append((effect.equation, batch))
+            for member in getattr(effect, "members", [effect]):  # a joint effect in each of its equations
+                row = member.row_function(coef, setting)
+                if row is not None:
+                    self.rows.append((member.equation, row))
+                    continue
+                batch = member.batch_function(coef, setting, helper)
+                if batch is None:
+                    raise ValueError(f"{effect.name}: the effect offers no way to be added to the model")
+                self.batches.append((member.equation, batch))
 
     @property
     def has_correction(self) -> bool:

@@ -252,11 +252,15 @@ class Effect:
         log_scale: refine the ``continuous`` settings on a logarithmic scale (a setting at 0 then means
             "absent" and is not refined).
         coefficient_unit: unit of the linear coefficients (for the report).
+        model_wide: a change of an input or a model parameter, which acts on every equation the input or
+            parameter enters with one value (selected jointly over the equations,
+            :mod:`hybridfmu.diagnosis.joint`); False for a term local to its equation.
     """
 
     kind: str = ""
     continuous: str | tuple[str, ...] | None = None
     log_scale: bool = False
+    model_wide: bool = False
 
     def __init__(self, name: str, equation: int, description: str, formula: str, coefficient_unit: str = ""):
         self.name = name

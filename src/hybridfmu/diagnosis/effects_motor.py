@@ -60,6 +60,7 @@ class InverterDeadtime(Effect):
     kind = "deadtime"
     continuous = "current_scale_a"
     log_scale = True
+    model_wide = True
 
     def __init__(self, problem: Any, equation: int, duties: list[int], currents: tuple[int, int], angle: int,
                  pole_pairs: float, scales: list[float], pwm_frequency_hz: float):

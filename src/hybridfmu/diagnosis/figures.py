@@ -13,6 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from hybridfmu.diagnosis.joint import terms_in_equation  # noqa: E402
 from hybridfmu.io import atomic_path  # noqa: E402
 
 
@@ -103,10 +104,12 @@ def effects_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
                         ha="center", va="center", fontsize=9, wrap=True)
         axes[0, 0].set_axis_off()
         return _save(fig, path, dpi)
-    for ax, term in zip(axes[0], terms):
-        eq = term.effect.equation
+    for ax, term, item in zip(axes[0], terms, which["chosen"]):  # terms in the rank order of ``chosen``
+        eq = problem.state_names.index(item["equation"])  # the equation it explains most of
         y = cache.target(eq, names)
-        for other in [t for t in terms if t.effect.equation == eq and t is not term]:
+        others = [t for t in terms if t is not term]
+        (term,) = terms_in_equation([term], eq)
+        for other in terms_in_equation(others, eq):
             a = cache.design(other.effect, other.setting, names)
             y = y - (a @ other.coef if a.shape[1] else 0.0)
         a = cache.design(term.effect, term.setting, names)

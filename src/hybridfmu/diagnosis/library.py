@@ -387,6 +387,8 @@ class Saturation(StateEffect):
 # ----------------------------------------------------------------------------- inputs
 
 class InputEffect(Effect):
+    model_wide = True
+
     def __init__(self, problem, equation, input_index, kind, description, formula, unit):
         self.input = input_index
         self.kind = kind
@@ -667,6 +669,7 @@ class InputSaturation(InputEffect):
 
 class ParameterError(Effect):
     kind = "parameter"
+    model_wide = True
 
     def __init__(self, problem, equation, parameter):
         self.parameter = parameter

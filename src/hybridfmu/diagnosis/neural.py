@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from hybridfmu.diagnosis.corrected_model import shift_inputs
+from hybridfmu.diagnosis.joint import terms_in_equation
 from hybridfmu.diagnosis.selection import Term
 
 
@@ -74,7 +75,7 @@ def compare_learned_correction(model: Any, prepared: dict[str, Any], fit_names: 
         c = c_all[:, eq]
         total = float(np.sum((c - c.mean()) ** 2))
         joint = []
-        for term in [t for t in terms if t.effect.equation == eq]:
+        for term in terms_in_equation(terms, eq):
             parts = []
             for name in fit_names:
                 p = prepared[name]
@@ -97,9 +98,11 @@ def compare_learned_correction(model: Any, prepared: dict[str, Any], fit_names: 
             r2_joint = 1.0 - float(np.sum((c - design @ coef) ** 2)) / total
         per_equation[problem.state_names[eq]] = {"learned_correction_rms": float(np.sqrt(np.mean(c ** 2))),
                                                  "unit": problem.rate_unit(eq), "r2_joint": r2_joint}
-    for term in terms:
-        if term.effect.equation not in corrected:
-            rows.append({"effect": term.effect.name, "equation": problem.state_names[term.effect.equation],
+    for eq in problem.equations:
+        if eq in corrected:
+            continue
+        for term in terms_in_equation(terms, eq):
+            rows.append({"effect": term.effect.name, "equation": problem.state_names[eq],
                          "r2_fitted": None, "r2_refit": None, "note": "the ANN does not correct this equation"})
     gates = gate_values(model)
     return {"learned_delay_s": delay, "gates": gates if isinstance(gates, (dict, list)) else str(gates),

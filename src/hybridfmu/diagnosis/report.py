@@ -44,6 +44,13 @@ def _clean(value: Any) -> Any:
     return value
 
 
+def equations_text(item: dict[str, Any]) -> str:
+    """``d<state>/dt`` of every equation a named effect acts on (a change of an input or a parameter acts on
+    several), the one it explains most first."""
+    states = [item["equation"]] + [s for s in item.get("equations") or [] if s != item["equation"]]
+    return ", ".join(f"d{s}/dt" for s in states)
+
+
 def verdict(result: dict[str, Any]) -> str:
     """One paragraph: which equation carries the gap, what was found, how far it shrank."""
     problem = result["problem"]
@@ -57,7 +64,7 @@ def verdict(result: dict[str, Any]) -> str:
                      f"(equation error {s['rms_residual']:.3g} {s['unit']} RMS, {s['ratio_to_noise']:.2f} x its "
                      "noise floor).")
     if chosen:
-        names = ", ".join(f"{c['rank']}. {c['effect']} in d{c['equation']}/dt" for c in chosen)
+        names = ", ".join(f"{c['rank']}. {c['effect']} in {equations_text(c)}" for c in chosen)
         parts.append(f"Effects named (rank order): {names}.")
     else:
         ratios = ", ".join(f"d{k}/dt: {v['ratio_to_noise']:.2f}" for k, v in where["states"].items())
@@ -110,7 +117,8 @@ def diagnosis_record(result: dict[str, Any], config: dict[str, Any]) -> dict[str
         },
         "which": {
             "found_effects": list(dict.fromkeys(c["effect"] for c in which["chosen"])),
-            "chosen": which["chosen"], "equations": which["equations"], "skipped_candidates": which["skipped"],
+            "chosen": which["chosen"], "equations": which["equations"], "steps": which.get("steps") or [],
+            "skipped_candidates": which["skipped"],
         },
         "neural_fmu": result.get("neural"),
         "neural_fmu_error": result.get("neural_error"),
@@ -181,7 +189,9 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
         lines += ["No candidate effect is named: none removes enough of the equation error "
                   "(see the candidate tables below).", ""]
     for c in which["chosen"]:
-        lines += [f"### {c['rank']}. `{c['effect']}` in the equation of {named(c['equation'])}", "",
+        acting = [named(e) for e in c.get("equations") or [c["equation"]]]
+        lines += [f"### {c['rank']}. `{c['effect']}` in the equation of {named(c['equation'])}"
+                  + (f" (one value in the equations of {', '.join(acting)})" if len(acting) > 1 else ""), "",
                   f"{c['description']}: `{c['formula']}` (in {c['equation_unit']}). Drop-one score {c['score']:.4g} "
                   "(increase of the residual sum of squares without it, in residual variances).", "",
                   "| parameter | value | SE (regression) | SE (bootstrap over segments) | unit | spread over fitting "
@@ -192,23 +202,28 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
             lines.append(f"| {p['name']} | {_fmt(p['value'], 5)} | {_fmt(p['se'], 3)} | {_fmt(p.get('se_bootstrap'), 3)} "
                          f"| {p['unit'] or '-'} | {spread} |")
         lines.append("")
-    lines += ["### Candidates and selection steps", ""]
+    lines += ["### Candidates and selection steps", "",
+              "All examined equations are fitted together, each in units of its noise floor: a change of an input "
+              "or a model parameter takes one value in every equation it acts on; a local term acts on its own. "
+              "A candidate's residual removed is measured on the equation(s) it acts on.", ""]
     for state, info in which["equations"].items():
-        lines.append(f"**Equation of {named(state)}** ({info['n_candidates']} candidates, {info['n_samples']} samples, "
-                     f"{100 * info['explained_share']:.1f} % of the residual explained by the chosen effects; chosen per "
-                     f"fitting maneuver alone: {info['selection_per_maneuver'] or '-'})")
+        lines.append(f"- **Equation of {named(state)}**: {info['n_candidates']} candidates, {info['n_samples']} samples, "
+                     f"{100 * info['explained_share']:.1f} % of the residual explained by the chosen effects "
+                     f"({', '.join(info['chosen']) or 'none'}); chosen per fitting maneuver alone: "
+                     f"{info['selection_per_maneuver'] or '-'}")
+    lines.append("")
+    for k, step in enumerate(which.get("steps") or [], start=1):
+        lines += [f"Step {k}: {step['reason']}" + (f" ({step['chosen']})" if step.get("chosen") else "") + ".", "",
+                  "| candidate | equation(s) | setting | residual removed | BIC drop |", "|---|---|---|---|---|"]
+        ranked = sorted(step["candidates"], key=lambda c: c["bic"])[:12]
+        for cand in ranked:
+            setting = ", ".join(f"{key}={_fmt(v, 4)}" for key, v in cand["setting"].items()) or "-"
+            where = ", ".join(f"d{e}/dt" for e in cand.get("equations") or [])
+            lines.append(f"| {cand['effect']} | {where} | {setting} | {100 * cand['relative_improvement']:.2f} % | "
+                         f"{_fmt(cand.get('bic_drop'), 4)} |")
+        if len(step["candidates"]) > len(ranked):
+            lines.append(f"| ... {len(step['candidates']) - len(ranked)} more | | | | |")
         lines.append("")
-        for k, step in enumerate(info["steps"], start=1):
-            lines += [f"Step {k}: {step['reason']}.", "", "| candidate | setting | residual removed | BIC |",
-                      "|---|---|---|---|"]
-            ranked = sorted(step["candidates"], key=lambda c: c["bic"])[:12]
-            for cand in ranked:
-                setting = ", ".join(f"{key}={_fmt(v, 4)}" for key, v in cand["setting"].items()) or "-"
-                lines.append(f"| {cand['effect']} | {setting} | {100 * cand['relative_improvement']:.2f} % | "
-                             f"{cand['bic']:.1f} |")
-            if len(step["candidates"]) > len(ranked):
-                lines.append(f"| ... {len(step['candidates']) - len(ranked)} more | | | |")
-            lines.append("")
     if which["skipped_candidates"]:
         lines += ["Left out: " + "; ".join(f"{k} ({v})" for k, v in which["skipped_candidates"].items()), ""]
     nn = record.get("neural_fmu")

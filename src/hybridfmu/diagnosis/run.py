@@ -19,6 +19,8 @@ import numpy as np
 
 from hybridfmu.diagnosis.corrected_model import CorrectedModel, open_loop_errors, simulate, simulator_for
 from hybridfmu.diagnosis.derivatives import smooth_at
+from hybridfmu.diagnosis.joint import JOINT, StackedCache, effect_equations, effect_key, joint_candidates, \
+    terms_in_equation
 from hybridfmu.diagnosis.library import build_library
 from hybridfmu.diagnosis.prepare import (MeasuredManeuver, PreparedManeuver, fill_unmeasured, kernel_samples,
                                          load_maneuver, prepare_maneuver)
@@ -155,7 +157,7 @@ def _bootstrap_se(term: Term, draws: np.ndarray) -> dict[str, float]:
     return {name: float(np.std(v, ddof=1)) for name, v in values.items() if len(v) > 1 and np.ptp(v) > 0}
 
 
-def _fit_on(cache: DesignCache, selection: EquationSelection, names: list[str],
+def _fit_on(cache: Any, selection: EquationSelection, names: list[str],
             settings: SelectionSettings) -> list[Term]:
     """The chosen terms refitted on the maneuvers ``names`` alone (nonlinear settings re-optimised)."""
     terms = [Term(t.effect, dict(t.setting)) for t in selection.terms]
@@ -175,75 +177,136 @@ def _coef_cov(selection: EquationSelection, index: int) -> np.ndarray:
     return selection.fit.cov[start:start + sizes[index], start:start + sizes[index]]
 
 
+def equation_contribution(cache: DesignCache, term: Term, equation: int, names: list[str]) -> np.ndarray:
+    """(n,) what a fitted term adds to the kernel-averaged equation error of ``equation`` (its unit), zeros where it
+    does not act."""
+    parts = terms_in_equation([term], equation)
+    n = len(cache.target(equation, names))
+    if not parts:
+        return np.zeros(n)
+    design = cache.design(parts[0].effect, parts[0].setting, names)
+    return design @ term.coef if design.shape[1] else np.zeros(n)
+
+
+def _primary_equation(cache: DesignCache, term: Term, problem: Problem, names: list[str]) -> int:
+    """The equation a term explains most of, relative to that equation's noise floor."""
+    acting = effect_equations(term.effect)
+    if len(acting) == 1:
+        return acting[0]
+    energy = {}
+    for eq in acting:
+        contribution = equation_contribution(cache, term, eq, names)
+        noise = cache.noise_variance(eq, names)
+        energy[eq] = float(contribution @ contribution) / (noise if noise > 0 else 1.0)
+    return max(acting, key=lambda eq: energy[eq])
+
+
+def _step_record(step: Any, problem: Problem) -> dict[str, Any]:
+    candidates = []
+    for row in step.candidates:
+        row = dict(row)
+        row["equations"] = [problem.state_names[i] for i in row.get("equations", [])]
+        candidates.append(row)
+    return {"candidates": candidates, "chosen": step.chosen, "reason": step.reason}
+
+
+def _chosen_names(selection: EquationSelection, problem: Problem) -> dict[str, list[str]]:
+    """State -> names of the chosen effects acting on its equation."""
+    out: dict[str, list[str]] = {problem.state_names[eq]: [] for eq in problem.equations}
+    for term in selection.terms:
+        for eq in effect_equations(term.effect):
+            out[problem.state_names[eq]].append(term.effect.name)
+    return out
+
+
 def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], problem: Problem,
                    model: Any) -> dict[str, Any]:
-    """Selection per examined equation on the fitting maneuvers, ranking, uncertainty and stability."""
+    """One selection over all examined equations on the fitting maneuvers (:mod:`hybridfmu.diagnosis.joint`:
+    changes of an input or a parameter act on every equation with one value), ranking, uncertainty and
+    stability.
+
+    Returns ``chosen`` (per named effect: ``equation`` where it explains most, ``equations`` all it acts on,
+    parameters, stability, drop-one score, rank), ``steps`` (the selection's steps; candidates with the
+    equations they act on), ``equations`` (per state: its residual before and after, in the equation's unit,
+    the chosen effects acting there and the steps' candidates acting there), ``skipped``, ``terms``,
+    ``cache`` (per-equation designs).
+    """
     settings = problem.settings
     sel = SelectionSettings.from_config(settings.get("selection"))
     library, skipped = build_library(problem, prepared[fit_names[0]].inputs, model)
     cache = DesignCache([prepared[n].fit for n in prepared])
-    equations: dict[str, Any] = {}
+    stacked = StackedCache(cache, problem.equations)
+    candidates = joint_candidates(library, problem.equations)
+    started = time.perf_counter()
+    selection = select_equation(stacked, JOINT, candidates, fit_names, sel, label="all equations")
+    LOGGER.info("selection over %d equations: %d candidates, chosen %s (%.1f s)", len(problem.equations),
+                len(candidates), [t.effect.name for t in selection.terms], time.perf_counter() - started)
+    scores = drop_one_scores(stacked, selection, fit_names) if selection.terms else {}
+    draws = bootstrap_coefficients(stacked, selection.terms, JOINT, fit_names, sel.bootstrap_samples,
+                                   settings["seed"])
+    per_maneuver = {n: _fit_on(stacked, selection, [n], sel) for n in fit_names} \
+        if selection.terms and len(fit_names) > 1 else {}
+    separate: dict[str, dict[str, list[str]]] = {}
+    if len(fit_names) > 1:
+        for n in fit_names:
+            alone = select_equation(stacked, JOINT, candidates, [n], sel, label=f"all equations on {n}")
+            separate[n] = _chosen_names(alone, problem)
     chosen: list[dict[str, Any]] = []
-    terms_of: dict[tuple[str, str], Term] = {}
-    for count, eq in enumerate(problem.equations):
+    terms_of: dict[tuple[str, int], Term] = {}
+    for j, term in enumerate(selection.terms):
+        primary = _primary_equation(cache, term, problem, fit_names)
+        params = _physical(term, _coef_cov(selection, j))
+        boot = _bootstrap_se(term, draws[j])
+        stability = {}
+        for row in params:
+            values = {}
+            for n, terms in per_maneuver.items():
+                t = terms[j]
+                refit = {r["name"]: r["value"] for r in t.effect.physical(
+                    t.coef, np.zeros((len(t.coef), len(t.coef))), t.setting, {})}
+                if row["name"] in refit:
+                    values[n] = refit[row["name"]]
+            if len(values) > 1:
+                arr = np.array(list(values.values()))
+                denom = float(np.mean(np.abs(arr)))
+                stability[row["name"]] = {"per_maneuver": values,
+                                          "relative_spread": float(np.ptp(arr) / denom) if denom > 0 else 0.0}
+            row["se_bootstrap"] = boot.get(row["name"])
+        terms_of[effect_key(term.effect)] = term
+        chosen.append({
+            "effect": term.effect.name, "kind": term.effect.kind, "equation": problem.state_names[primary],
+            "equations": [problem.state_names[eq] for eq in effect_equations(term.effect)],
+            "equation_unit": problem.rate_unit(primary), "description": term.effect.description,
+            "formula": term.effect.formula, "setting": dict(term.setting),
+            "coefficients": dict(zip(term.effect.coefficient_names(term.setting), map(float, term.coef))),
+            "parameters": params, "stability": stability, "score": float(scores.get(effect_key(term.effect), 0.0)),
+            "_key": effect_key(term.effect),
+        })
+    steps = [_step_record(st, problem) for st in selection.steps]
+    chosen_in = _chosen_names(selection, problem)
+    equations: dict[str, Any] = {}
+    for eq in problem.equations:
         state = problem.state_names[eq]
-        effects = library.get(eq, [])
-        started = time.perf_counter()
-        selection = select_equation(cache, eq, effects, fit_names, sel, label=f"d{state}/dt")
-        LOGGER.info("equation d%s/dt (%d/%d): %d candidates, chosen %s (%.1f s)", state, count + 1,
-                    len(problem.equations), len(effects), [t.effect.name for t in selection.terms],
-                    time.perf_counter() - started)
-        scores = drop_one_scores(cache, selection, fit_names) if selection.terms else {}
-        draws = bootstrap_coefficients(cache, selection.terms, eq, fit_names, sel.bootstrap_samples,
-                                       settings["seed"] + count)
-        per_maneuver = {n: _fit_on(cache, selection, [n], sel) for n in fit_names} \
-            if selection.terms and len(fit_names) > 1 else {}
-        separate = {}
-        if len(fit_names) > 1:
-            for n in fit_names:
-                alone = select_equation(cache, eq, effects, [n], sel, label=f"d{state}/dt on {n}")
-                separate[n] = [t.effect.name for t in alone.terms]
-        for j, term in enumerate(selection.terms):
-            params = _physical(term, _coef_cov(selection, j))
-            boot = _bootstrap_se(term, draws[j])
-            stability = {}
-            for row in params:
-                values = {}
-                for n, terms in per_maneuver.items():
-                    t = terms[j]
-                    refit = {r["name"]: r["value"] for r in t.effect.physical(
-                        t.coef, np.zeros((len(t.coef), len(t.coef))), t.setting, {})}
-                    if row["name"] in refit:
-                        values[n] = refit[row["name"]]
-                if len(values) > 1:
-                    arr = np.array(list(values.values()))
-                    denom = float(np.mean(np.abs(arr)))
-                    stability[row["name"]] = {"per_maneuver": values,
-                                              "relative_spread": float(np.ptp(arr) / denom) if denom > 0 else 0.0}
-                row["se_bootstrap"] = boot.get(row["name"])
-            terms_of[(term.effect.name, state)] = term
-            chosen.append({
-                "effect": term.effect.name, "kind": term.effect.kind, "equation": state,
-                "equation_unit": problem.rate_unit(eq), "description": term.effect.description,
-                "formula": term.effect.formula, "setting": dict(term.setting),
-                "coefficients": dict(zip(term.effect.coefficient_names(term.setting), map(float, term.coef))),
-                "parameters": params, "stability": stability, "score": float(scores.get(term.effect.name, 0.0)),
-            })
-        steps = [{"candidates": list(st.candidates), "chosen": st.chosen, "reason": st.reason}
-                 for st in selection.steps]
-        explained = 1.0 - selection.fit.rss / selection.rss_none if selection.rss_none > 0 else 0.0
-        equations[state] = {"label": problem.labels.get(state, state), "unit": problem.rate_unit(eq),
-                            "n_candidates": len(effects), "n_samples": selection.n,
-                            "rss_without_effects": selection.rss_none, "rss_with_chosen": selection.fit.rss,
-                            "explained_share": explained, "noise_variance": selection.noise_variance,
-                            "mean_square_after": selection.fit.rss / max(selection.n, 1),
-                            "chosen": [t.effect.name for t in selection.terms], "steps": steps,
-                            "selection_per_maneuver": separate}
+        y = cache.target(eq, fit_names)
+        after = y - sum((equation_contribution(cache, t, eq, fit_names) for t in selection.terms), np.zeros(len(y)))
+        rss_none, rss_after = float(y @ y), float(after @ after)
+        acting = [e for e in candidates if eq in effect_equations(e)]
+        equations[state] = {
+            "label": problem.labels.get(state, state), "unit": problem.rate_unit(eq),
+            "n_candidates": len(acting), "n_samples": len(y), "rss_without_effects": rss_none,
+            "rss_with_chosen": rss_after, "explained_share": 1.0 - rss_after / rss_none if rss_none > 0 else 0.0,
+            "noise_variance": cache.noise_variance(eq, fit_names), "mean_square_after": rss_after / max(len(y), 1),
+            "chosen": chosen_in[state],
+            "steps": [{"candidates": [c for c in st["candidates"] if state in c["equations"]],
+                       "chosen": st["chosen"] if st["chosen"] in chosen_in[state] else None, "reason": st["reason"]}
+                      for st in steps],
+            "selection_per_maneuver": {n: names[state] for n, names in separate.items()}}
     chosen.sort(key=lambda c: c["score"], reverse=True)
     for rank, item in enumerate(chosen, start=1):
         item["rank"] = rank
-    terms = [terms_of[(c["effect"], c["equation"])] for c in chosen]
-    return {"chosen": chosen, "equations": equations, "skipped": skipped, "terms": terms, "cache": cache}
+    terms = [terms_of[c.pop("_key")] for c in chosen]
+    return {"chosen": chosen, "equations": equations, "steps": steps, "skipped": skipped, "terms": terms,
+            "cache": cache, "n_candidates": len(candidates)}
 
 
 # ----------------------------------------------------------------------------- how far
@@ -255,6 +318,11 @@ def _reference(meas: MeasuredManeuver, starts: np.ndarray, problem: Problem) -> 
         i = problem.state_names.index(state)
         ref[:, i] = starts[:, i]
     return ref
+
+
+def equation_label(effect: Any, problem: Problem) -> str:
+    """``d<state>/dt`` of the equation(s) an effect acts on, joined by commas."""
+    return ", ".join(f"d{problem.state_names[eq]}/dt" for eq in effect_equations(effect))
 
 
 def _mean_errors(per: dict[str, dict[str, float]]) -> dict[str, float]:
@@ -269,7 +337,7 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
     window_s = problem.settings["open_loop"].get("window_s")
     steps = []
     trajectories: dict[str, dict[str, np.ndarray]] = {name: {} for name in test_names}
-    variants = [("FMU", [])] + [(f"+ {t.effect.name} (d{problem.state_names[t.effect.equation]}/dt)", terms[:k + 1])
+    variants = [("FMU", [])] + [(f"+ {t.effect.name} ({equation_label(t.effect, problem)})", terms[:k + 1])
                                 for k, t in enumerate(terms)]
     notes: list[str] = []
     for label, active in variants:

@@ -31,6 +31,7 @@ from scipy.optimize import minimize, minimize_scalar
 from hybridfmu.config import ConfigError
 from hybridfmu.diagnosis.derivatives import smooth_at
 from hybridfmu.diagnosis.effects import Effect, EffectInputs
+from hybridfmu.diagnosis.joint import Block, effect_equations, effect_key
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -71,6 +72,7 @@ class SelectionSettings:
     max_effects_per_equation: int = 3
     bootstrap_samples: int = 200
     refine_iterations: int = 30
+    refine_candidates: int = 8
 
     @classmethod
     def from_config(cls, section: dict[str, Any] | None) -> "SelectionSettings":
@@ -134,6 +136,15 @@ class DesignCache:
         values = [self.maneuvers[n].noise_std[equation] ** 2 * len(self.maneuvers[n].centres) for n in names]
         count = sum(len(self.maneuvers[n].centres) for n in names)
         return float(sum(values) / max(count, 1))
+
+    def accepts(self, effect: Effect, equation: int) -> bool:
+        """Whether ``effect`` is a candidate of the selection in ``equation`` (its own equation's)."""
+        return effect.equation == equation
+
+    def blocks(self, equation: int, names: list[str]) -> list[Block]:
+        """The rows of ``equation``: a single block (see :class:`hybridfmu.diagnosis.joint.StackedCache`)."""
+        count = sum(len(self.maneuvers[n].centres) for n in names)
+        return [Block(equation, slice(0, count), self.noise_variance(equation, names))]
 
 
 @dataclass
@@ -214,6 +225,23 @@ def fit_terms(cache: DesignCache, terms: list[Term], equation: int, names: list[
 def bic(rss: float, n: int, k: int) -> float:
     """Bayesian information criterion of a Gaussian least-squares fit."""
     return n * math.log(max(rss, 1e-300) / max(n, 1)) + k * math.log(max(n, 2))
+
+
+def block_bic(residual: np.ndarray, blocks: list[Block], k: int) -> float:
+    """Bayesian information criterion of a least-squares fit whose rows fall into blocks of their own variance
+    (the equations of a stacked selection): sum over blocks of n_b log(rss_b / n_b), plus k log n. One block
+    gives :func:`bic`."""
+    value = 0.0
+    for block in blocks:
+        part = residual[block.rows]
+        if len(part):
+            value += len(part) * math.log(max(float(part @ part), 1e-300) / len(part))
+    return value + k * math.log(max(len(residual), 2))
+
+
+def block_rss(residual: np.ndarray, blocks: list[Block]) -> list[float]:
+    """Residual sum of squares of each block."""
+    return [float(residual[b.rows] @ residual[b.rows]) for b in blocks]
 
 
 def _identity(value: float) -> float:
@@ -344,36 +372,37 @@ def _structure(effect: Effect, setting: dict[str, float]) -> tuple:
 
 
 def best_setting(cache: DesignCache, active: list[Term], effect: Effect, equation: int, names: list[str],
-                 iterations: int) -> tuple[Term, float, list[dict[str, Any]]]:
+                 iterations: int, refine: bool = True) -> tuple[Term, float, list[dict[str, Any]]]:
     """Best nonlinear setting of ``effect`` added to ``active``: (term, rss, profile over the grid).
 
-    Settings are compared by BIC, n log(rss / n) + n_coef log n (n fitted rows, n_coef the effect's
-    coefficients at that setting): a setting with more coefficients (a Stribeck term, more harmonics, an
-    asymmetry) must earn them. The grid's best setting of each structure (:func:`_structure`: the same
-    coefficients and discrete settings, differing only in continuous values) is refined (:func:`_refine`)
-    before the structures are compared, so a structure is not preferred for making up for a coarse grid.
-    The profile lists every grid setting's ``rss`` and ``bic``.
+    Settings are compared by BIC (:func:`block_bic`: n log(rss / n) + n_coef log n for one equation, n fitted
+    rows, n_coef the effect's coefficients at that setting): a setting with more coefficients (a Stribeck term,
+    more harmonics, an asymmetry) must earn them. The grid's best setting of each structure (:func:`_structure`:
+    the same coefficients and discrete settings, differing only in continuous values) is refined
+    (:func:`_refine`, unless ``refine`` is False) before the structures are compared, so a structure is not
+    preferred for making up for a coarse grid. The profile lists every grid setting's ``rss`` and ``bic``.
     """
     grid = effect.grid()
-    n = len(cache.target(equation, names))
+    blocks = cache.blocks(equation, names)
     profile = []
     per_structure: dict[tuple, tuple[float, float, dict[str, float]]] = {}
     for setting in grid:
-        rss = fit_terms(cache, active + [Term(effect, setting)], equation, names).rss
-        score = bic(rss, n, len(effect.coefficient_names(setting)))
-        profile.append({"setting": dict(setting), "rss": rss, "bic": score})
+        fit = fit_terms(cache, active + [Term(effect, setting)], equation, names)
+        score = block_bic(fit.residual, blocks, len(effect.coefficient_names(setting)))
+        profile.append({"setting": dict(setting), "rss": fit.rss, "bic": score})
         key = _structure(effect, setting)
         if key not in per_structure or score < per_structure[key][0]:
-            per_structure[key] = (score, rss, setting)
+            per_structure[key] = (score, fit.rss, setting)
     best_score, best_rss, best, best_se = math.inf, math.inf, grid[0], {}
     for score, rss, setting in per_structure.values():
         setting_se: dict[str, float] = {}
-        if effect.continuous_parameters():
+        if refine and effect.continuous_parameters():
             refined, refined_rss, refined_se = _refine(cache, active, effect, setting, rss, grid, equation, names,
                                                        iterations)
             if refined_rss is not None and refined_rss <= rss:
                 setting, rss, setting_se = refined, refined_rss, refined_se
-            score = bic(rss, n, len(effect.coefficient_names(setting)))
+                fit = fit_terms(cache, active + [Term(effect, setting)], equation, names)
+                score = block_bic(fit.residual, blocks, len(effect.coefficient_names(setting)))
         if score < best_score:
             best_score, best_rss, best, best_se = score, rss, setting, setting_se
     return Term(effect, dict(best), setting_se=best_se), best_rss, profile
@@ -401,68 +430,119 @@ class EquationSelection:
     steps: list[SelectionStep]
 
 
+def _candidate_row(cache, active: list[Term], term: Term, rss: float, equation: int, names: list[str],
+                   blocks: list[Block], rss_cur_blocks: list[float], rss_none_blocks: list[float], bic_cur: float,
+                   grid_sizes: dict[tuple, int], settings: SelectionSettings) -> dict[str, Any]:
+    """One candidate of a forward step, measured on the blocks (equations) it acts on."""
+    effect = term.effect
+    k = sum(count_parameters(t, grid_sizes[effect_key(t.effect)]) for t in active + [term])
+    fit = fit_terms(cache, active + [term], equation, names)
+    acting = set(effect_equations(effect))
+    own = [j for j, b in enumerate(blocks) if b.equation in acting or b.equation == equation]
+    own_cur = sum(rss_cur_blocks[j] for j in own)
+    own_none = sum(rss_none_blocks[j] for j in own)
+    own_rows = sum(blocks[j].rows.stop - blocks[j].rows.start for j in own)
+    own_noise = sum((blocks[j].rows.stop - blocks[j].rows.start) * blocks[j].noise_variance for j in own)
+    explained = sum(rss_cur_blocks) - fit.rss
+    score = block_bic(fit.residual, blocks, k)
+    error = effect.relative_error(fit.coefs[-1]) if fit.coefs and len(fit.coefs[-1]) else None
+    return {"effect": effect.name, "equations": sorted(acting), "setting": term.setting, "rss": fit.rss,
+            "relative_improvement": explained / own_cur if own_cur > 0 else 0.0,
+            "explained_share": explained / own_none if own_none > 0 else 0.0,
+            "explained_to_noise": explained / own_noise if own_noise > 0 else math.inf,
+            "at_noise": own_rows > 0 and own_cur <= own_noise * (1.0 + settings.noise_margin),
+            "bic": score, "bic_drop": bic_cur - score, "relative_parameter_error": error,
+            "within_tolerance": error is not None and abs(error) < settings.parameter_tolerance,
+            "term": term, "rss_blocks": block_rss(fit.residual, blocks)}
+
+
+def _rejection(row: dict[str, Any], settings: SelectionSettings, counts: dict[int, int]) -> str | None:
+    """Why a candidate may not enter (None: it may)."""
+    full = [eq for eq in row["equations"] if counts.get(eq, 0) >= settings.max_effects_per_equation]
+    if full:
+        return f"{settings.max_effects_per_equation} effects already chosen in the equation(s) {full}"
+    if row["bic_drop"] < settings.min_bic_drop:
+        return f"BIC drop {row['bic_drop']:.1f} below {settings.min_bic_drop}"
+    if row["relative_improvement"] < settings.min_relative_improvement:
+        return f"relative improvement {row['relative_improvement']:.3f} below {settings.min_relative_improvement}"
+    if row["explained_share"] < settings.min_share_of_initial:
+        return (f"explains {100 * row['explained_share']:.2f} % of the initial residual, below "
+                f"{100 * settings.min_share_of_initial:g} %")
+    if row["explained_to_noise"] < settings.min_explained_to_noise:
+        return (f"explains a mean square of {row['explained_to_noise']:.3g} noise variances, below "
+                f"{settings.min_explained_to_noise}")
+    if row["at_noise"]:
+        return "the residual of its equation(s) is at the noise floor"
+    return None
+
+
 def select_equation(cache: DesignCache, equation: int, effects: list[Effect], names: list[str],
                     settings: SelectionSettings, label: str = "") -> EquationSelection:
-    """Stepwise forward selection among ``effects`` (those of ``equation``) on the maneuvers ``names``."""
-    effects = [e for e in effects if e.equation == equation]
+    """Stepwise forward selection among ``effects`` (those the cache accepts for ``equation``) on the maneuvers
+    ``names``.
+
+    ``cache`` is a :class:`DesignCache` (one equation) or a :class:`hybridfmu.diagnosis.joint.StackedCache`
+    (all examined equations, ``equation`` = ``JOINT``). At each step every remaining candidate is fitted with
+    those already chosen at its grid settings; the ``refine_candidates`` best by BIC have their continuous
+    settings refined. A candidate may enter when it passes every threshold of ``settings``, measured on the
+    blocks (equations) it acts on; the one with the lowest BIC among those enters. The selection stops when
+    none may; the step records why the best one (lowest BIC, not a parameter error within tolerance) may not.
+    """
+    effects = [e for e in effects if cache.accepts(e, equation)]
     y = cache.target(equation, names)
     n = len(y)
+    blocks = cache.blocks(equation, names)
     noise_var = cache.noise_variance(equation, names)
     active: list[Term] = []
-    grid_sizes = {e.name: len(e.grid()) for e in effects}
+    grid_sizes = {effect_key(e): len(e.grid()) for e in effects}
     rss_cur = float(y @ y)
     rss_none = rss_cur
-    bic_cur = bic(rss_cur, n, 0)
+    rss_none_blocks = block_rss(y, blocks)
+    rss_cur_blocks = list(rss_none_blocks)
+    bic_cur = block_bic(y, blocks, 0)
+    counts: dict[int, int] = {}
     steps: list[SelectionStep] = []
-    while len(active) < settings.max_effects_per_equation and n > 0:
-        remaining = [e for e in effects if e.name not in {t.effect.name for t in active}]
+    limit = settings.max_effects_per_equation * max(len(blocks), 1)
+    while len(active) < limit and n > 0:
+        chosen_keys = {effect_key(t.effect) for t in active}
+        remaining = [e for e in effects if effect_key(e) not in chosen_keys]
         if not remaining:
             break
-        rows_info = []
-        for effect in remaining:
-            term, rss, _ = best_setting(cache, active, effect, equation, names, settings.refine_iterations)
-            k = sum(count_parameters(t, grid_sizes[t.effect.name]) for t in active + [term])
-            fit = fit_terms(cache, active + [term], equation, names)
-            error = effect.relative_error(fit.coefs[-1]) if fit.coefs and len(fit.coefs[-1]) else None
-            rows_info.append({"effect": effect.name, "setting": term.setting, "rss": rss,
-                              "relative_improvement": (rss_cur - rss) / rss_cur if rss_cur > 0 else 0.0,
-                              "bic": bic(rss, n, k), "relative_parameter_error": error,
-                              "within_tolerance": error is not None and abs(error) < settings.parameter_tolerance,
-                              "term": term})
+
+        def row_of(effect: Effect, refine: bool) -> dict[str, Any]:
+            term, rss, _ = best_setting(cache, active, effect, equation, names, settings.refine_iterations, refine)
+            return _candidate_row(cache, active, term, rss, equation, names, blocks, rss_cur_blocks,
+                                  rss_none_blocks, bic_cur, grid_sizes, settings)
+
+        rows_info = sorted((row_of(e, False) for e in remaining), key=lambda r: r["bic"])
+        top = max(int(settings.refine_candidates), 1)
+        for j, row in enumerate(rows_info[:top]):
+            if row["term"].effect.continuous_parameters():
+                rows_info[j] = row_of(row["term"].effect, True)
         rows_info.sort(key=lambda r: r["bic"])
         eligible = [r for r in rows_info if not r["within_tolerance"]]
+        for r in rows_info:
+            r["rejected_because"] = "parameter error within the tolerance" if r["within_tolerance"] else \
+                _rejection(r, settings, counts)
+        record = [{k: v for k, v in r.items() if k not in ("term", "rss_blocks")} for r in rows_info]
         if not eligible:
-            steps.append(SelectionStep(candidates=[{k: v for k, v in r.items() if k != "term"} for r in rows_info],
-                                       chosen=None, reason="the remaining candidates are parameter errors within the "
-                                                           f"tolerance of {settings.parameter_tolerance:g}"))
+            steps.append(SelectionStep(candidates=record, chosen=None,
+                                       reason="the remaining candidates are parameter errors within the "
+                                              f"tolerance of {settings.parameter_tolerance:g}"))
             break
-        best = eligible[0]
-        at_noise = rss_cur / n <= noise_var * (1.0 + settings.noise_margin)
-        if best["bic"] > bic_cur - settings.min_bic_drop:
-            reason = f"BIC drop {bic_cur - best['bic']:.1f} below {settings.min_bic_drop}"
-        elif best["relative_improvement"] < settings.min_relative_improvement:
-            reason = (f"relative improvement {best['relative_improvement']:.3f} below "
-                      f"{settings.min_relative_improvement}")
-        elif rss_cur - best["rss"] < settings.min_share_of_initial * rss_none:
-            reason = (f"explains {100 * (rss_cur - best['rss']) / rss_none:.2f} % of the initial residual, below "
-                      f"{100 * settings.min_share_of_initial:g} %")
-        elif (rss_cur - best["rss"]) / n < settings.min_explained_to_noise * noise_var:
-            reason = (f"explains a mean square of {(rss_cur - best['rss']) / n:.4g}, below "
-                      f"{settings.min_explained_to_noise} x the noise variance {noise_var:.4g}")
-        elif at_noise:
-            reason = (f"remaining residual at the noise floor (mean square {rss_cur / n:.4g} vs noise "
-                      f"{noise_var:.4g})")
-        else:
-            reason = "accepted"
-        steps.append(SelectionStep(
-            candidates=[{k: v for k, v in r.items() if k != "term"} for r in rows_info],
-            chosen=best["effect"] if reason == "accepted" else None, reason=reason))
+        reasons = [r["rejected_because"] for r in eligible]
+        passing = [r for r, why in zip(eligible, reasons) if why is None]
+        best = passing[0] if passing else eligible[0]
+        reason = "accepted" if passing else reasons[0]
+        steps.append(SelectionStep(candidates=record, chosen=best["effect"] if passing else None, reason=reason))
         LOGGER.info("selection %s step %d: best %s (rel. improvement %.3f, BIC %.1f -> %.1f): %s", label or equation,
                     len(steps), best["effect"], best["relative_improvement"], bic_cur, best["bic"], reason)
-        if reason != "accepted":
+        if not passing:
             break
         active.append(best["term"])
-        rss_cur, bic_cur = best["rss"], best["bic"]
+        for eq in best["equations"]:
+            counts[eq] = counts.get(eq, 0) + 1
+        rss_cur, bic_cur, rss_cur_blocks = best["rss"], best["bic"], best["rss_blocks"]
     active = _polish(cache, active, equation, names, settings)
     fit = fit_terms(cache, active, equation, names)
     for term, coef in zip(active, fit.coefs):
@@ -486,14 +566,15 @@ def _polish(cache, active: list[Term], equation: int, names, settings) -> list[T
 
 
 def drop_one_scores(cache: DesignCache, selection: EquationSelection, names: list[str]) -> dict[str, float]:
-    """Increase of the RSS when each chosen term is dropped, in units of the final residual variance."""
+    """Increase of the RSS when each chosen term is dropped, in units of the final residual variance, keyed by
+    :func:`hybridfmu.diagnosis.joint.effect_key`."""
     scores = {}
     final = selection.fit
     variance = final.rss / max(final.n - sum(len(c) for c in final.coefs), 1)
     for j, term in enumerate(selection.terms):
         others = selection.terms[:j] + selection.terms[j + 1:]
         rss = fit_terms(cache, others, selection.equation, names).rss
-        scores[term.effect.name] = (rss - final.rss) / max(variance, 1e-300)
+        scores[effect_key(term.effect)] = (rss - final.rss) / max(variance, 1e-300)
     return scores
 
 

@@ -268,14 +268,14 @@ def score_case(record: dict[str, Any], truth: dict[str, Any], draw: dict[str, An
         scoring = SCORING.get(effect)
         items = findings[effect]
         acting = scoring.equations if scoring else ()
-        preferred = [i for i in items if i["equation"] in acting] + [i for i in items if i["equation"] not in acting]
+        preferred = [i for i in items if _acts_on(i, acting)] + [i for i in items if not _acts_on(i, acting)]
         ctx = _scoring_context(record, truth, true_params[effect])
         true_value = true_size(effect, true_params[effect])
         fitted, source, note = _fitted_value(effect, preferred, ctx) if items else (None, "", "missed")
         per_effect.append({
             "effect": effect, "detected": bool(items),
-            "named_in": sorted({i["equation"] for i in items}),
-            "where_correct": any(i["equation"] in acting for i in items),
+            "named_in": sorted({e for i in items for e in i.get("equations") or [i["equation"]]}),
+            "where_correct": any(_acts_on(i, acting) for i in items),
             "size_scale": (draw.get("size_scales") or {}).get(effect),
             "effect_size": effect_size(record, list(expected.get(effect, []))),
             "true_value": true_value, "fitted_value": fitted, "fitted_from": source,
@@ -328,6 +328,12 @@ def _error_token(effect: dict[str, Any]) -> float | str:
     return "mismatch" if "mismatch" in effect["note"] else "n/a"
 
 
+def _acts_on(item: dict[str, Any], acting: tuple[str, ...]) -> bool:
+    """Whether a named effect acts on one of the equations ``acting`` (a change of an input or a parameter is
+    named with every equation it acts on, ``equations``)."""
+    return any(e in acting for e in item.get("equations") or [item["equation"]])
+
+
 def _ratio(before: float | None, after: float | None) -> float | None:
     if before is None or after is None or after <= 0:
         return None
@@ -351,30 +357,22 @@ def selection_thresholds(record: dict[str, Any]) -> dict[str, float]:
 
 
 def rejected_candidates(record: dict[str, Any]) -> list[dict[str, Any]]:
-    """Per examined equation, the strongest candidate its selection rejected at its last step.
+    """Per examined equation, the strongest candidate acting on it that the selection rejected at its last step.
 
-    The strongest is the one the selection weighed (lowest BIC among those that are not parameter errors within
-    the tolerance). Returns one dict per equation: ``equation``, ``effect`` (None when the last step accepted one,
-    i.e. the selection stopped at ``max_effects_per_equation``), ``bic_drop`` (BIC before minus with it),
-    ``relative_improvement`` (of the remaining residual sum of squares), ``explained_share`` (of the equation's
-    initial residual sum of squares), ``explained_to_noise`` (explained mean square / the noise variance),
-    ``reason`` (the selection's) and ``chosen_before`` (the effects accepted before).
+    The selection runs over all examined equations at once (``which.steps``); per equation, the strongest is the
+    candidate acting on it with the lowest BIC among those that are not parameter errors within the tolerance.
+    Returns one dict per equation: ``equation``, ``effect`` (None when the last step accepted one), ``bic_drop``
+    (BIC before minus with it), ``relative_improvement`` (of the remaining residual sum of squares of the
+    equation(s) it acts on), ``explained_share`` (of their initial residual sum of squares), ``explained_to_noise``
+    (explained mean square / the noise variance), ``reason`` (why it may not enter) and ``chosen_before``
+    (the effects accepted before, over all equations).
     """
+    which = record.get("which") or {}
+    steps = which.get("steps") or []
+    chosen_before = [st["chosen"] for st in steps if st.get("chosen")]
+    last = steps[-1] if steps else None
     out = []
-    for state, eq in ((record.get("which") or {}).get("equations") or {}).items():
-        steps = eq.get("steps") or []
-        n = int(eq.get("n_samples") or 0)
-        rss_none = float(eq.get("rss_without_effects") or 0.0)
-        noise = float(eq.get("noise_variance") or 0.0)
-        rss_cur = rss_none
-        bic_cur = n * math.log(max(rss_none, 1e-300) / max(n, 1)) if n else None
-        chosen_before = []
-        last = steps[-1] if steps else None
-        for step in steps[:-1]:
-            picked = next((c for c in step["candidates"] if c["effect"] == step["chosen"]), None)
-            if picked is not None:
-                rss_cur, bic_cur = float(picked["rss"]), float(picked["bic"])
-                chosen_before.append(step["chosen"])
+    for state in (which.get("equations") or {}):
         row = {"equation": state, "effect": None, "bic_drop": None, "relative_improvement": None,
                "explained_share": None, "explained_to_noise": None, "reason": None, "chosen_before": chosen_before}
         if last is None:
@@ -382,16 +380,16 @@ def rejected_candidates(record: dict[str, Any]) -> list[dict[str, Any]]:
         elif last.get("chosen") is not None:
             row["reason"] = f"accepted {last['chosen']} at the last step (max_effects_per_equation reached)"
         else:
-            weighed = [c for c in last["candidates"] if not c.get("within_tolerance")]
+            weighed = [c for c in last["candidates"] if not c.get("within_tolerance") and state in c.get("equations", [])]
             if weighed:
-                best = weighed[0]
-                rss = float(best["rss"])
-                row.update({"effect": best["effect"],
-                            "bic_drop": None if bic_cur is None else bic_cur - float(best["bic"]),
+                best = min(weighed, key=lambda c: float(c["bic"]))
+                row.update({"effect": best["effect"], "bic_drop": best.get("bic_drop"),
                             "relative_improvement": float(best["relative_improvement"]),
-                            "explained_share": (rss_cur - rss) / rss_none if rss_none > 0 else None,
-                            "explained_to_noise": (rss_cur - rss) / n / noise if n and noise > 0 else None})
-            row["reason"] = last.get("reason")
+                            "explained_share": best.get("explained_share"),
+                            "explained_to_noise": best.get("explained_to_noise")})
+                row["reason"] = best.get("rejected_because") or last.get("reason")
+            else:
+                row["reason"] = last.get("reason")
         out.append(row)
     return out
 
