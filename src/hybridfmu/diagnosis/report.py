@@ -118,6 +118,7 @@ def diagnosis_record(result: dict[str, Any], config: dict[str, Any]) -> dict[str
         "which": {
             "found_effects": list(dict.fromkeys(c["effect"] for c in which["chosen"])),
             "chosen": which["chosen"], "equations": which["equations"], "steps": which.get("steps") or [],
+            "calibration": which.get("calibration") or [],
             "skipped_candidates": which["skipped"],
         },
         "neural_fmu": result.get("neural"),
@@ -212,6 +213,15 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                      f"({', '.join(info['chosen']) or 'none'}); chosen per fitting maneuver alone: "
                      f"{info['selection_per_maneuver'] or '-'}")
     lines.append("")
+    if which.get("calibration"):
+        lines += ["Parameter errors are fitted from the start (a calibration in equation-error form, refitted with "
+                  "every candidate); each is kept only if it would pass the selection's thresholds entering last.", "",
+                  "| parameter error | equation(s) | relative error | BIC drop | outcome |", "|---|---|---|---|---|"]
+        for row in which["calibration"]:
+            where = ", ".join(f"d{e}/dt" for e in row.get("equations") or [])
+            lines.append(f"| {row['effect']} | {where} | {_fmt(row.get('relative_parameter_error'), 3)} | "
+                         f"{_fmt(row.get('bic_drop'), 4)} | {row['outcome']} |")
+        lines.append("")
     for k, step in enumerate(which.get("steps") or [], start=1):
         lines += [f"Step {k}: {step['reason']}" + (f" ({step['chosen']})" if step.get("chosen") else "") + ".", "",
                   "| candidate | equation(s) | setting | residual removed | BIC drop |", "|---|---|---|---|---|"]

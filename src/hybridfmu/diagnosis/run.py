@@ -207,7 +207,7 @@ def _step_record(step: Any, problem: Problem) -> dict[str, Any]:
         row = dict(row)
         row["equations"] = [problem.state_names[i] for i in row.get("equations", [])]
         candidates.append(row)
-    return {"candidates": candidates, "chosen": step.chosen, "reason": step.reason}
+    return {"candidates": candidates, "chosen": step.chosen, "reason": step.reason, "kind": step.kind}
 
 
 def _chosen_names(selection: EquationSelection, problem: Problem) -> dict[str, list[str]]:
@@ -237,8 +237,11 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
     cache = DesignCache([prepared[n].fit for n in prepared])
     stacked = StackedCache(cache, problem.equations)
     candidates = joint_candidates(library, problem.equations)
+    calibrate = [c for c in candidates if c.kind == "parameter"] if sel.calibrate_parameters else []
+    candidates = [c for c in candidates if not any(c is b for b in calibrate)]
     started = time.perf_counter()
-    selection = select_equation(stacked, JOINT, candidates, fit_names, sel, label="all equations")
+    selection = select_equation(stacked, JOINT, candidates, fit_names, sel, label="all equations",
+                                calibrate=calibrate)
     LOGGER.info("selection over %d equations: %d candidates, chosen %s (%.1f s)", len(problem.equations),
                 len(candidates), [t.effect.name for t in selection.terms], time.perf_counter() - started)
     scores = drop_one_scores(stacked, selection, fit_names) if selection.terms else {}
@@ -249,7 +252,8 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
     separate: dict[str, dict[str, list[str]]] = {}
     if len(fit_names) > 1:
         for n in fit_names:
-            alone = select_equation(stacked, JOINT, candidates, [n], sel, label=f"all equations on {n}")
+            alone = select_equation(stacked, JOINT, candidates, [n], sel, label=f"all equations on {n}",
+                                    calibrate=calibrate)
             separate[n] = _chosen_names(alone, problem)
     chosen: list[dict[str, Any]] = []
     terms_of: dict[tuple[str, int], Term] = {}
@@ -290,7 +294,7 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
         y = cache.target(eq, fit_names)
         after = y - sum((equation_contribution(cache, t, eq, fit_names) for t in selection.terms), np.zeros(len(y)))
         rss_none, rss_after = float(y @ y), float(after @ after)
-        acting = [e for e in candidates if eq in effect_equations(e)]
+        acting = [e for e in candidates + calibrate if eq in effect_equations(e)]
         equations[state] = {
             "label": problem.labels.get(state, state), "unit": problem.rate_unit(eq),
             "n_candidates": len(acting), "n_samples": len(y), "rss_without_effects": rss_none,
@@ -298,15 +302,18 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
             "noise_variance": cache.noise_variance(eq, fit_names), "mean_square_after": rss_after / max(len(y), 1),
             "chosen": chosen_in[state],
             "steps": [{"candidates": [c for c in st["candidates"] if state in c["equations"]],
-                       "chosen": st["chosen"] if st["chosen"] in chosen_in[state] else None, "reason": st["reason"]}
+                       "chosen": st["chosen"] if st["chosen"] in chosen_in[state] else None, "reason": st["reason"],
+                       "kind": st["kind"]}
                       for st in steps],
             "selection_per_maneuver": {n: names[state] for n, names in separate.items()}}
     chosen.sort(key=lambda c: c["score"], reverse=True)
     for rank, item in enumerate(chosen, start=1):
         item["rank"] = rank
     terms = [terms_of[c.pop("_key")] for c in chosen]
-    return {"chosen": chosen, "equations": equations, "steps": steps, "skipped": skipped, "terms": terms,
-            "cache": cache, "n_candidates": len(candidates)}
+    calibration = [{**row, "equations": [problem.state_names[i] for i in row["equations"]]}
+                   for row in selection.calibration]
+    return {"chosen": chosen, "equations": equations, "steps": steps, "calibration": calibration, "skipped": skipped,
+            "terms": terms, "cache": cache, "n_candidates": len(candidates) + len(calibrate)}
 
 
 # ----------------------------------------------------------------------------- how far

@@ -73,6 +73,8 @@ class SelectionSettings:
     bootstrap_samples: int = 200
     refine_iterations: int = 30
     refine_candidates: int = 8
+    calibrate_parameters: bool = True
+    max_exchange_rounds: int = 4
 
     @classmethod
     def from_config(cls, section: dict[str, Any] | None) -> "SelectionSettings":
@@ -89,6 +91,10 @@ class SelectionSettings:
             raise ConfigError(f"config.diagnosis.selection: unknown {unknown}; expected some of "
                               f"{sorted(cls.__dataclass_fields__)}")
         for key, value in section.items():
+            if key == "calibrate_parameters":
+                if not isinstance(value, bool):
+                    raise ConfigError(f"config.diagnosis.selection.{key}: expected true or false, got {value!r}")
+                continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
                 raise ConfigError(f"config.diagnosis.selection.{key}: expected a number >= 0, got {value!r}")
         return cls(**section)
@@ -415,6 +421,7 @@ class SelectionStep:
     candidates: list[dict[str, Any]]
     chosen: str | None
     reason: str
+    kind: str = "forward"  # or "exchange": ``chosen`` replaced a term (``reason`` names it)
 
 
 @dataclass
@@ -428,6 +435,7 @@ class EquationSelection:
     n: int
     noise_variance: float
     steps: list[SelectionStep]
+    calibration: list[dict[str, Any]] = field(default_factory=list)
 
 
 def _candidate_row(cache, active: list[Term], term: Term, rss: float, equation: int, names: list[str],
@@ -476,8 +484,102 @@ def _rejection(row: dict[str, Any], settings: SelectionSettings, counts: dict[in
     return None
 
 
+def _eliminate(cache, active: list[Term], base: list[Term], equation: int, names: list[str], blocks: list[Block],
+               rss_none_blocks: list[float], grid_sizes: dict[tuple, int], settings: SelectionSettings,
+               label: str) -> tuple[list[Term], list[dict[str, Any]]]:
+    """Backward elimination of the calibrated terms ``base`` (parameter errors) from ``active``: while one of them
+    would not pass the thresholds if it entered last, the one whose removal raises the BIC least is dropped.
+    Returns the remaining active terms and one record per calibrated term (``kept`` or why it was dropped)."""
+    records: dict[tuple, dict[str, Any]] = {}
+    while True:
+        candidates = [t for t in active if any(t is b for b in base)]
+        if not candidates:
+            break
+        rows = []
+        for term in candidates:
+            others = [t for t in active if t is not term]
+            fit = fit_terms(cache, others, equation, names)
+            k = sum(count_parameters(t, grid_sizes[effect_key(t.effect)]) for t in others)
+            row = _candidate_row(cache, others, term, 0.0, equation, names, blocks, block_rss(fit.residual, blocks),
+                                 rss_none_blocks, block_bic(fit.residual, blocks, k), grid_sizes, settings)
+            row["rejected_because"] = "parameter error within the tolerance" if row["within_tolerance"] else \
+                _rejection(row, settings, {})
+            rows.append(row)
+        failing = [r for r in rows if r["rejected_because"] is not None]
+        if not failing:
+            for row in rows:
+                records[effect_key(row["term"].effect)] = _calibration_record(row, "kept")
+            break
+        dropped = min(failing, key=lambda r: r["bic_drop"])
+        records[effect_key(dropped["term"].effect)] = _calibration_record(dropped, "dropped: "
+                                                                          + dropped["rejected_because"])
+        LOGGER.info("selection %s: calibrated %s dropped (%s)", label or equation, dropped["effect"],
+                    dropped["rejected_because"])
+        active = [t for t in active if t is not dropped["term"]]
+    return active, [records[effect_key(t.effect)] for t in base if effect_key(t.effect) in records]
+
+
+def _best_exchange(cache, active: list[Term], pool: list[Effect], equation: int, names: list[str],
+                   blocks: list[Block], rss_none_blocks: list[float], grid_sizes: dict[tuple, int],
+                   settings: SelectionSettings) -> tuple[Term, dict[str, Any]] | None:
+    """The best exchange of one active term for one candidate not in use: the pair whose exchange lowers the BIC
+    most, by at least ``min_bic_drop``, the candidate passing every threshold as if it entered last in the place of
+    the term (a forward step can commit early to a term that merely resembles what is there, e.g. a damping for a
+    lagging load signal). A model-wide term (an input or a parameter change) is exchanged only for another
+    model-wide one. None if there is no such exchange. The candidate's continuous settings are refined for
+    the ``refine_candidates`` best by BIC at their grid settings."""
+    if not active:
+        return None
+    k_all = sum(count_parameters(t, grid_sizes[effect_key(t.effect)]) for t in active)
+    fit_all = fit_terms(cache, active, equation, names)
+    bic_all = block_bic(fit_all.residual, blocks, k_all)
+    in_use = {effect_key(t.effect) for t in active}
+    best: tuple[Term, dict[str, Any]] | None = None
+    for out in active:
+        others = [t for t in active if t is not out]
+        fit = fit_terms(cache, others, equation, names)
+        k = sum(count_parameters(t, grid_sizes[effect_key(t.effect)]) for t in others)
+        rss_blocks, bic_others = block_rss(fit.residual, blocks), block_bic(fit.residual, blocks, k)
+
+        def row_of(effect: Effect, refine: bool) -> dict[str, Any]:
+            term, rss, _ = best_setting(cache, others, effect, equation, names, settings.refine_iterations, refine)
+            return _candidate_row(cache, others, term, rss, equation, names, blocks, rss_blocks, rss_none_blocks,
+                                  bic_others, grid_sizes, settings)
+
+        # a change of the whole model is exchanged only for another one: a local term in its place would stand
+        # in for it in one equation (the surrogates the joint selection exists to avoid)
+        allowed = [e for e in pool if effect_key(e) not in in_use
+                   and (e.model_wide or not getattr(out.effect, "model_wide", False))]
+        rows = sorted((row_of(e, False) for e in allowed), key=lambda r: r["bic"])
+        rows = rows[:max(int(settings.refine_candidates), 1)]
+        rows = sorted((row_of(r["term"].effect, True) if r["term"].effect.continuous_parameters() else r
+                       for r in rows), key=lambda r: r["bic"])
+        counts: dict[int, int] = {}
+        for t in others:
+            for eq in effect_equations(t.effect):
+                counts[eq] = counts.get(eq, 0) + 1
+        for row in rows:
+            gain = bic_all - row["bic"]
+            if row["within_tolerance"] or gain < settings.min_bic_drop:
+                break
+            if _rejection(row, settings, counts) is None:
+                if best is None or gain > best[1]["bic_gain"]:
+                    row["bic_gain"] = gain
+                    best = (out, row)
+                break
+    return best
+
+
+def _calibration_record(row: dict[str, Any], outcome: str) -> dict[str, Any]:
+    return {"effect": row["effect"], "equations": row["equations"], "relative_parameter_error":
+            row["relative_parameter_error"], "bic_drop": row["bic_drop"], "relative_improvement":
+            row["relative_improvement"], "explained_share": row["explained_share"],
+            "explained_to_noise": row["explained_to_noise"], "outcome": outcome}
+
+
 def select_equation(cache: DesignCache, equation: int, effects: list[Effect], names: list[str],
-                    settings: SelectionSettings, label: str = "") -> EquationSelection:
+                    settings: SelectionSettings, label: str = "", calibrate: list[Effect] | None = None
+                    ) -> EquationSelection:
     """Stepwise forward selection among ``effects`` (those the cache accepts for ``equation``) on the maneuvers
     ``names``.
 
@@ -487,22 +589,29 @@ def select_equation(cache: DesignCache, equation: int, effects: list[Effect], na
     settings refined. A candidate may enter when it passes every threshold of ``settings``, measured on the
     blocks (equations) it acts on; the one with the lowest BIC among those enters. The selection stops when
     none may; the step records why the best one (lowest BIC, not a parameter error within tolerance) may not.
+
+    ``calibrate``: linear effects (the model's parameter errors) fitted from the start and refitted with every
+    candidate, a calibration in equation-error form, so a combination of parameter errors is not named as one
+    surrogate effect; after the forward steps each is kept only if it would pass the thresholds entering last
+    (:func:`_eliminate`; the outcome per effect in ``EquationSelection.calibration``).
     """
     effects = [e for e in effects if cache.accepts(e, equation)]
+    base = [Term(e, dict(e.grid()[0])) for e in (calibrate or []) if cache.accepts(e, equation)]
     y = cache.target(equation, names)
     n = len(y)
     blocks = cache.blocks(equation, names)
     noise_var = cache.noise_variance(equation, names)
-    active: list[Term] = []
-    grid_sizes = {effect_key(e): len(e.grid()) for e in effects}
-    rss_cur = float(y @ y)
-    rss_none = rss_cur
+    active: list[Term] = list(base)
+    grid_sizes = {effect_key(e): len(e.grid()) for e in effects + [t.effect for t in base]}
+    rss_none = float(y @ y)
     rss_none_blocks = block_rss(y, blocks)
-    rss_cur_blocks = list(rss_none_blocks)
-    bic_cur = block_bic(y, blocks, 0)
+    start = fit_terms(cache, active, equation, names)
+    rss_cur = start.rss
+    rss_cur_blocks = block_rss(start.residual, blocks)
+    bic_cur = block_bic(start.residual, blocks, sum(count_parameters(t, 1) for t in active))
     counts: dict[int, int] = {}
     steps: list[SelectionStep] = []
-    limit = settings.max_effects_per_equation * max(len(blocks), 1)
+    limit = settings.max_effects_per_equation * max(len(blocks), 1) + len(base)
     while len(active) < limit and n > 0:
         chosen_keys = {effect_key(t.effect) for t in active}
         remaining = [e for e in effects if effect_key(e) not in chosen_keys]
@@ -543,12 +652,36 @@ def select_equation(cache: DesignCache, equation: int, effects: list[Effect], na
         for eq in best["equations"]:
             counts[eq] = counts.get(eq, 0) + 1
         rss_cur, bic_cur, rss_cur_blocks = best["rss"], best["bic"], best["rss_blocks"]
+    calibration: list[dict[str, Any]] = []
+    exchanged: list[dict[str, Any]] = []
+    pool = effects + [t.effect for t in base]
+    for _ in range(int(settings.max_exchange_rounds) + 1):
+        if base:
+            active, calibration = _eliminate(cache, active, base, equation, names, blocks, rss_none_blocks,
+                                             grid_sizes, settings, label)
+        exchange = _best_exchange(cache, active, pool, equation, names, blocks, rss_none_blocks, grid_sizes,
+                                  settings) if settings.max_exchange_rounds > 0 else None
+        if exchange is None:
+            break
+        out, row = exchange
+        LOGGER.info("selection %s: %s exchanged for %s (BIC %.1f lower)", label or equation, out.effect.name,
+                    row["effect"], row["bic_gain"])
+        steps.append(SelectionStep(candidates=[{k: v for k, v in row.items() if k not in ("term", "rss_blocks")}],
+                                   chosen=row["effect"], reason=f"exchanged for {out.effect.name}",
+                                   kind="exchange"))
+        active = [t for t in active if t is not out] + [row["term"]]
+        if any(t is out for t in base):
+            exchanged.append({"effect": out.effect.name, "equations": effect_equations(out.effect),
+                              "relative_parameter_error": out.effect.relative_error(out.coef) if len(out.coef) else None,
+                              "bic_drop": None, "relative_improvement": None, "explained_share": None,
+                              "explained_to_noise": None, "outcome": f"exchanged for {row['effect']}"})
+            base = [t for t in base if t is not out]
     active = _polish(cache, active, equation, names, settings)
     fit = fit_terms(cache, active, equation, names)
     for term, coef in zip(active, fit.coefs):
         term.coef = coef
     return EquationSelection(equation=equation, terms=active, fit=fit, rss_none=rss_none, n=n,
-                             noise_variance=noise_var, steps=steps)
+                             noise_variance=noise_var, steps=steps, calibration=calibration + exchanged)
 
 
 def _polish(cache, active: list[Term], equation: int, names, settings) -> list[Term]:

@@ -368,7 +368,7 @@ def rejected_candidates(record: dict[str, Any]) -> list[dict[str, Any]]:
     (the effects accepted before, over all equations).
     """
     which = record.get("which") or {}
-    steps = which.get("steps") or []
+    steps = [st for st in which.get("steps") or [] if st.get("kind", "forward") == "forward"]
     chosen_before = [st["chosen"] for st in steps if st.get("chosen")]
     last = steps[-1] if steps else None
     out = []
