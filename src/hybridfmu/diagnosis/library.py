@@ -810,7 +810,8 @@ def build_library(problem: Problem, inputs: EffectInputs, model: Any) -> tuple[d
             if "input_saturation" in kinds:
                 effects += [InputSaturation(problem, eq, k, side, inputs.u[:, k], input_quantiles)
                             for side in ("above", "below")]
-        if "time_offset" in kinds and len(active_inputs) > 1:
+        # all inputs offset together: a member in every equation some input acts on (one offset for all of them)
+        if "time_offset" in kinds and problem.n_u > 1 and active_inputs:
             effects.append(time_offset_all(problem, eq, max_offset_s))
         if "parameter" in kinds:
             for name in parameters:

@@ -65,7 +65,7 @@ class SelectionSettings:
 
     min_bic_drop: float = 10.0
     min_relative_improvement: float = 0.03
-    min_explained_to_noise: float = 0.5
+    min_explained_to_noise: float = 1.0
     min_share_of_initial: float = 0.001
     parameter_tolerance: float = 0.005
     noise_margin: float = 0.10
@@ -606,56 +606,73 @@ def select_equation(cache: DesignCache, equation: int, effects: list[Effect], na
     rss_none = float(y @ y)
     rss_none_blocks = block_rss(y, blocks)
     start = fit_terms(cache, active, equation, names)
-    rss_cur = start.rss
     rss_cur_blocks = block_rss(start.residual, blocks)
     bic_cur = block_bic(start.residual, blocks, sum(count_parameters(t, 1) for t in active))
     counts: dict[int, int] = {}
     steps: list[SelectionStep] = []
     limit = settings.max_effects_per_equation * max(len(blocks), 1) + len(base)
-    while len(active) < limit and n > 0:
-        chosen_keys = {effect_key(t.effect) for t in active}
-        remaining = [e for e in effects if effect_key(e) not in chosen_keys]
-        if not remaining:
-            break
+    pool = effects + [t.effect for t in base]
 
-        def row_of(effect: Effect, refine: bool) -> dict[str, Any]:
-            term, rss, _ = best_setting(cache, active, effect, equation, names, settings.refine_iterations, refine)
-            return _candidate_row(cache, active, term, rss, equation, names, blocks, rss_cur_blocks,
-                                  rss_none_blocks, bic_cur, grid_sizes, settings)
+    def restate(terms: list[Term]) -> tuple[list[float], float, dict[int, int]]:
+        """Residual per block, BIC and chosen effects per equation of the active ``terms``."""
+        fit = fit_terms(cache, terms, equation, names)
+        k = sum(count_parameters(t, grid_sizes[effect_key(t.effect)]) for t in terms)
+        per_equation: dict[int, int] = {}
+        for t in terms:
+            if not any(t is b for b in base):
+                for eq in effect_equations(t.effect):
+                    per_equation[eq] = per_equation.get(eq, 0) + 1
+        return block_rss(fit.residual, blocks), block_bic(fit.residual, blocks, k), per_equation
 
-        rows_info = sorted((row_of(e, False) for e in remaining), key=lambda r: r["bic"])
-        top = max(int(settings.refine_candidates), 1)
-        for j, row in enumerate(rows_info[:top]):
-            if row["term"].effect.continuous_parameters():
-                rows_info[j] = row_of(row["term"].effect, True)
-        rows_info.sort(key=lambda r: r["bic"])
-        eligible = [r for r in rows_info if not r["within_tolerance"]]
-        for r in rows_info:
-            r["rejected_because"] = "parameter error within the tolerance" if r["within_tolerance"] else \
-                _rejection(r, settings, counts)
-        record = [{k: v for k, v in r.items() if k not in ("term", "rss_blocks")} for r in rows_info]
-        if not eligible:
-            steps.append(SelectionStep(candidates=record, chosen=None,
-                                       reason="the remaining candidates are parameter errors within the "
-                                              f"tolerance of {settings.parameter_tolerance:g}"))
-            break
-        reasons = [r["rejected_because"] for r in eligible]
-        passing = [r for r, why in zip(eligible, reasons) if why is None]
-        best = passing[0] if passing else eligible[0]
-        reason = "accepted" if passing else reasons[0]
-        steps.append(SelectionStep(candidates=record, chosen=best["effect"] if passing else None, reason=reason))
-        LOGGER.info("selection %s step %d: best %s (rel. improvement %.3f, BIC %.1f -> %.1f): %s", label or equation,
-                    len(steps), best["effect"], best["relative_improvement"], bic_cur, best["bic"], reason)
-        if not passing:
-            break
-        active.append(best["term"])
-        for eq in best["equations"]:
-            counts[eq] = counts.get(eq, 0) + 1
-        rss_cur, bic_cur, rss_cur_blocks = best["rss"], best["bic"], best["rss_blocks"]
+    def forward() -> None:
+        """Forward steps from the active set until no candidate may enter."""
+        nonlocal active, rss_cur_blocks, bic_cur, counts
+        while len(active) < limit and n > 0:
+            chosen_keys = {effect_key(t.effect) for t in active}
+            remaining = [e for e in pool if effect_key(e) not in chosen_keys]
+            if not remaining:
+                break
+
+            def row_of(effect: Effect, refine: bool) -> dict[str, Any]:
+                term, rss, _ = best_setting(cache, active, effect, equation, names, settings.refine_iterations,
+                                            refine)
+                return _candidate_row(cache, active, term, rss, equation, names, blocks, rss_cur_blocks,
+                                      rss_none_blocks, bic_cur, grid_sizes, settings)
+
+            rows_info = sorted((row_of(e, False) for e in remaining), key=lambda r: r["bic"])
+            top = max(int(settings.refine_candidates), 1)
+            for j, row in enumerate(rows_info[:top]):
+                if row["term"].effect.continuous_parameters():
+                    rows_info[j] = row_of(row["term"].effect, True)
+            rows_info.sort(key=lambda r: r["bic"])
+            eligible = [r for r in rows_info if not r["within_tolerance"]]
+            for r in rows_info:
+                r["rejected_because"] = "parameter error within the tolerance" if r["within_tolerance"] else \
+                    _rejection(r, settings, counts)
+            record = [{k: v for k, v in r.items() if k not in ("term", "rss_blocks")} for r in rows_info]
+            if not eligible:
+                steps.append(SelectionStep(candidates=record, chosen=None,
+                                           reason="the remaining candidates are parameter errors within the "
+                                                  f"tolerance of {settings.parameter_tolerance:g}"))
+                break
+            passing = [r for r in eligible if r["rejected_because"] is None]
+            best = passing[0] if passing else eligible[0]
+            reason = "accepted" if passing else eligible[0]["rejected_because"]
+            steps.append(SelectionStep(candidates=record, chosen=best["effect"] if passing else None, reason=reason))
+            LOGGER.info("selection %s step %d: best %s (rel. improvement %.3f, BIC %.1f -> %.1f): %s",
+                        label or equation, len(steps), best["effect"], best["relative_improvement"], bic_cur,
+                        best["bic"], reason)
+            if not passing:
+                break
+            active = active + [best["term"]]
+            for eq in best["equations"]:
+                counts[eq] = counts.get(eq, 0) + 1
+            bic_cur, rss_cur_blocks = best["bic"], best["rss_blocks"]
+
     calibration: list[dict[str, Any]] = []
     exchanged: list[dict[str, Any]] = []
-    pool = effects + [t.effect for t in base]
     for _ in range(int(settings.max_exchange_rounds) + 1):
+        forward()
         if base:
             active, calibration = _eliminate(cache, active, base, equation, names, blocks, rss_none_blocks,
                                              grid_sizes, settings, label)
@@ -676,6 +693,7 @@ def select_equation(cache: DesignCache, equation: int, effects: list[Effect], na
                               "bic_drop": None, "relative_improvement": None, "explained_share": None,
                               "explained_to_noise": None, "outcome": f"exchanged for {row['effect']}"})
             base = [t for t in base if t is not out]
+        rss_cur_blocks, bic_cur, counts = restate(active)
     active = _polish(cache, active, equation, names, settings)
     fit = fit_terms(cache, active, equation, names)
     for term, coef in zip(active, fit.coefs):
