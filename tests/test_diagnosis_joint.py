@@ -143,3 +143,35 @@ def test_terms_in_equation_gives_a_joint_term_as_its_member_with_the_same_coeffi
         (member,) = terms_in_equation(selection.terms, eq)
         assert member.effect.equation == eq and np.array_equal(member.coef, term.coef)
     assert terms_in_equation(selection.terms, 2) == []
+
+
+def test_a_level_the_state_cannot_pass_is_found_with_its_level():
+    """Limit: the measured state stops at a level (an overflow); the model keeps rising there. The equation error
+    is minus the model's positive derivative at and above the level; the fitted level and stop fraction match."""
+    from diagnosis_models import msd_problem
+    from hybridfmu.diagnosis.library import Limit
+
+    t = np.linspace(0.0, 60.0, M)
+    v = 1.2 * np.sin(2 * np.pi * 0.05 * t) + 0.3 * np.sin(2 * np.pi * 0.31 * t)
+    v = np.minimum(v, 1.0)  # the measured level never passes 1.0
+    f = 0.8 * np.cos(2 * np.pi * 0.05 * t) + 0.5 * np.sin(2 * np.pi * 0.17 * t)  # the model's derivative
+    x = np.column_stack([np.cumsum(v) * (t[1] - t[0]), v])
+    inputs = EffectInputs(x, np.zeros((M, 1)), f=np.column_stack([v, f]))
+    truth = -np.where(v >= 1.0, np.maximum(f, 0.0), 0.0)
+    centres = np.arange(0, M, 2)
+    rng = np.random.default_rng(4)
+    target = np.column_stack([np.zeros(len(centres)), truth[centres] + NOISE * rng.standard_normal(len(centres))])
+    cache = DesignCache([ManeuverFitData("m", inputs, np.array([1.0]), centres, np.arange(len(centres)) // 50,
+                                         target, np.array([1.0, NOISE]))])
+    problem, _ = msd_problem()
+    problem.quantiles = {"x": np.quantile(x[:, 0], np.linspace(0, 1, 101)),
+                         "v": np.quantile(v, np.linspace(0, 1, 101))}
+    options = {"limit_quantiles": [0.8, 0.9, 0.95, 0.98, 0.99]}
+    above, below = Limit(problem, 1, "above", options), Limit(problem, 1, "below", options)
+    selection = select_equation(cache, 1, [below, above], ["m"], SETTINGS)
+    (term,) = selection.terms
+    assert term.effect.name == "limit_above(v)"
+    report = {p["name"]: p["value"] for p in above.physical(term.coef, selection.fit.cov, term.setting, {})}
+    assert report["stop_fraction"] == pytest.approx(1.0, abs=0.03)
+    assert report["level"] == pytest.approx(1.0, abs=0.02)
+    assert len(below.grid()) == 5 and all(g["level"] < 0 for g in below.grid())

@@ -16,6 +16,8 @@ name                           term in dx_i/dt                                  
 ``periodic(x)``                sum_{m<=h} a_m sin(m k 2 pi x/P) + b_m cos(m k 2 pi x/P)   order k, harmonics h
 ``saturation_above(x)``        c max(0, x - x_c)                                          x_c (grid, refined)
 ``saturation_below(x)``        c max(0, x_c - x)                                          x_c (grid, refined)
+``limit_above(x_i)``           -c 1[x_i >= x_c] max(f_i, 0)  (x_i cannot rise past x_c)   x_c (grid, refined)
+``limit_below(x_i)``           c 1[x_i <= x_c] max(-f_i, 0)  (x_i cannot fall past x_c)   x_c (grid, refined)
 ``input_gain(u)``              g (df_i/du) u                                              -
 ``input_offset(u)``            o (df_i/du)                                                -
 ``time_offset(u)``             c [f_i(x, u(t + s)) - f_i(x, u)]  (offset c s)              s (grid, refined)
@@ -382,6 +384,63 @@ class Saturation(StateEffect):
         return [param("slope", *linear_estimate(coef, cov, [1.0]), self.coefficient_unit, "slope beyond the threshold"),
                 param("threshold", setting["threshold"], setting_se.get("threshold"), self.state_unit,
                       f"threshold ({self.side})")]
+
+
+class Limit(StateEffect):
+    """A level the state cannot pass (an overflow, an end stop, a full tank): at or beyond the level the model's
+    derivative towards it is cancelled, ``-c 1[x >= x_c] max(f_i, 0)`` above (``c 1[x <= x_c] max(-f_i, 0)``
+    below), c = 1 for a hard limit; x_c searched over the quantiles ``limit_quantiles`` of the state (their
+    complements below) and refined. Only in
+    the state's own equation."""
+
+    continuous = "level"
+
+    def __init__(self, problem, equation, side, options):
+        var = problem.state_names[equation]
+        formula = "-c 1[x >= x_c] max(f, 0)" if side == "above" else "c 1[x <= x_c] max(-f, 0)"
+        super().__init__(problem, equation, equation, f"limit_{side}",
+                         f"{var} cannot pass a level ({'upper' if side == 'above' else 'lower'} limit: an overflow, "
+                         "an end stop)", formula, "-")
+        self.side = side
+        levels = problem.quantiles.get(var)
+        qs = [float(q) for q in options["limit_quantiles"]]
+        qs = qs if side == "above" else [1.0 - q for q in qs]
+        self.levels = sorted({float(np.interp(q, np.linspace(0, 1, len(levels)), levels)) for q in qs}) \
+            if levels is not None and len(levels) else []
+        self.state_unit = problem.unit(var)
+
+    def grid(self):
+        return [{"level": v} for v in self.levels]
+
+    def bounds(self):
+        return (self.levels[0], self.levels[-1]) if self.levels else None
+
+    def coefficient_names(self, setting):
+        return ["stop_fraction"]
+
+    def _term(self, x_i: np.ndarray, f_i: np.ndarray, level: float) -> np.ndarray:
+        if self.side == "above":
+            return -np.where(x_i >= level, np.maximum(f_i, 0.0), 0.0)
+        return np.where(x_i <= level, np.maximum(-f_i, 0.0), 0.0)
+
+    def regressors(self, inputs, setting):
+        return self._term(inputs.x_smooth[:, self.variable], inputs.f[:, self.equation], setting["level"])[:, None]
+
+    def batch_function(self, coef, setting, helper):
+        if helper is None:
+            return None
+        c, level, i = float(coef[0]), float(setting["level"]), self.equation
+
+        def term(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+            f = np.asarray(helper.derivatives(np.asarray(x, dtype=float), np.asarray(u, dtype=float)))
+            return c * self._term(np.asarray(x, dtype=float)[:, i], f[:, i], level)
+
+        return term
+
+    def physical(self, coef, cov, setting, setting_se):
+        return [param("stop_fraction", *linear_estimate(coef, cov, [1.0]), "-",
+                      "share of the model's derivative towards the level that is cancelled there (1: a hard limit)"),
+                param("level", setting["level"], setting_se.get("level"), self.state_unit, f"limit ({self.side})")]
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -784,6 +843,8 @@ def build_library(problem: Problem, inputs: EffectInputs, model: Any) -> tuple[d
                 effects.append(Coulomb(problem, eq, j, options))
             if "saturation" in kinds:
                 effects += [Saturation(problem, eq, j, "above", options), Saturation(problem, eq, j, "below", options)]
+            if "limit" in kinds and j == eq:
+                effects += [Limit(problem, eq, "above", options), Limit(problem, eq, "below", options)]
             if "periodic" in kinds and j in problem.periodic:
                 effects.append(Periodic(problem, eq, j, problem.periodic[j], options))
             if "scaled_coulomb" in kinds:
@@ -839,6 +900,6 @@ def build_library(problem: Problem, inputs: EffectInputs, model: Any) -> tuple[d
     return library, skipped
 
 
-DEFAULT_KINDS = ["viscous", "quadratic", "polynomial", "coulomb", "scaled_coulomb", "periodic", "saturation",
+DEFAULT_KINDS = ["viscous", "quadratic", "polynomial", "coulomb", "scaled_coulomb", "periodic", "saturation", "limit",
                  "input_gain", "input_offset", "time_offset", "input_lag", "input_deadzone", "input_saturation",
                  "parameter"]

@@ -57,7 +57,7 @@ DEFAULT_SETTINGS: dict[str, Any] = {
 }
 
 DEFAULT_EFFECT_OPTIONS: dict[str, Any] = {
-    "kinds": ["viscous", "quadratic", "polynomial", "coulomb", "scaled_coulomb", "periodic", "saturation",
+    "kinds": ["viscous", "quadratic", "polynomial", "coulomb", "scaled_coulomb", "periodic", "saturation", "limit",
               "input_gain", "input_offset", "time_offset", "input_lag", "input_deadzone", "input_saturation",
               "parameter"],
     # grid of the tanh smoothing of friction signs relative to the state's spread (refined on a log
@@ -67,6 +67,8 @@ DEFAULT_EFFECT_OPTIONS: dict[str, Any] = {
     "periodic_max_order": 12,         # orders 1..N per period searched, each with 1..periodic_harmonics harmonics
     "periodic_harmonics": 1,
     "saturation_quantiles": [0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95],
+    # quantiles q of a state searched as its upper limit (1 - q as its lower one); refined after the grid
+    "limit_quantiles": [0.8, 0.9, 0.95, 0.98, 0.99],
     # quantiles q of the inputs: dead-zone half widths at the q-quantiles of |u|, saturation levels at the
     # (1 - q)- (above) and q-quantiles (below) of u; refined after the grid
     "input_quantiles": [0.05, 0.1, 0.2, 0.3, 0.4, 0.5],
@@ -310,6 +312,8 @@ def check_effect_options(options: dict[str, Any]) -> None:
         positive_grid(options["stribeck_relative"], f"{where}.stribeck_relative", allow_empty=True)
     if options.get("actuator_lag_samples") is not None:
         positive_grid(options["actuator_lag_samples"], f"{where}.actuator_lag_samples", allow_empty=True)
+    if options.get("limit_quantiles") is not None:
+        quantile_grid(options["limit_quantiles"], f"{where}.limit_quantiles")
     if options.get("input_quantiles") is not None:
         quantile_grid(options["input_quantiles"], f"{where}.input_quantiles")
     window = options.get("lag_derivative_window_s")

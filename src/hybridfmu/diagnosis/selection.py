@@ -526,7 +526,8 @@ def _best_exchange(cache, active: list[Term], pool: list[Effect], equation: int,
     most, by at least ``min_bic_drop``, the candidate passing every threshold as if it entered last in the place of
     the term (a forward step can commit early to a term that merely resembles what is there, e.g. a damping for a
     lagging load signal). A model-wide term (an input or a parameter change) is exchanged only for another
-    model-wide one. None if there is no such exchange. The candidate's continuous settings are refined for
+    model-wide one, and only when the term it replaces would not enter again beside it (:func:`_would_not_return`).
+    None if there is no such exchange. The candidate's continuous settings are refined for
     the ``refine_candidates`` best by BIC at their grid settings."""
     if not active:
         return None
@@ -562,12 +563,31 @@ def _best_exchange(cache, active: list[Term], pool: list[Effect], equation: int,
             gain = bic_all - row["bic"]
             if row["within_tolerance"] or gain < settings.min_bic_drop:
                 break
-            if _rejection(row, settings, counts) is None:
+            if _rejection(row, settings, counts) is None and _would_not_return(
+                    cache, others + [row["term"]], out, equation, names, blocks, rss_none_blocks, grid_sizes,
+                    settings):
                 if best is None or gain > best[1]["bic_gain"]:
                     row["bic_gain"] = gain
                     best = (out, row)
                 break
     return best
+
+
+def _would_not_return(cache, active: list[Term], out: Term, equation: int, names: list[str], blocks: list[Block],
+                      rss_none_blocks: list[float], grid_sizes: dict[tuple, int], settings: SelectionSettings) -> bool:
+    """Whether the term ``out`` fails the thresholds as a candidate beside ``active`` (after an exchange): an
+    exchange must leave a selection from which no term would enter again, else the candidate only stands in for
+    part of what ``out`` explains (an input gain for a combination of parameter errors)."""
+    fit = fit_terms(cache, active, equation, names)
+    k = sum(count_parameters(t, grid_sizes[effect_key(t.effect)]) for t in active)
+    term, rss, _ = best_setting(cache, active, out.effect, equation, names, settings.refine_iterations)
+    row = _candidate_row(cache, active, term, rss, equation, names, blocks, block_rss(fit.residual, blocks),
+                         rss_none_blocks, block_bic(fit.residual, blocks, k), grid_sizes, settings)
+    counts: dict[int, int] = {}
+    for t in active:
+        for eq in effect_equations(t.effect):
+            counts[eq] = counts.get(eq, 0) + 1
+    return row["within_tolerance"] or _rejection(row, settings, counts) is not None
 
 
 def _calibration_record(row: dict[str, Any], outcome: str) -> dict[str, Any]:
