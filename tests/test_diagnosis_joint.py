@@ -175,3 +175,26 @@ def test_a_level_the_state_cannot_pass_is_found_with_its_level():
     assert report["stop_fraction"] == pytest.approx(1.0, abs=0.03)
     assert report["level"] == pytest.approx(1.0, abs=0.02)
     assert len(below.grid()) == 5 and all(g["level"] < 0 for g in below.grid())
+
+
+def test_an_exchange_is_refused_when_the_replaced_term_would_enter_again():
+    """A candidate G that mixes two parameters' sensitivities (x1 + x2) can lower the BIC in the place of one of
+    them, yet the replaced parameter still explains what G cannot: it would enter again, so G only stands in for
+    part of it. Where the data is G itself, the parameter has nothing left to explain and the exchange stands."""
+    from hybridfmu.diagnosis.joint import Block
+    from hybridfmu.diagnosis.selection import Term, _would_not_return
+
+    x = signals()
+    g_signal = x[:, 1] + x[:, 2]
+    x = np.column_stack([x[:, 0], x[:, 1], x[:, 2], g_signal])
+    p = JointEffect([Column("parameter(p)", 1, 1, kind="parameter", model_wide=True)])
+    g = JointEffect([Column("gain(g)", 1, 3, kind="input_gain", model_wide=True)])
+    for truth, returns in ((0.3 * x[:, 1] + 0.1 * x[:, 2], True), (0.2 * g_signal, False)):
+        _, stacked = caches(x, [np.zeros(M), truth], [NOISE, NOISE])
+        blocks = stacked.blocks(JOINT, ["m"])
+        assert all(isinstance(b, Block) for b in blocks)
+        y = stacked.target(JOINT, ["m"])
+        rss_none = [float(y[b.rows] @ y[b.rows]) for b in blocks]
+        sizes = {("parameter(p)", JOINT): 1, ("gain(g)", JOINT): 1}
+        assert _would_not_return(stacked, [Term(g, {})], Term(p, {}), JOINT, ["m"], blocks, rss_none, sizes,
+                                 SETTINGS) is (not returns)

@@ -2,18 +2,23 @@
 
 Per examined state equation the kernel-averaged equation error ``y`` is sampled at centres one kernel length apart (so
 the noise of neighbouring samples is nearly independent) inside the informative segments.
-Every effect's term is averaged with the same kernel at the same centres. Effects enter by
-stepwise forward selection: at each step every remaining candidate is fitted together with
-those already chosen (linear least squares in its coefficients; its nonlinear settings searched on
-a grid, the continuous ones refined by bounded minimisation, and settings with different numbers of
-coefficients compared by BIC) and the one with the lowest BIC enters if it lowers
-the BIC by ``min_bic_drop``, removes at least ``min_relative_improvement`` of the remaining
-residual sum of squares, explains a mean square of at least ``min_explained_to_noise`` times the
-noise floor's variance and at least ``min_share_of_initial`` of the equation's initial residual
-energy (an effect much weaker than the measurement noise, or than the gap it is part of, is of no
-practical consequence even when a long record makes it statistically significant), and the
-remaining residual is still above the noise floor. Parameter errors below ``parameter_tolerance``
-never enter.
+Every effect's term is averaged with the same kernel at the same centres. The selection runs on one equation
+(:class:`DesignCache`) or on all examined equations stacked (:class:`hybridfmu.diagnosis.joint.StackedCache`,
+each block of rows in units of its noise floor). Effects enter by stepwise forward selection: at each step
+every remaining candidate is fitted together with those already chosen (linear least squares in its
+coefficients; its nonlinear settings searched on a grid, the ``refine_candidates`` best refined by bounded
+minimisation, and settings with different numbers of coefficients compared by BIC, the sum over blocks of
+their Gaussian log-likelihoods) and the one with the lowest BIC among those passing every threshold enters.
+A candidate passes if it lowers the BIC by ``min_bic_drop``, removes at least ``min_relative_improvement`` of
+the remaining residual sum of squares of the equation(s) it acts on, explains a mean square of at least
+``min_explained_to_noise`` times their noise floor's variance and at least ``min_share_of_initial`` of their
+initial residual energy (an effect much weaker than the measurement noise, or than the gap it is part of, is
+of no practical consequence even when a long record makes it statistically significant), and their remaining
+residual is still above the noise floor. Parameter errors below ``parameter_tolerance`` never enter.
+Parameter errors may be calibrated instead (fitted from the start, kept only while they would pass the
+thresholds entering last); after the forward steps a chosen term is exchanged for a candidate that lowers
+the BIC and passes the thresholds in its place, provided the replaced term would not enter again, and the
+forward steps resume.
 Standard errors come from the regression and from a bootstrap over segments; the
 chosen set is refitted on every fitting maneuver alone to show its stability.
 """
