@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 import csv
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -91,6 +92,14 @@ def check_report(diagnosis_json: Path) -> None:
     for heading in ("## Where", "## Which", "## How far", f"### {rank}. `coulomb(omega)`"):
         assert heading in report
     assert {p.name for p in out.glob("*.png")} >= {"equation_error.png", "regions.png", "waterfall.png", "effects.png"}
+    assert "Parameter errors are fitted from the start" in report and "| parameter error | equation(s) |" in report
+    table: list[int] = []  # cells per row of each Markdown table: an unescaped | in a name would break a row
+    for line in report.splitlines() + [""]:
+        if line.startswith("|"):
+            table.append(len(re.split(r"(?<!\\)\|", line)))
+        elif table:
+            assert len(set(table)) == 1, (line, table)
+            table = []
     assert record["model_parameters"] == {}  # the FMU's nominal values, not the bench's
     record.pop("case")  # the case id names the withheld effect; nothing else of the record may
     text = json.dumps(record)

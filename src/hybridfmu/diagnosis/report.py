@@ -44,6 +44,11 @@ def _clean(value: Any) -> Any:
     return value
 
 
+def _cell(text: str) -> str:
+    """Text for a Markdown table cell (``|`` escaped, as in ``coulomb(omega)*|tau_load|``)."""
+    return str(text).replace("|", "\\|")
+
+
 def equations_text(item: dict[str, Any]) -> str:
     """``d<state>/dt`` of every equation a named effect acts on (a change of an input or a parameter acts on
     several), the one it explains most first."""
@@ -219,17 +224,19 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                   "| parameter error | equation(s) | relative error | BIC drop | outcome |", "|---|---|---|---|---|"]
         for row in which["calibration"]:
             where = ", ".join(f"d{e}/dt" for e in row.get("equations") or [])
-            lines.append(f"| {row['effect']} | {where} | {_fmt(row.get('relative_parameter_error'), 3)} | "
-                         f"{_fmt(row.get('bic_drop'), 4)} | {row['outcome']} |")
+            lines.append(f"| {_cell(row['effect'])} | {where} | {_fmt(row.get('relative_parameter_error'), 3)} | "
+                         f"{_fmt(row.get('bic_drop'), 4)} | {_cell(row['outcome'])} |")
         lines.append("")
     for k, step in enumerate(which.get("steps") or [], start=1):
-        lines += [f"Step {k}: {step['reason']}" + (f" ({step['chosen']})" if step.get("chosen") else "") + ".", "",
+        title = f"Step {k} (exchange): {step['chosen']} {step['reason']}" if step.get("kind") == "exchange" else \
+            f"Step {k}: {step['reason']}" + (f" ({step['chosen']})" if step.get("chosen") else "")
+        lines += [title + ".", "",
                   "| candidate | equation(s) | setting | residual removed | BIC drop |", "|---|---|---|---|---|"]
         ranked = sorted(step["candidates"], key=lambda c: c["bic"])[:12]
         for cand in ranked:
             setting = ", ".join(f"{key}={_fmt(v, 4)}" for key, v in cand["setting"].items()) or "-"
             where = ", ".join(f"d{e}/dt" for e in cand.get("equations") or [])
-            lines.append(f"| {cand['effect']} | {where} | {setting} | {100 * cand['relative_improvement']:.2f} % | "
+            lines.append(f"| {_cell(cand['effect'])} | {where} | {setting} | {100 * cand['relative_improvement']:.2f} % | "
                          f"{_fmt(cand.get('bic_drop'), 4)} |")
         if len(step["candidates"]) > len(ranked):
             lines.append(f"| ... {len(step['candidates']) - len(ranked)} more | | | | |")
@@ -245,7 +252,7 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                                              for k, v in nn["equations"].items()) + ".", "",
                   "| effect | equation | R^2 (fitted) | R^2 (refitted) |", "|---|---|---|---|"]
         for row in nn["effects"]:
-            lines.append(f"| {row['effect']} | {row['equation']} | {_fmt(row['r2_fitted'], 3)} | "
+            lines.append(f"| {_cell(row['effect'])} | {row['equation']} | {_fmt(row['r2_fitted'], 3)} | "
                          f"{_fmt(row['r2_refit'], 3)} |")
         lines.append("")
     elif record.get("neural_fmu_error"):
