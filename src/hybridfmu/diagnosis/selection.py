@@ -80,6 +80,7 @@ class SelectionSettings:
     refine_candidates: int = 8
     calibrate_parameters: bool = True
     max_exchange_rounds: int = 4
+    max_parameter_overlap: float = 0.9
 
     @classmethod
     def from_config(cls, section: dict[str, Any] | None) -> "SelectionSettings":
@@ -524,15 +525,33 @@ def _eliminate(cache, active: list[Term], base: list[Term], equation: int, names
     return active, [records[effect_key(t.effect)] for t in base if effect_key(t.effect) in records]
 
 
+def parameter_overlap(cache, term: Term, parameters: list[Effect], equation: int, names: list[str]) -> float:
+    """Share (R^2, 0..1) of a term's regressors that the model's parameter sensitivities reproduce: 1 when the term
+    is a combination of parameter errors (a supply-voltage gain against a resistance and an inductance error),
+    which no data can tell from them."""
+    if not parameters:
+        return 0.0
+    design = cache.design(term.effect, term.setting, names)
+    basis = np.concatenate([cache.design(p, {}, names) for p in parameters], axis=1)
+    total = float(np.sum(design ** 2))
+    if total <= 0 or basis.shape[1] == 0:
+        return 0.0
+    coef, *_ = np.linalg.lstsq(basis, design, rcond=None)
+    return float(1.0 - np.sum((design - basis @ coef) ** 2) / total)
+
+
 def _best_exchange(cache, active: list[Term], pool: list[Effect], equation: int, names: list[str],
                    blocks: list[Block], rss_none_blocks: list[float], grid_sizes: dict[tuple, int],
-                   settings: SelectionSettings) -> tuple[Term, dict[str, Any]] | None:
+                   settings: SelectionSettings, parameters: list[Effect] | None = None
+                   ) -> tuple[Term, dict[str, Any]] | None:
     """The best exchange of one active term for one candidate not in use: the pair whose exchange lowers the BIC
     most, by at least ``min_bic_drop``, the candidate passing every threshold as if it entered last in the place of
     the term (a forward step can commit early to a term that merely resembles what is there, e.g. a damping for a
     lagging load signal). A model-wide term (an input or a parameter change) is exchanged only for another
     model-wide one, and only when the term it replaces would not enter again beside it (:func:`_would_not_return`).
-    None if there is no such exchange. The candidate's continuous settings are refined for
+    A calibrated parameter error (``parameters``) is not exchanged for a candidate that its fellow parameters
+    reproduce to more than ``max_parameter_overlap`` (:func:`parameter_overlap`). None if there is no such
+    exchange. The candidate's continuous settings are refined for
     the ``refine_candidates`` best by BIC at their grid settings."""
     if not active:
         return None
@@ -564,10 +583,18 @@ def _best_exchange(cache, active: list[Term], pool: list[Effect], equation: int,
         for t in others:
             for eq in effect_equations(t.effect):
                 counts[eq] = counts.get(eq, 0) + 1
+        calibrated = any(out.effect is p for p in parameters or [])
         for row in rows:
             gain = bic_all - row["bic"]
             if row["within_tolerance"] or gain < settings.min_bic_drop:
                 break
+            if calibrated and row["term"].effect.kind != "parameter":
+                row["parameter_overlap"] = parameter_overlap(cache, row["term"], list(parameters or []), equation,
+                                                             names)
+                LOGGER.info("exchange %s -> %s: overlap with the parameter errors %.3f", out.effect.name,
+                            row["effect"], row["parameter_overlap"])
+                if row["parameter_overlap"] > settings.max_parameter_overlap:
+                    continue
             if _rejection(row, settings, counts) is None and _would_not_return(
                     cache, others + [row["term"]], out, equation, names, blocks, rss_none_blocks, grid_sizes,
                     settings):
@@ -622,6 +649,7 @@ def select_equation(cache: DesignCache, equation: int, effects: list[Effect], na
     """
     effects = [e for e in effects if cache.accepts(e, equation)]
     base = [Term(e, dict(e.grid()[0])) for e in (calibrate or []) if cache.accepts(e, equation)]
+    parameters = [t.effect for t in base]
     y = cache.target(equation, names)
     n = len(y)
     blocks = cache.blocks(equation, names)
@@ -702,7 +730,7 @@ def select_equation(cache: DesignCache, equation: int, effects: list[Effect], na
             active, calibration = _eliminate(cache, active, base, equation, names, blocks, rss_none_blocks,
                                              grid_sizes, settings, label)
         exchange = _best_exchange(cache, active, pool, equation, names, blocks, rss_none_blocks, grid_sizes,
-                                  settings) if settings.max_exchange_rounds > 0 else None
+                                  settings, parameters) if settings.max_exchange_rounds > 0 else None
         if exchange is None:
             break
         out, row = exchange
