@@ -185,8 +185,9 @@ def test_a_level_the_state_cannot_pass_is_found_with_its_level():
 
 def test_an_exchange_is_refused_when_the_replaced_term_would_enter_again():
     """A candidate G that mixes two parameters' sensitivities (x1 + x2) can lower the BIC in the place of one of
-    them, yet the replaced parameter still explains what G cannot: it would enter again, so G only stands in for
-    part of it. Where the data is G itself, the parameter has nothing left to explain and the exchange stands."""
+    them, yet the replaced parameter still explains what G cannot: it is still significant beside G, so G only
+    stands in for part of it. Where the data is G itself, the parameter has nothing left to explain and the
+    exchange stands."""
     from hybridfmu.diagnosis.joint import Block
     from hybridfmu.diagnosis.selection import Term, _would_not_return
 
@@ -195,7 +196,10 @@ def test_an_exchange_is_refused_when_the_replaced_term_would_enter_again():
     x = np.column_stack([x[:, 0], x[:, 1], x[:, 2], g_signal])
     p = JointEffect([Column("parameter(p)", 1, 1, kind="parameter", model_wide=True)])
     g = JointEffect([Column("gain(g)", 1, 3, kind="input_gain", model_wide=True)])
-    for truth, returns in ((0.3 * x[:, 1] + 0.1 * x[:, 2], True), (0.2 * g_signal, False)):
+    # third: the parameter's own share is below the practical thresholds (0.36 noise variances) but significant:
+    # both belong to the model, and the exchange is refused
+    for truth, returns in ((0.3 * x[:, 1] + 0.1 * x[:, 2], True), (0.2 * g_signal, False),
+                           (0.2 * g_signal + 0.006 * x[:, 1], True)):
         _, stacked = caches(x, [np.zeros(M), truth], [NOISE, NOISE])
         blocks = stacked.blocks(JOINT, ["m"])
         assert all(isinstance(b, Block) for b in blocks)

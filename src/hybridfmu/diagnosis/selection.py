@@ -492,11 +492,13 @@ def _rejection(row: dict[str, Any], settings: SelectionSettings, counts: dict[in
 
 def _eliminate(cache, active: list[Term], base: list[Term], equation: int, names: list[str], blocks: list[Block],
                rss_none_blocks: list[float], grid_sizes: dict[tuple, int], settings: SelectionSettings,
-               label: str) -> tuple[list[Term], list[dict[str, Any]]]:
+               label: str, earlier: dict[tuple, dict[str, Any]] | None = None
+               ) -> tuple[list[Term], dict[tuple, dict[str, Any]]]:
     """Backward elimination of the calibrated terms ``base`` (parameter errors) from ``active``: while one of them
     would not pass the thresholds if it entered last, the one whose removal raises the BIC least is dropped.
-    Returns the remaining active terms and one record per calibrated term (``kept`` or why it was dropped)."""
-    records: dict[tuple, dict[str, Any]] = {}
+    Returns the remaining active terms and the records of ``earlier`` rounds updated: per calibrated term (by
+    :func:`hybridfmu.diagnosis.joint.effect_key`) ``kept`` or why it was dropped."""
+    records: dict[tuple, dict[str, Any]] = dict(earlier or {})
     while True:
         candidates = [t for t in active if any(t is b for b in base)]
         if not candidates:
@@ -522,7 +524,7 @@ def _eliminate(cache, active: list[Term], base: list[Term], equation: int, names
         LOGGER.info("selection %s: calibrated %s dropped (%s)", label or equation, dropped["effect"],
                     dropped["rejected_because"])
         active = [t for t in active if t is not dropped["term"]]
-    return active, [records[effect_key(t.effect)] for t in base if effect_key(t.effect) in records]
+    return active, records
 
 
 def parameter_overlap(cache, term: Term, parameters: list[Effect], equation: int, names: list[str]) -> float:
@@ -607,19 +609,16 @@ def _best_exchange(cache, active: list[Term], pool: list[Effect], equation: int,
 
 def _would_not_return(cache, active: list[Term], out: Term, equation: int, names: list[str], blocks: list[Block],
                       rss_none_blocks: list[float], grid_sizes: dict[tuple, int], settings: SelectionSettings) -> bool:
-    """Whether the term ``out`` fails the thresholds as a candidate beside ``active`` (after an exchange): an
-    exchange must leave a selection from which no term would enter again, else the candidate only stands in for
-    part of what ``out`` explains (an input gain for a combination of parameter errors)."""
+    """Whether the term ``out`` is no longer significant beside ``active`` (after an exchange): its BIC drop as a
+    candidate there is below ``min_bic_drop`` (or it is a parameter error within the tolerance). Else the
+    newcomer explains only part of what ``out`` does, and both belong to the model (a damping beside a lagging
+    load signal): the exchange is refused and ``out`` stays."""
     fit = fit_terms(cache, active, equation, names)
     k = sum(count_parameters(t, grid_sizes[effect_key(t.effect)]) for t in active)
     term, rss, _ = best_setting(cache, active, out.effect, equation, names, settings.refine_iterations)
     row = _candidate_row(cache, active, term, rss, equation, names, blocks, block_rss(fit.residual, blocks),
                          rss_none_blocks, block_bic(fit.residual, blocks, k), grid_sizes, settings)
-    counts: dict[int, int] = {}
-    for t in active:
-        for eq in effect_equations(t.effect):
-            counts[eq] = counts.get(eq, 0) + 1
-    return row["within_tolerance"] or _rejection(row, settings, counts) is not None
+    return row["within_tolerance"] or row["bic_drop"] < settings.min_bic_drop
 
 
 def _calibration_record(row: dict[str, Any], outcome: str) -> dict[str, Any]:
@@ -722,13 +721,12 @@ def select_equation(cache: DesignCache, equation: int, effects: list[Effect], na
                 counts[eq] = counts.get(eq, 0) + 1
             bic_cur, rss_cur_blocks = best["bic"], best["rss_blocks"]
 
-    calibration: list[dict[str, Any]] = []
-    exchanged: list[dict[str, Any]] = []
+    calibration: dict[tuple, dict[str, Any]] = {}
     for _ in range(int(settings.max_exchange_rounds) + 1):
         forward()
         if base:
             active, calibration = _eliminate(cache, active, base, equation, names, blocks, rss_none_blocks,
-                                             grid_sizes, settings, label)
+                                             grid_sizes, settings, label, calibration)
         exchange = _best_exchange(cache, active, pool, equation, names, blocks, rss_none_blocks, grid_sizes,
                                   settings, parameters) if settings.max_exchange_rounds > 0 else None
         if exchange is None:
@@ -741,18 +739,23 @@ def select_equation(cache: DesignCache, equation: int, effects: list[Effect], na
                                    kind="exchange"))
         active = [t for t in active if t is not out] + [row["term"]]
         if any(t is out for t in base):
-            exchanged.append({"effect": out.effect.name, "equations": effect_equations(out.effect),
-                              "relative_parameter_error": out.effect.relative_error(out.coef) if len(out.coef) else None,
-                              "bic_drop": None, "relative_improvement": None, "explained_share": None,
-                              "explained_to_noise": None, "outcome": f"exchanged for {row['effect']}"})
+            calibration[effect_key(out.effect)] = {
+                "effect": out.effect.name, "equations": effect_equations(out.effect), "relative_parameter_error": None,
+                "bic_drop": None, "relative_improvement": None, "explained_share": None, "explained_to_noise": None,
+                "outcome": f"exchanged for {row['effect']}"}
             base = [t for t in base if t is not out]
         rss_cur_blocks, bic_cur, counts = restate(active)
+    for term in active:  # a dropped parameter error that entered again in a forward step
+        record = calibration.get(effect_key(term.effect))
+        if record is not None and not any(term is b for b in base) and record["outcome"] != "kept":
+            record["outcome"] = f"{record['outcome']}; entered again in a forward step"
     active = _polish(cache, active, equation, names, settings)
     fit = fit_terms(cache, active, equation, names)
     for term, coef in zip(active, fit.coefs):
         term.coef = coef
     return EquationSelection(equation=equation, terms=active, fit=fit, rss_none=rss_none, n=n,
-                             noise_variance=noise_var, steps=steps, calibration=calibration + exchanged)
+                             noise_variance=noise_var, steps=steps,
+                             calibration=[calibration[effect_key(e)] for e in parameters if effect_key(e) in calibration])
 
 
 def _polish(cache, active: list[Term], equation: int, names, settings) -> list[Term]:
