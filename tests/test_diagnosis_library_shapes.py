@@ -166,3 +166,18 @@ def test_a_pair_of_orders_24_and_48_is_order_24_with_two_harmonics():
     assert term.setting == {"order": 24.0, "harmonics": 2.0}
     assert report["amplitude_24"] == pytest.approx(0.4, rel=0.02)
     assert report["amplitude_48"] == pytest.approx(0.25, rel=0.02)
+
+
+def test_a_stribeck_peak_is_never_negative_a_damping_is_not_mistaken_for_one():
+    """Coulomb friction plus a damping (friction rising with speed): a negative Stribeck peak would fit the rise
+    near zero speed, but the peak adds to the level by definition, so the chosen setting's peak is not negative."""
+    x = velocity_states()
+    v = x[:, 1]
+    truth = -0.3 * np.tanh(v / 0.02) - 0.4 * v * (np.abs(v) < 0.3) - 0.12 * np.sign(v) * (np.abs(v) >= 0.3)
+    cache = synthetic_cache(x, truth, noise=0.002)
+    effect = Coulomb(_problem(), 1, 1, {"coulomb_smoothing_relative": [0.003, 0.01, 0.03, 0.1],
+                                         "stribeck_relative": [0.05, 0.1, 0.2, 0.5]})
+    term, _, profile = best_setting(cache, [], effect, 1, ["synthetic"], 40)
+    fit = fit_terms(cache, [term], 1, ["synthetic"])
+    assert effect.admissible(fit.coefs[0], term.setting)
+    assert any(not p["admissible"] for p in profile)  # the grid does hold negative peaks, which were passed over

@@ -310,6 +310,11 @@ class Effect:
             out.append(param(key, value, setting_se.get(key), "", "nonlinear setting (searched)"))
         return out
 
+    def admissible(self, coef: np.ndarray, setting: dict[str, float]) -> bool:
+        """Whether fitted coefficients describe the effect physically (e.g. a Stribeck peak adds to the Coulomb
+        level); settings whose fit is not admissible are not chosen. Default: always."""
+        return True
+
     def relative_error(self, coef: np.ndarray) -> float | None:
         """For a parameter error: the relative error implied by ``coef``; None for other effects."""
         return None

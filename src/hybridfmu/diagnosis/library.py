@@ -208,6 +208,11 @@ class Coulomb(StateEffect):
             columns.append(-sign * np.exp(-(v / v_s) ** 2))
         return np.stack(columns, axis=1)
 
+    def admissible(self, coef, setting):
+        """A Stribeck peak adds to the Coulomb level (breakaway above the sliding friction): c c_s >= 0. A
+        negative peak would be friction rising with speed, which a damping term describes."""
+        return len(coef) < 2 or float(coef[0]) * float(coef[1]) >= 0.0
+
     def row_function(self, coef, setting):
         j, eps = self.variable, float(setting["smoothing"])
         c = float(coef[0])

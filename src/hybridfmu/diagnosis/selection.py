@@ -392,19 +392,26 @@ def best_setting(cache: DesignCache, active: list[Term], effect: Effect, equatio
     more harmonics, an asymmetry) must earn them. The grid's best setting of each structure (:func:`_structure`:
     the same coefficients and discrete settings, differing only in continuous values) is refined
     (:func:`_refine`, unless ``refine`` is False) before the structures are compared, so a structure is not
-    preferred for making up for a coarse grid. The profile lists every grid setting's ``rss`` and ``bic``.
+    preferred for making up for a coarse grid; a setting whose fit the effect does not find admissible
+    (:meth:`Effect.admissible`, e.g. a negative Stribeck peak) is not chosen, refined or not. The profile lists
+    every grid setting's ``rss``, ``bic`` and ``admissible``.
     """
     grid = effect.grid()
     blocks = cache.blocks(equation, names)
     profile = []
     per_structure: dict[tuple, tuple[float, float, dict[str, float]]] = {}
+    inadmissible: dict[tuple, tuple[float, float, dict[str, float]]] = {}
     for setting in grid:
         fit = fit_terms(cache, active + [Term(effect, setting)], equation, names)
         score = block_bic(fit.residual, blocks, len(effect.coefficient_names(setting)))
-        profile.append({"setting": dict(setting), "rss": fit.rss, "bic": score})
+        admissible = effect.admissible(fit.coefs[-1], setting)
+        profile.append({"setting": dict(setting), "rss": fit.rss, "bic": score, "admissible": admissible})
         key = _structure(effect, setting)
-        if key not in per_structure or score < per_structure[key][0]:
-            per_structure[key] = (score, fit.rss, setting)
+        store = per_structure if admissible else inadmissible
+        if key not in store or score < store[key][0]:
+            store[key] = (score, fit.rss, setting)
+    if not per_structure:  # no setting fits admissibly: the best fits are all there is
+        per_structure = inadmissible
     best_score, best_rss, best, best_se = math.inf, math.inf, grid[0], {}
     for score, rss, setting in per_structure.values():
         setting_se: dict[str, float] = {}
@@ -412,9 +419,11 @@ def best_setting(cache: DesignCache, active: list[Term], effect: Effect, equatio
             refined, refined_rss, refined_se = _refine(cache, active, effect, setting, rss, grid, equation, names,
                                                        iterations)
             if refined_rss is not None and refined_rss <= rss:
-                setting, rss, setting_se = refined, refined_rss, refined_se
-                fit = fit_terms(cache, active + [Term(effect, setting)], equation, names)
-                score = block_bic(fit.residual, blocks, len(effect.coefficient_names(setting)))
+                fit = fit_terms(cache, active + [Term(effect, refined)], equation, names)
+                if effect.admissible(fit.coefs[-1], refined) or not effect.admissible(
+                        fit_terms(cache, active + [Term(effect, setting)], equation, names).coefs[-1], setting):
+                    setting, rss, setting_se = refined, refined_rss, refined_se
+                    score = block_bic(fit.residual, blocks, len(effect.coefficient_names(setting)))
         if score < best_score:
             best_score, best_rss, best, best_se = score, rss, setting, setting_se
     return Term(effect, dict(best), setting_se=best_se), best_rss, profile
