@@ -271,3 +271,13 @@ def test_a_background_condition_named_is_no_extra_but_a_withheld_effect_of_the_s
     row = score_case(record(items), truth({"channel_time_offset": offset}),
                      draw("t", {"channel_time_offset": 1.0}), EXPECTED, background)
     assert row["found_effects"] == ["channel_time_offset"] and row["background_found"] == []
+
+
+def test_effect_size_of_a_calibrated_parameter_comes_from_its_calibration_record():
+    rec = record([], first_step={"omega": {"viscous(omega)": 0.04}})
+    assert effect_size(rec, ["parameter(J)"]) is None
+    rec["which"]["calibration"] = [{"effect": "parameter(J)", "relative_improvement": 0.36, "outcome": "kept"},
+                                   {"effect": "parameter(b)", "relative_improvement": None,
+                                    "outcome": "exchanged for time_offset(tau_load)"}]
+    assert effect_size(rec, ["parameter(J)"]) == pytest.approx(0.6)
+    assert effect_size(rec, ["viscous(omega)", "parameter(b)"]) == pytest.approx(0.2)

@@ -22,9 +22,10 @@ but true offsets was named.
 
 Effect size (column ``effect_size``). For each withheld effect: the square root of the largest first-step
 ``relative_improvement`` of the candidates that match the effect's ``withheld.expected`` patterns, over all
-examined equations. The first selection step fits every candidate alone to the equation error, so this is the
-share of the equation error's RMS the effect can explain by itself (0 = nothing, 1 = all of it; the rest is
-noise, parameter offsets and the other effect of a pair). It is measured on the case's own data, so cases of
+examined equations; for a calibrated parameter error, the share of the residual it removes entering last. The
+first selection step fits every candidate beside the calibrated parameter errors alone, so this is the share of
+the equation error's RMS left by the calibration that the effect can explain by itself (0 = nothing, 1 = all of
+it; the rest is noise and the other effect of a pair). It is measured on the case's own data, so cases of
 different effects and maneuvers are comparable on one axis; the bench's size scale is reported beside it.
 
 Parameter error (column ``parameter_error_pct``): |fitted - true| / |true| x 100 of the withheld effect's size
@@ -166,8 +167,13 @@ def true_size(effect: str, parameters: dict[str, Any]) -> float | None:
 def effect_size(record: dict[str, Any], patterns: list[str]) -> float | None:
     """sqrt of the largest first-step ``relative_improvement`` among the candidates matching ``patterns`` over
     all examined equations (the effect's RMS share of the equation error, 0..1), or None if no candidate
-    matches."""
+    matches. A calibrated parameter error (``which.calibration``: fitted from the start, never a first-step
+    candidate) counts with the share of the residual it removes entering last."""
     best = None
+    for row in (record.get("which") or {}).get("calibration") or []:
+        value = row.get("relative_improvement")
+        if value is not None and any(fnmatch.fnmatchcase(row["effect"], p) for p in patterns):
+            best = float(value) if best is None else max(best, float(value))
     for equation in (record.get("which") or {}).get("equations", {}).values():
         steps = equation.get("steps") or []
         if not steps:
