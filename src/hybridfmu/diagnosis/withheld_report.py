@@ -355,9 +355,10 @@ def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any
         f"Withheld-effect check: {measures['n_cases']} cases (seeds {seeds}: {kinds['single']} single, "
         f"{kinds['pair']} pair, {kinds['none']} none), whose bench has effects the FMU lacks (size scale "
         f"{_num(size_lo)}–{_num(size_hi)} x the demo's, {settings.get('sizes_per_effect')} log strata per effect and "
-        f"seed) and motor parameter offsets (x{_num(offset_lo)}–{_num(offset_hi)} the demo bench's). Effect size = the RMS share of the equation error the effect explains alone (square root "
-        "of its best first-step relative improvement); in the none cases it measures what the effect's candidates "
-        "explain without the effect (surrogates of the offsets).",
+        f"seed) and motor parameter offsets (x{_num(offset_lo)}–{_num(offset_hi)} the demo bench's). Effect size = the RMS share of the equation error left by the calibrated parameter "
+        "errors that the effect explains alone (square root of its best first-step relative improvement; for an "
+        "effect named as a parameter error, the share it removes entering last); in the none cases it measures "
+        "what the effect's candidates explain without the effect.",
         "",
         "| bench effect | single cases | detected | detection limit (effect size) | size scale at the limit | "
         "effect size in the none cases | median parameter error | named where it acts |",
