@@ -281,3 +281,5 @@ def test_effect_size_of_a_calibrated_parameter_comes_from_its_calibration_record
                                     "outcome": "exchanged for time_offset(tau_load)"}]
     assert effect_size(rec, ["parameter(J)"]) == pytest.approx(0.6)
     assert effect_size(rec, ["viscous(omega)", "parameter(b)"]) == pytest.approx(0.2)
+    rec["which"]["calibration"][0]["relative_improvement"] = 1.03  # the other equations' gain counted too
+    assert effect_size(rec, ["parameter(J)"]) == 1.0

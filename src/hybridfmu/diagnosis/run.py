@@ -228,7 +228,8 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
     Returns ``chosen`` (per named effect: ``equation`` where it explains most, ``equations`` all it acts on,
     parameters, stability, drop-one score, rank), ``steps`` (the selection's steps; candidates with the
     equations they act on), ``equations`` (per state: its residual before and after, in the equation's unit,
-    the chosen effects acting there and the steps' candidates acting there), ``skipped``, ``terms``,
+    the chosen effects acting there and the steps' candidates acting there), ``calibration`` (per calibrated
+    parameter error: its relative error and whether it was kept, dropped or exchanged), ``skipped``, ``terms``,
     ``cache`` (per-equation designs).
     """
     settings = problem.settings

@@ -173,7 +173,9 @@ def effect_size(record: dict[str, Any], patterns: list[str]) -> float | None:
     for row in (record.get("which") or {}).get("calibration") or []:
         value = row.get("relative_improvement")
         if value is not None and any(fnmatch.fnmatchcase(row["effect"], p) for p in patterns):
-            best = float(value) if best is None else max(best, float(value))
+            # entering last, a joint coefficient's refit can also lower the other equations' residual: at most 1
+            value = min(float(value), 1.0)
+            best = value if best is None else max(best, value)
     for equation in (record.get("which") or {}).get("equations", {}).values():
         steps = equation.get("steps") or []
         if not steps:
