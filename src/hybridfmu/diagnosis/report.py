@@ -44,8 +44,8 @@ def _clean(value: Any) -> Any:
     return value
 
 
-def _cell(text: str) -> str:
-    """Text for a Markdown table cell (``|`` escaped, as in ``coulomb(omega)*|tau_load|``)."""
+def table_cell(text: str) -> str:
+    """Text for a Markdown table cell (``|`` escaped, as in ``coulomb(v)*|u|``)."""
     return str(text).replace("|", "\\|")
 
 
@@ -224,8 +224,8 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                   "| parameter error | equation(s) | relative error | BIC drop | outcome |", "|---|---|---|---|---|"]
         for row in which["calibration"]:
             where = ", ".join(f"d{e}/dt" for e in row.get("equations") or [])
-            lines.append(f"| {_cell(row['effect'])} | {where} | {_fmt(row.get('relative_parameter_error'), 3)} | "
-                         f"{_fmt(row.get('bic_drop'), 4)} | {_cell(row['outcome'])} |")
+            lines.append(f"| {table_cell(row['effect'])} | {where} | {_fmt(row.get('relative_parameter_error'), 3)} | "
+                         f"{_fmt(row.get('bic_drop'), 4)} | {table_cell(row['outcome'])} |")
         lines.append("")
     for k, step in enumerate(which.get("steps") or [], start=1):
         title = f"Step {k} (exchange): {step['chosen']} {step['reason']}" if step.get("kind") == "exchange" else \
@@ -236,7 +236,7 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
         for cand in ranked:
             setting = ", ".join(f"{key}={_fmt(v, 4)}" for key, v in cand["setting"].items()) or "-"
             where = ", ".join(f"d{e}/dt" for e in cand.get("equations") or [])
-            lines.append(f"| {_cell(cand['effect'])} | {where} | {setting} | {100 * cand['relative_improvement']:.2f} % | "
+            lines.append(f"| {table_cell(cand['effect'])} | {where} | {setting} | {100 * cand['relative_improvement']:.2f} % | "
                          f"{_fmt(cand.get('bic_drop'), 4)} |")
         if len(step["candidates"]) > len(ranked):
             lines.append(f"| ... {len(step['candidates']) - len(ranked)} more | | | | |")
@@ -252,7 +252,7 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                                              for k, v in nn["equations"].items()) + ".", "",
                   "| effect | equation | R^2 (fitted) | R^2 (refitted) |", "|---|---|---|---|"]
         for row in nn["effects"]:
-            lines.append(f"| {_cell(row['effect'])} | {row['equation']} | {_fmt(row['r2_fitted'], 3)} | "
+            lines.append(f"| {table_cell(row['effect'])} | {row['equation']} | {_fmt(row['r2_fitted'], 3)} | "
                          f"{_fmt(row['r2_refit'], 3)} |")
         lines.append("")
     elif record.get("neural_fmu_error"):

@@ -410,7 +410,8 @@ def best_setting(cache: DesignCache, active: list[Term], effect: Effect, equatio
         store = per_structure if admissible else inadmissible
         if key not in store or score < store[key][0]:
             store[key] = (score, fit.rss, setting)
-    if not per_structure:  # no setting fits admissibly: the best fits are all there is
+    fallback = not per_structure  # no setting fits admissibly: the best fits are all there is
+    if fallback:
         per_structure = inadmissible
     best_score, best_rss, best, best_se = math.inf, math.inf, grid[0], {}
     for score, rss, setting in per_structure.values():
@@ -420,8 +421,7 @@ def best_setting(cache: DesignCache, active: list[Term], effect: Effect, equatio
                                                        iterations)
             if refined_rss is not None and refined_rss <= rss:
                 fit = fit_terms(cache, active + [Term(effect, refined)], equation, names)
-                if effect.admissible(fit.coefs[-1], refined) or not effect.admissible(
-                        fit_terms(cache, active + [Term(effect, setting)], equation, names).coefs[-1], setting):
+                if fallback or effect.admissible(fit.coefs[-1], refined):
                     setting, rss, setting_se = refined, refined_rss, refined_se
                     score = block_bic(fit.residual, blocks, len(effect.coefficient_names(setting)))
         if score < best_score:
@@ -453,7 +453,24 @@ class EquationSelection:
     calibration: list[dict[str, Any]] = field(default_factory=list)
 
 
-def _candidate_row(cache, active: list[Term], term: Term, rss: float, equation: int, names: list[str],
+def _fit_state(cache, terms: list[Term], equation: int, names: list[str], blocks: list[Block],
+               grid_sizes: dict[tuple, int]) -> tuple[list[float], float]:
+    """Residual sum of squares per block and block BIC of ``terms`` fitted together."""
+    fit = fit_terms(cache, terms, equation, names)
+    k = sum(count_parameters(t, grid_sizes[effect_key(t.effect)]) for t in terms)
+    return block_rss(fit.residual, blocks), block_bic(fit.residual, blocks, k)
+
+
+def _effects_per_equation(terms: list[Term]) -> dict[int, int]:
+    """Equation index -> number of ``terms`` acting on it (for ``max_effects_per_equation``)."""
+    counts: dict[int, int] = {}
+    for term in terms:
+        for eq in effect_equations(term.effect):
+            counts[eq] = counts.get(eq, 0) + 1
+    return counts
+
+
+def _candidate_row(cache, active: list[Term], term: Term, equation: int, names: list[str],
                    blocks: list[Block], rss_cur_blocks: list[float], rss_none_blocks: list[float], bic_cur: float,
                    grid_sizes: dict[tuple, int], settings: SelectionSettings) -> dict[str, Any]:
     """One candidate of a forward step, measured on the blocks (equations) it acts on."""
@@ -515,10 +532,9 @@ def _eliminate(cache, active: list[Term], base: list[Term], equation: int, names
         rows = []
         for term in candidates:
             others = [t for t in active if t is not term]
-            fit = fit_terms(cache, others, equation, names)
-            k = sum(count_parameters(t, grid_sizes[effect_key(t.effect)]) for t in others)
-            row = _candidate_row(cache, others, term, 0.0, equation, names, blocks, block_rss(fit.residual, blocks),
-                                 rss_none_blocks, block_bic(fit.residual, blocks, k), grid_sizes, settings)
+            rss_blocks, bic_others = _fit_state(cache, others, equation, names, blocks, grid_sizes)
+            row = _candidate_row(cache, others, term, equation, names, blocks, rss_blocks, rss_none_blocks,
+                                 bic_others, grid_sizes, settings)
             row["rejected_because"] = "parameter error within the tolerance" if row["within_tolerance"] else \
                 _rejection(row, settings, {})
             rows.append(row)
@@ -566,20 +582,16 @@ def _best_exchange(cache, active: list[Term], pool: list[Effect], equation: int,
     the ``refine_candidates`` best by BIC at their grid settings."""
     if not active:
         return None
-    k_all = sum(count_parameters(t, grid_sizes[effect_key(t.effect)]) for t in active)
-    fit_all = fit_terms(cache, active, equation, names)
-    bic_all = block_bic(fit_all.residual, blocks, k_all)
+    _, bic_all = _fit_state(cache, active, equation, names, blocks, grid_sizes)
     in_use = {effect_key(t.effect) for t in active}
     best: tuple[Term, dict[str, Any]] | None = None
     for out in active:
         others = [t for t in active if t is not out]
-        fit = fit_terms(cache, others, equation, names)
-        k = sum(count_parameters(t, grid_sizes[effect_key(t.effect)]) for t in others)
-        rss_blocks, bic_others = block_rss(fit.residual, blocks), block_bic(fit.residual, blocks, k)
+        rss_blocks, bic_others = _fit_state(cache, others, equation, names, blocks, grid_sizes)
 
         def row_of(effect: Effect, refine: bool) -> dict[str, Any]:
-            term, rss, _ = best_setting(cache, others, effect, equation, names, settings.refine_iterations, refine)
-            return _candidate_row(cache, others, term, rss, equation, names, blocks, rss_blocks, rss_none_blocks,
+            term, _, _ = best_setting(cache, others, effect, equation, names, settings.refine_iterations, refine)
+            return _candidate_row(cache, others, term, equation, names, blocks, rss_blocks, rss_none_blocks,
                                   bic_others, grid_sizes, settings)
 
         # a change of the whole model is exchanged only for another one: a local term in its place would stand
@@ -590,10 +602,7 @@ def _best_exchange(cache, active: list[Term], pool: list[Effect], equation: int,
         rows = rows[:max(int(settings.refine_candidates), 1)]
         rows = sorted((row_of(r["term"].effect, True) if r["term"].effect.continuous_parameters() else r
                        for r in rows), key=lambda r: r["bic"])
-        counts: dict[int, int] = {}
-        for t in others:
-            for eq in effect_equations(t.effect):
-                counts[eq] = counts.get(eq, 0) + 1
+        counts = _effects_per_equation(others)
         calibrated = any(out.effect is p for p in parameters or [])
         for row in rows:
             gain = bic_all - row["bic"]
@@ -622,11 +631,10 @@ def _would_not_return(cache, active: list[Term], out: Term, equation: int, names
     candidate there is below ``min_bic_drop`` (or it is a parameter error within the tolerance). Else the
     newcomer explains only part of what ``out`` does, and both belong to the model (a damping beside a lagging
     load signal): the exchange is refused and ``out`` stays."""
-    fit = fit_terms(cache, active, equation, names)
-    k = sum(count_parameters(t, grid_sizes[effect_key(t.effect)]) for t in active)
-    term, rss, _ = best_setting(cache, active, out.effect, equation, names, settings.refine_iterations)
-    row = _candidate_row(cache, active, term, rss, equation, names, blocks, block_rss(fit.residual, blocks),
-                         rss_none_blocks, block_bic(fit.residual, blocks, k), grid_sizes, settings)
+    rss_blocks, bic_active = _fit_state(cache, active, equation, names, blocks, grid_sizes)
+    term, _, _ = best_setting(cache, active, out.effect, equation, names, settings.refine_iterations)
+    row = _candidate_row(cache, active, term, equation, names, blocks, rss_blocks, rss_none_blocks, bic_active,
+                         grid_sizes, settings)
     return row["within_tolerance"] or row["bic_drop"] < settings.min_bic_drop
 
 
@@ -666,24 +674,16 @@ def select_equation(cache: DesignCache, equation: int, effects: list[Effect], na
     grid_sizes = {effect_key(e): len(e.grid()) for e in effects + [t.effect for t in base]}
     rss_none = float(y @ y)
     rss_none_blocks = block_rss(y, blocks)
-    start = fit_terms(cache, active, equation, names)
-    rss_cur_blocks = block_rss(start.residual, blocks)
-    bic_cur = block_bic(start.residual, blocks, sum(count_parameters(t, 1) for t in active))
+    rss_cur_blocks, bic_cur = _fit_state(cache, active, equation, names, blocks, grid_sizes)
     counts: dict[int, int] = {}
     steps: list[SelectionStep] = []
     limit = settings.max_effects_per_equation * max(len(blocks), 1) + len(base)
     pool = effects + [t.effect for t in base]
 
     def restate(terms: list[Term]) -> tuple[list[float], float, dict[int, int]]:
-        """Residual per block, BIC and chosen effects per equation of the active ``terms``."""
-        fit = fit_terms(cache, terms, equation, names)
-        k = sum(count_parameters(t, grid_sizes[effect_key(t.effect)]) for t in terms)
-        per_equation: dict[int, int] = {}
-        for t in terms:
-            if not any(t is b for b in base):
-                for eq in effect_equations(t.effect):
-                    per_equation[eq] = per_equation.get(eq, 0) + 1
-        return block_rss(fit.residual, blocks), block_bic(fit.residual, blocks, k), per_equation
+        """Residual per block, BIC and chosen (not calibrated) effects per equation of the active ``terms``."""
+        rss_blocks, bic_terms = _fit_state(cache, terms, equation, names, blocks, grid_sizes)
+        return rss_blocks, bic_terms, _effects_per_equation([t for t in terms if not any(t is b for b in base)])
 
     def forward() -> None:
         """Forward steps from the active set until no candidate may enter."""
@@ -695,9 +695,9 @@ def select_equation(cache: DesignCache, equation: int, effects: list[Effect], na
                 break
 
             def row_of(effect: Effect, refine: bool) -> dict[str, Any]:
-                term, rss, _ = best_setting(cache, active, effect, equation, names, settings.refine_iterations,
-                                            refine)
-                return _candidate_row(cache, active, term, rss, equation, names, blocks, rss_cur_blocks,
+                term, _, _ = best_setting(cache, active, effect, equation, names, settings.refine_iterations,
+                                          refine)
+                return _candidate_row(cache, active, term, equation, names, blocks, rss_cur_blocks,
                                       rss_none_blocks, bic_cur, grid_sizes, settings)
 
             rows_info = sorted((row_of(e, False) for e in remaining), key=lambda r: r["bic"])

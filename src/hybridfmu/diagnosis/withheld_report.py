@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from hybridfmu.diagnosis.report import table_cell
 from hybridfmu.diagnosis.withheld_scoring import effect_size, rejected_candidates, score_case, selection_thresholds
 from hybridfmu.io import atomic_path, read_json, write_text_atomic
 
@@ -327,12 +328,8 @@ def _pct(value: float | None) -> str:
     return "–" if value is None else f"{100 * value:.0f} %"
 
 
-def _md(text: str) -> str:
-    return str(text).replace("|", "\\|")
-
-
 def _names(values: list[str]) -> str:
-    return _md(", ".join(values) or "none")
+    return table_cell(", ".join(values) or "none")
 
 
 def _verdict(value: bool | None) -> str:
@@ -465,9 +462,9 @@ def _alarm_lines(alarms: list[dict[str, Any]], thresholds: dict[str, float]) -> 
              " | reason |",
              "|---|---|---|---|---|---|---|---|---|"]
     for a in alarms:
-        lines.append(f"| {a['case']} | {a['equation']} | {_names(a['chosen_before'])} | {_md(a['effect'] or '–')} | "
+        lines.append(f"| {a['case']} | {a['equation']} | {_names(a['chosen_before'])} | {table_cell(a['effect'] or '–')} | "
                      f"{_num(a['bic_drop'])} | {_num(a['relative_improvement'])} | {_num(a['explained_share'])} | "
-                     f"{_num(a['explained_to_noise'])} | {_md(a['reason'] or '–')} |")
+                     f"{_num(a['explained_to_noise'])} | {table_cell(a['reason'] or '–')} |")
     return lines + [""]
 
 
