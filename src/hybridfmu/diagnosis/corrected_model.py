@@ -153,6 +153,12 @@ class CorrectedModel:
                 if batch is None:
                     raise ValueError(f"{effect.name}: the effect offers no way to be added to the model")
                 self.batches.append((member.equation, batch))
+                source = getattr(member, "source_batch_function", None)
+                if source is not None:  # an overflow also limits the unmeasured state it comes from
+                    limited = source(setting, helper)
+                    if limited is None:
+                        raise ValueError(f"{effect.name}: the effect needs a helper model instance")
+                    self.batches.append(limited)
 
     @property
     def has_correction(self) -> bool:

@@ -293,6 +293,10 @@ class Effect:
     def coefficient_names(self, setting: dict[str, float]) -> list[str]:
         return ["coefficient"]
 
+    def coefficient_bounds(self, setting: dict[str, float]) -> list[tuple[float, float]]:
+        """(min, max) of each linear coefficient where it is refitted by output error (default: unbounded)."""
+        return [(-math.inf, math.inf)] * len(self.coefficient_names(setting))
+
     def regressors(self, inputs: EffectInputs, setting: dict[str, float]) -> np.ndarray:
         """(M, n_coef) regressors of the effect's equation."""
         raise NotImplementedError

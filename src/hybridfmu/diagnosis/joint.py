@@ -76,6 +76,9 @@ class JointEffect(Effect):
     def coefficient_names(self, setting):
         return self.first.coefficient_names(setting)
 
+    def coefficient_bounds(self, setting):
+        return self.first.coefficient_bounds(setting)
+
     def regressors(self, inputs, setting):
         raise TypeError(f"{self.name}: a joint effect has regressors per member equation; use its members")
 

@@ -18,6 +18,9 @@ name                           term in dx_i/dt                                  
 ``saturation_below(x)``        c max(0, x_c - x)                                          x_c (grid, refined)
 ``limit_above(x_i)``           -c 1[x_i >= x_c] max(f_i, 0)  (x_i cannot rise past x_c)   x_c (grid, refined)
 ``limit_below(x_i)``           c 1[x_i <= x_c] max(-f_i, 0)  (x_i cannot fall past x_c)   x_c (grid, refined)
+``overflow(x_j->x_i)``         c_l [f_i(x_j limited) - f_i] + s 1[x_j >= x_c] max(f_j, 0)  x_c (grid, refined)
+                               (x_j not measured: integrated with the limit; the share s
+                               of its overflow reaches x_i)
 ``input_gain(u)``              g (df_i/du) u                                              -
 ``input_offset(u)``            o (df_i/du)                                                -
 ``time_offset(u)``             c [f_i(x, u(t + s)) - f_i(x, u)]  (offset c s)              s (grid, refined)
@@ -53,7 +56,7 @@ import importlib
 import logging
 import math
 import re
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -423,6 +426,9 @@ class Limit(StateEffect):
     def coefficient_names(self, setting):
         return ["stop_fraction"]
 
+    def coefficient_bounds(self, setting):
+        return [(0.0, 1.0)]
+
     def _term(self, x_i: np.ndarray, f_i: np.ndarray, level: float) -> np.ndarray:
         if self.side == "above":
             return -np.where(x_i >= level, np.maximum(f_i, 0.0), 0.0)
@@ -446,6 +452,123 @@ class Limit(StateEffect):
         return [param("stop_fraction", *linear_estimate(coef, cov, [1.0]), "-",
                       "share of the model's derivative towards the level that is cancelled there (1: a hard limit)"),
                 param("level", setting["level"], setting_se.get("level"), self.state_unit, f"limit ({self.side})")]
+
+
+class Overflow(Effect):
+    """A state that no measurement shows spills over at a level, and a share of what spills reaches the examined
+    equation (an upper tank overflowing into a lower one, a pressure-relief valve venting into a second volume).
+
+    x_j (unmeasured) cannot rise past x_c: its own rate loses ``1[x_j >= x_c] max(f_j, 0)`` (a hard limit), and
+    the examined equation i sees the limited x_j and gains the share ``s`` of what spills::
+
+        c_l [f_i(x with the limited x_j) - f_i(x)] + s 1[x_j >= x_c] max(f_j, 0)      (0 <= s <= 1)
+
+    The limited x_j is integrated along the maneuver (RK4 per sampling interval, the other states and the
+    inputs held as logged) from the unmeasured state's start; c_l (1 in theory: the model's own coupling) is
+    fitted and reported as a check, the corrected model uses the limited state itself. x_c is searched over the
+    ``overflow_quantiles`` of x_j along the fitting maneuvers and refined: x_j there is the simulation of the
+    model without the overflow, which rises past the real level, so the grid reaches far below its top.
+    """
+
+    kind = "overflow"
+    continuous = "level"
+
+    def __init__(self, problem, equation, variable, options):
+        source, target = problem.state_names[variable], problem.state_names[equation]
+        super().__init__(f"overflow({source}->{target})", equation,
+                         f"{source} (not measured) overflows at a level; a share of the overflow reaches {target}",
+                         f"c_l [f_{target}({source} limited) - f_{target}] + s 1[{source} >= x_c] max(f_{source}, 0)",
+                         "-")
+        self.variable = variable
+        levels = problem.quantiles.get(source)
+        qs = [float(q) for q in options["overflow_quantiles"]]
+        self.levels = sorted({float(np.interp(q, np.linspace(0, 1, len(levels)), levels)) for q in qs}) \
+            if levels is not None and len(levels) else []
+        self.state_unit = problem.unit(source)
+        self.source = source
+
+    def grid(self):
+        return [{"level": v} for v in self.levels]
+
+    def bounds(self):
+        return (self.levels[0], self.levels[-1]) if self.levels else None
+
+    def coefficient_names(self, setting):
+        return ["level_coupling", "share"]
+
+    def coefficient_bounds(self, setting):
+        return [(1.0, 1.0), (0.0, 1.0)]  # the corrected model couples through the limited state itself
+
+    @staticmethod
+    def spill(x_j: np.ndarray, f_j: np.ndarray, level: float) -> np.ndarray:
+        """What overflows (state units per s), (N,): the rate of x_j towards and beyond its level."""
+        return np.where(x_j >= level, np.maximum(f_j, 0.0), 0.0)
+
+    def limited_states(self, inputs: EffectInputs, level: float) -> np.ndarray:
+        """(M, n_x) the interval states with x_j integrated under the limit (RK4 per interval of ``inputs.dt_s``,
+        the other states and the inputs held at their interval values; x_j starts at its first interval value)."""
+        x = np.array(inputs.x, dtype=float)
+        j, dt_s, model = self.variable, inputs.dt_s, inputs.model
+        if model is None or dt_s <= 0:
+            raise RuntimeError(f"{self.name}: the effect inputs carry no model or sampling interval")
+
+        def rate(row: np.ndarray, u_row: np.ndarray) -> float:
+            f_j = float(np.asarray(model.derivatives(row[None, :], u_row[None, :]))[0, j])
+            return f_j - (max(f_j, 0.0) if row[j] >= level else 0.0)
+
+        value = float(x[0, j])
+        for k in range(len(x)):
+            row, u_row = x[k].copy(), inputs.u[k]
+            x[k, j] = value
+            stages = []
+            for a in (0.0, 0.5, 0.5, 1.0):
+                row[j] = value + a * dt_s * (stages[-1] if stages else 0.0)
+                stages.append(rate(row, u_row))
+            value += dt_s / 6.0 * (stages[0] + 2.0 * stages[1] + 2.0 * stages[2] + stages[3])
+        return x
+
+    def regressors(self, inputs, setting):
+        level = float(setting["level"])
+        limited = self.limited_states(inputs, level)
+        f_limited = np.asarray(inputs.model.derivatives(limited, inputs.u), dtype=float)
+        coupling = f_limited[:, self.equation] - inputs.f[:, self.equation]
+        return np.stack([coupling, self.spill(limited[:, self.variable], f_limited[:, self.variable], level)], axis=1)
+
+    def admissible(self, coef, setting):
+        return 0.0 <= float(coef[1]) <= 1.0 and float(coef[0]) > 0.0
+
+    def batch_function(self, coef, setting, helper):
+        if helper is None:
+            return None
+        share, level, j = float(coef[1]), float(setting["level"]), self.variable
+
+        def term(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+            x = np.asarray(x, dtype=float)
+            f = np.asarray(helper.derivatives(x, np.asarray(u, dtype=float)))
+            return share * self.spill(x[:, j], f[:, j], level)
+
+        return term
+
+    def source_batch_function(self, setting, helper) -> tuple[int, Callable] | None:
+        """The hard limit in the unmeasured state's own equation: (its index, (x, u) -> (N,) rate change)."""
+        if helper is None:
+            return None
+        level, j = float(setting["level"]), self.variable
+
+        def limit(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+            x = np.asarray(x, dtype=float)
+            f = np.asarray(helper.derivatives(x, np.asarray(u, dtype=float)))
+            return -self.spill(x[:, j], f[:, j], level)
+
+        return j, limit
+
+    def physical(self, coef, cov, setting, setting_se):
+        return [param("share", *linear_estimate(coef, cov, [0.0, 1.0]), "-",
+                      "share of the overflow that reaches the examined equation's state"),
+                param("level_coupling", *linear_estimate(coef, cov, [1.0, 0.0]), "-",
+                      "scale of the model's coupling to the limited state (1 expected; a check)"),
+                param("level", setting["level"], setting_se.get("level"), self.state_unit,
+                      f"overflow level of {self.source}")]
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -854,6 +977,9 @@ def build_library(problem: Problem, inputs: EffectInputs, model: Any) -> tuple[d
                 effects.append(Periodic(problem, eq, j, problem.periodic[j], options))
             if "scaled_coulomb" in kinds:
                 effects += [ScaledCoulomb(problem, eq, j, k, options) for k in range(problem.n_u)]
+        if "overflow" in kinds:
+            effects += [Overflow(problem, eq, j, options) for j in problem.unmeasured
+                        if inputs.n and _nonzero(inputs.f[:, j], float(rate_scale[j]))]
         active_inputs = []
         for k, name in enumerate(problem.input_names):
             column = inputs.dfdu[:, eq, k] if inputs.dfdu is not None else None
@@ -906,5 +1032,5 @@ def build_library(problem: Problem, inputs: EffectInputs, model: Any) -> tuple[d
 
 
 DEFAULT_KINDS = ["viscous", "quadratic", "polynomial", "coulomb", "scaled_coulomb", "periodic", "saturation", "limit",
-                 "input_gain", "input_offset", "time_offset", "input_lag", "input_deadzone", "input_saturation",
+                 "overflow", "input_gain", "input_offset", "time_offset", "input_lag", "input_deadzone", "input_saturation",
                  "parameter"]

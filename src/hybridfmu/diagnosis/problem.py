@@ -58,7 +58,7 @@ DEFAULT_SETTINGS: dict[str, Any] = {
 
 DEFAULT_EFFECT_OPTIONS: dict[str, Any] = {
     "kinds": ["viscous", "quadratic", "polynomial", "coulomb", "scaled_coulomb", "periodic", "saturation", "limit",
-              "input_gain", "input_offset", "time_offset", "input_lag", "input_deadzone", "input_saturation",
+              "overflow", "input_gain", "input_offset", "time_offset", "input_lag", "input_deadzone", "input_saturation",
               "parameter"],
     # grid of the tanh smoothing of friction signs relative to the state's spread (refined on a log
     # scale after the grid; a single number fixes it)
@@ -69,6 +69,8 @@ DEFAULT_EFFECT_OPTIONS: dict[str, Any] = {
     "saturation_quantiles": [0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95],
     # quantiles q of a state searched as its upper limit (1 - q as its lower one); refined after the grid
     "limit_quantiles": [0.8, 0.9, 0.95, 0.98, 0.99],
+    # quantiles of an unmeasured state (its simulation without the effect) searched as its overflow level
+    "overflow_quantiles": [0.2, 0.4, 0.6, 0.8, 0.9, 0.95, 0.99],
     # quantiles q of the inputs: dead-zone half widths at the q-quantiles of |u|, saturation levels at the
     # (1 - q)- (above) and q-quantiles (below) of u; refined after the grid
     "input_quantiles": [0.05, 0.1, 0.2, 0.3, 0.4, 0.5],
@@ -88,7 +90,8 @@ DEFAULT_REGION_SETTINGS: dict[str, Any] = {
     "top_statements": 6,
 }
 
-DEFAULT_OPEN_LOOP: dict[str, Any] = {"window_s": None, "growth_threshold_relative": 0.1}
+DEFAULT_OPEN_LOOP: dict[str, Any] = {"window_s": None, "growth_threshold_relative": 0.1, "refit": False,
+                                     "refit_max_evaluations": 200}
 
 
 def diagnosis_settings(config: dict[str, Any]) -> dict[str, Any]:

@@ -56,6 +56,15 @@ def equations_text(item: dict[str, Any]) -> str:
     return ", ".join(f"d{s}/dt" for s in states)
 
 
+def _relative_error_text(item: dict[str, Any]) -> str:
+    """``+4.1 %`` from a chosen parameter error's physical parameters (its relative error), else its name."""
+    row = next((r for r in item.get("parameters", []) if r.get("unit") == "%" or "relative" in r["name"]), None)
+    if row is None or row.get("value") is None:
+        return "relative error not reported"
+    value = float(row["value"]) * (1.0 if row.get("unit") == "%" else 100.0)
+    return f"{value:+.3g} %"
+
+
 def verdict(result: dict[str, Any]) -> str:
     """One paragraph: which equation carries the gap, what was found, how far it shrank."""
     problem = result["problem"]
@@ -69,8 +78,16 @@ def verdict(result: dict[str, Any]) -> str:
                      f"(equation error {s['rms_residual']:.3g} {s['unit']} RMS, {s['ratio_to_noise']:.2f} x its "
                      "noise floor).")
     if chosen:
-        names = ", ".join(f"{c['rank']}. {c['effect']} in {equations_text(c)}" for c in chosen)
-        parts.append(f"Effects named (rank order): {names}.")
+        unmodelled = [c for c in chosen if c["kind"] != "parameter"]
+        errors = [c for c in chosen if c["kind"] == "parameter"]
+        if unmodelled:
+            names = ", ".join(f"{k}. {c['effect']} in {equations_text(c)}" for k, c in enumerate(unmodelled, 1))
+            parts.append(f"Unmodelled effects named (rank order): {names}.")
+        else:
+            parts.append("No unmodelled effect is named.")
+        if errors:
+            names = ", ".join(f"{c['effect']} ({_relative_error_text(c)})" for c in errors)
+            parts.append(f"Parameter errors of the model: {names}.")
     else:
         ratios = ", ".join(f"d{k}/dt: {v['ratio_to_noise']:.2f}" for k, v in where["states"].items())
         parts.append("No candidate effect explains a significant part of the equation error: nothing is named "
@@ -265,19 +282,35 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
         states = list(prob["targets"])
         head = " | ".join(f"{labels.get(s, s)} RMS [{units.get(s, '') or '-'}] | MAE" for s in states)
         windowed = "window_gap" in far["before"]
+        refitted = any("refit" in s for s in far["steps"])
+        how = ("each variant, the model alone among them, recalibrated with its effects by output error on the train "
+               "maneuver(s) (the calibration's parameters, the effects' coefficients and refined settings, the "
+               "unmeasured initial states; diagnosis.open_loop.refit)") if refitted else \
+            "the equation-error fits of the effects added to the calibrated model"
         lines += ["## How far", "",
                   "Open loop on the held-out test maneuver(s) (no fit saw them) from the measured initial state "
                   "(unmeasured states from the calibration), with the chosen effects added one at a time in rank order: "
                   "additive terms in their equations, input effects on the logged inputs, parameter errors as corrected "
-                  "parameters. The normalised gap is the target-weighted MAE over the spread of each target.", "",
-                  f"| model | {head} | normalised gap |" + (" windowed gap |" if windowed else ""),
-                  "|---|" + "---|---|" * len(states) + "---|" + ("---|" if windowed else "")]
+                  f"parameters; {how}. The normalised gap is the target-weighted MAE over the spread of each target.",
+                  "", f"| model | {head} | normalised gap |" + (" windowed gap |" if windowed else "") +
+                  (" train cost |" if refitted else ""),
+                  "|---|" + "---|---|" * len(states) + "---|" + ("---|" if windowed else "") +
+                  ("---|" if refitted else "")]
         for s in far["steps"]:
             cells = " | ".join(f"{_fmt(s.get(f'{sig}_rmse'))} | {_fmt(s.get(f'{sig}_mae'))}" for sig in signals)
-            lines.append(f"| {s['model']} | {cells} | {_fmt(s.get('gap'))} |" +
-                         (f" {_fmt(s.get('window_gap'))} |" if windowed else ""))
+            lines.append(f"| {table_cell(s['model'])} | {cells} | {_fmt(s.get('gap'))} |" +
+                         (f" {_fmt(s.get('window_gap'))} |" if windowed else "") +
+                         (f" {_fmt(s['refit']['cost'])} |" if "refit" in s else (" - |" if refitted else "")))
         lines += ["", f"Normalised gap: {_fmt(far['gap_before'])} -> {_fmt(far['gap_after'])}, factor "
                       f"{_fmt(far['shrink_factor'], 3)}."]
+        last = next((s for s in reversed(far["steps"]) if "refit" in s), None)
+        if last is not None:
+            lines += ["", f"Recalibrated variables of the last variant ({table_cell(last['model'])}; train cost "
+                          f"{_fmt(last['refit']['cost_start'])} -> {_fmt(last['refit']['cost'])}, "
+                          f"{last['refit']['evaluations']} simulations):", "",
+                      "| variable | start | recalibrated |", "|---|---|---|"]
+            lines += [f"| {table_cell(name)} | {_fmt(v['start'])} | {_fmt(v['fitted'])} |"
+                      for name, v in last["refit"]["variables"].items()]
         lines += [f"- {note}" for note in far.get("notes", [])] + [""]
     else:
         reason = record.get("how_far_not_run") or "The held-out check on test maneuvers was not run."

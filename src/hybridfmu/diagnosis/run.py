@@ -25,6 +25,7 @@ from hybridfmu.diagnosis.library import build_library
 from hybridfmu.diagnosis.prepare import (MeasuredManeuver, PreparedManeuver, fill_unmeasured, kernel_samples,
                                          load_maneuver, prepare_maneuver)
 from hybridfmu.diagnosis.problem import Problem, build_problem, diagnosis_settings, set_data_statistics
+from hybridfmu.diagnosis.refit import Refit, RefitSpec, parameters_set, refit_terms, simulate_corrected
 from hybridfmu.diagnosis.regions import (RegionSamples, band_family, ranked_statements, region_table, reversal_mask,
                                          time_bins)
 from hybridfmu.diagnosis.selection import (DesignCache, EquationSelection, SelectionSettings, Term, best_setting,
@@ -338,33 +339,59 @@ def _mean_errors(per: dict[str, dict[str, float]]) -> dict[str, float]:
     return {k: float(np.mean([v[k] for v in per.values()])) for k in keys if k != "n_windows"}
 
 
+def _refit_record(refit: Refit) -> dict[str, Any]:
+    return {"cost_start": refit.cost_start, "cost": refit.cost, "evaluations": refit.evaluations,
+            "elapsed_s": round(refit.elapsed_s, 2), "parameters": refit.parameters,
+            "initial_states": refit.initial_states,
+            "variables": {name: {"start": a, "fitted": b} for name, (a, b) in refit.variables.items()}}
+
+
 def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
-            test_names: list[str], terms: list[Term], problem: Problem, neural_model: Any = None) -> dict[str, Any]:
+            test_names: list[str], terms: list[Term], problem: Problem, neural_model: Any = None,
+            refit: RefitSpec | None = None, refit_names: list[str] | None = None) -> dict[str, Any]:
     """Open-loop errors on the test maneuvers: the model, after each chosen effect (cumulative, rank order),
-    and the neural FMU. Returns steps, ``before``/``after`` (``<signal>_rmse``, ``<signal>_mae``, ``gap``)."""
+    and the neural FMU. Returns steps, ``before``/``after`` (``<signal>_rmse``, ``<signal>_mae``, ``gap``).
+
+    With ``refit`` (:func:`hybridfmu.diagnosis.refit.refit_spec`), every variant, the model alone among them,
+    is first recalibrated with its effects by output error on the maneuvers ``refit_names``
+    (:mod:`hybridfmu.diagnosis.refit`); each step then carries its ``refit`` record."""
     window_s = problem.settings["open_loop"].get("window_s")
     steps = []
     trajectories: dict[str, dict[str, np.ndarray]] = {name: {} for name in test_names}
     variants = [("FMU", [])] + [(f"+ {t.effect.name} ({equation_label(t.effect, problem)})", terms[:k + 1])
                                 for k, t in enumerate(terms)]
     notes: list[str] = []
+    fitted = None
     for label, active in variants:
+        if refit is not None:
+            absorbed = active and _refitted_parameter(active[-1], refit)
+            if not (absorbed and fitted is not None):  # an absorbed parameter error leaves the variant as it was
+                fitted = refit_terms(model, helper, simulate_fn, [prepared[n].measured for n in refit_names or []],
+                                     active, problem, refit, label=f"refit {label}")
+            active = fitted.terms
         corrected = CorrectedModel(active, problem, helper) if active else None
         if corrected is not None:
             notes = corrected.notes
         per = {}
-        for name in test_names:
-            meas = prepared[name].measured
-            starts = prepared[name].starts
-            started = time.perf_counter()
-            errors, whole = open_loop_errors(model, simulate_fn, meas.time_s, _reference(meas, starts, problem), meas.u,
-                                             starts, problem, corrected, window_s)
-            LOGGER.info("open loop %s on %s: normalised gap %.4g (%.1f s)", label, name, errors["gap"],
-                        time.perf_counter() - started)
-            per[name] = errors
-            trajectories[name][label] = whole
-        steps.append({"model": label, "effects": [t.effect.name for t in active], "per_maneuver": per,
-                      **_mean_errors(per)})
+        with parameters_set([model, helper], fitted.parameters if fitted is not None else {}):
+            for name in test_names:
+                meas = prepared[name].measured
+                starts = prepared[name].starts
+                if fitted is not None:
+                    starts = _refit_starts(model, simulate_fn, meas, starts, corrected,
+                                           fitted.initial_states_of(name, refit), problem)
+                started = time.perf_counter()
+                errors, whole = open_loop_errors(model, simulate_fn, meas.time_s, _reference(meas, starts, problem),
+                                                 meas.u, starts, problem, corrected, window_s)
+                LOGGER.info("open loop %s on %s: normalised gap %.4g (%.1f s)", label, name, errors["gap"],
+                            time.perf_counter() - started)
+                per[name] = errors
+                trajectories[name][label] = whole
+        step = {"model": label, "effects": [t.effect.name for t in active], "per_maneuver": per, **_mean_errors(per)}
+        if fitted is not None:
+            step["effects"] = [t.effect.name for t in variants[len(steps)][1]]
+            step["refit"] = _refit_record(fitted)
+        steps.append(step)
     if neural_model is not None:
         from hybridfmu.diagnosis.corrected_model import target_errors
         from hybridfmu.diagnosis.neural import simulate_neural
@@ -390,6 +417,26 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
     if "window_gap" in before:
         result["window_gap_before"], result["window_gap_after"] = before["window_gap"], after["window_gap"]
     return result
+
+
+def _refitted_parameter(term: Term, refit: RefitSpec) -> bool:
+    """Whether ``term`` is an error of a parameter the refit fits anyway (it adds nothing to the variant)."""
+    change = term.effect.parameter_change(term.coef, term.setting)
+    return change is not None and change[0] in refit.parameter_bounds
+
+
+def _refit_starts(model: Any, simulate_fn: Callable, meas: MeasuredManeuver, starts: np.ndarray,
+                  corrected: CorrectedModel | None, initial_states: dict[str, float], problem: Problem) -> np.ndarray:
+    """Start states (T, n_x) of a recalibrated variant: its unmeasured initial states, and the unmeasured states
+    along its own open-loop simulation (the windows restart from them)."""
+    if not problem.unmeasured:
+        return starts
+    out = np.array(starts, dtype=float)
+    for i in problem.unmeasured:
+        out[0, i] = float(initial_states.get(problem.state_names[i], out[0, i]))
+    whole = simulate_corrected(model, simulate_fn, meas.time_s, meas.u, out[0], corrected)
+    out[:, problem.unmeasured] = whole[:, problem.unmeasured]
+    return out
 
 
 def error_growth(model: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
@@ -421,7 +468,7 @@ def error_growth(model: Any, simulate_fn: Callable, prepared: dict[str, Prepared
 
 def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredManeuver], *, helper: Any = None,
                   simulate_fn: Callable | None = None, open_loop: bool = True,
-                  neural_model: Any = None) -> dict[str, Any]:
+                  neural_model: Any = None, refit: RefitSpec | None = None) -> dict[str, Any]:
     """Where / which / how far on loaded maneuvers.
 
     Args:
@@ -431,6 +478,8 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
         simulate_fn: open-loop simulator (default: by model type, :func:`simulator_for`).
         open_loop: also simulate open loop (how far, error growth).
         neural_model: a loaded neural FMU to compare with, or None.
+        refit: recalibrate every variant of the held-out check with its effects on the train maneuvers
+            (:func:`hybridfmu.diagnosis.refit.refit_spec`), or None.
     """
     simulate_fn = simulate_fn or simulator_for(model)
     fit_names = [n for n, m in measured.items() if m.role in ("train", "validation")]
@@ -469,7 +518,9 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
     far = growth = None
     not_run = how_far_not_run(test_names, open_loop)
     if not_run is None:
-        far = how_far(model, helper, simulate_fn, prepared, test_names, which["terms"], problem, neural_model)
+        train_names = [n for n in fit_names if measured[n].role == "train"] or fit_names
+        far = how_far(model, helper, simulate_fn, prepared, test_names, which["terms"], problem, neural_model,
+                      refit=refit, refit_names=train_names)
         growth = error_growth(model, simulate_fn, prepared, problem)
     else:
         LOGGER.warning("diagnosis: %s", not_run)
@@ -541,7 +592,10 @@ def analyse(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, 
         except Exception as err:  # the comparison is optional; its failure is reported, not fatal
             neural_error = f"{type(err).__name__}: {err}"
             LOGGER.warning("neural FMU could not be loaded: %s", neural_error)
-    result = run_diagnosis(problem, model, measured, helper=helper, open_loop=open_loop, neural_model=neural_model)
+    from hybridfmu.diagnosis.refit import refit_spec
+
+    result = run_diagnosis(problem, model, measured, helper=helper, open_loop=open_loop, neural_model=neural_model,
+                           refit=refit_spec(config, settings))
     result["neural_error"] = neural_error
     result["calibration"] = None if calibration_path is None else str(calibration_path)
     result["model_parameters"] = parameters
