@@ -17,6 +17,12 @@ def test_summary_quotes_each_model_with_its_factor_against_the_fmu():
     assert "| level | FMU + diagnosed effects (saturation_above(x2)) | 0.19 V | 0.1 V | ×4 |" in text
 
 
+def test_summary_says_when_the_effects_were_recalibrated_with_the_fmu():
+    refitted = {**DIAGNOSIS, "how_far": {**DIAGNOSIS["how_far"], "steps": [{"model": "FMU", "refit": {}}]}}
+    text = case_summary("tanks", TEST_METRICS, refitted, {"level": "V"})
+    assert "| level | FMU + diagnosed effects, recalibrated (saturation_above(x2)) | 0.19 V |" in text
+
+
 def test_summary_without_diagnosis_has_no_corrected_row():
     text = case_summary("tanks", TEST_METRICS, None, {"level": "V"})
     assert "diagnosed" not in text and text.count("| level |") == 2

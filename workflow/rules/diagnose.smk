@@ -32,10 +32,11 @@ rule diagnose:
     params:
         maneuvers=MANEUVERS,
         # what hybridfmu.diagnosis reads: its settings, the master seed, the FMU (interface, parameters), the
-        # roles, the maneuvers' roles and initial states, the model's end stop and, for its MLflow run, the
-        # case, mlflow and results_dir
+        # roles, the maneuvers' roles and initial states, the model's end stop, the calibrated parameters and
+        # their bounds (recalibrated with the effects when diagnosis.open_loop.refit is on) and, for its MLflow
+        # run, the case, mlflow and results_dir
         config=config_sections("case", "results_dir", "seed", "mlflow", "fmu", "maneuvers", "signals",
-                               "transforms", "roles", "model", "diagnosis"),
+                               "transforms", "roles", "model", "calibration", "diagnosis"),
     log:
         f"{RESULTS}/logs/diagnose/diagnose.log",
     benchmark:

@@ -91,7 +91,7 @@ DEFAULT_REGION_SETTINGS: dict[str, Any] = {
 }
 
 DEFAULT_OPEN_LOOP: dict[str, Any] = {"window_s": None, "growth_threshold_relative": 0.1, "refit": False,
-                                     "refit_max_evaluations": 200}
+                                     "refit_max_evaluations": 160}
 
 
 def diagnosis_settings(config: dict[str, Any]) -> dict[str, Any]:

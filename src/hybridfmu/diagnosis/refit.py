@@ -48,11 +48,11 @@ from hybridfmu.diagnosis.selection import Term
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
 #: Residual of a sample whose simulation failed or diverged (normalised units, before the 1/sqrt(N) scaling).
-FAILED_RESIDUAL = 1e3
-#: Forward-difference step relative to a normalised variable (1 %): a limit or overflow makes the simulated
+FAILED_RESIDUAL = 1e6
+#: Forward-difference step relative to a normalised variable (1.1 %): a limit or overflow makes the simulated
 #: trajectory kinked in the variables, and finer differences see the kinks, not the slope (on the tanks case,
 #: steps of 1e-4 and 1e-6 left least_squares stalled at its start from most starting levels).
-DIFF_STEP = 1e-2
+DIFF_STEP = 0.011
 
 
 @dataclass(frozen=True)
@@ -71,7 +71,7 @@ class RefitSpec:
     state_bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     fit_initial_states: bool = False
     initial_states_from: dict[str, str] = field(default_factory=dict)
-    max_evaluations: int = 200
+    max_evaluations: int = 160
 
 
 def refit_spec(config: dict[str, Any], settings: dict[str, Any]) -> RefitSpec | None:
@@ -91,7 +91,7 @@ def refit_spec(config: dict[str, Any], settings: dict[str, Any]) -> RefitSpec | 
                      fit_initial_states=bool(calibration.get("initial_states", False)),
                      initial_states_from={name: m["initial_states_from"] for name, m in config["maneuvers"].items()
                                           if m.get("initial_states_from")},
-                     max_evaluations=int(open_loop.get("refit_max_evaluations", 200)))
+                     max_evaluations=int(open_loop.get("refit_max_evaluations", 160)))
 
 
 @dataclass

@@ -39,7 +39,8 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
         case: case name.
         test_metrics: ``metrics/test.json`` (objects ``fmu`` and ``neural_fmu`` with ``<signal>_<measure>``,
             list ``signals``).
-        diagnosis: ``diagnosis/diagnosis.json`` (``how_far.before/after`` with ``<signal>_rmse``), or None.
+        diagnosis: ``diagnosis/diagnosis.json`` (``how_far.before/after`` with ``<signal>_rmse``; steps with a
+            ``refit`` record: the FMU was recalibrated with the effects), or None.
         units: signal -> unit ("" for dimensionless).
 
     Returns:
@@ -56,7 +57,8 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
         fmu = test_metrics["fmu"]
         rows = [("FMU", fmu), ("neural FMU", test_metrics["neural_fmu"])]
         if far.get("after"):
-            rows.append((f"FMU + diagnosed effects ({effects})", far["after"]))
+            refitted = any("refit" in step for step in far.get("steps", []))
+            rows.append((f"FMU + diagnosed effects{', recalibrated' if refitted else ''} ({effects})", far["after"]))
         for label, values in rows:
             rmse, mae = values.get(f"{signal}_rmse"), values.get(f"{signal}_mae")
             lines.append(f"| {signal} | {label} | {_number(rmse)}{unit} | {_number(mae)}{unit} | "
