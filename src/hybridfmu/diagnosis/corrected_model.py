@@ -116,6 +116,7 @@ class CorrectedModel:
 
     def __init__(self, terms: list[Term], problem: Problem, helper: Any = None) -> None:
         self.n_x, self.n_u = problem.n_x, problem.n_u
+        self.helper = helper
         self.rows: list[tuple[int, Callable]] = []
         self.batches: list[tuple[int, Callable]] = []
         self.parameters: dict[str, float] = {}
@@ -211,16 +212,20 @@ class CorrectedModel:
 
     @contextlib.contextmanager
     def parameters_applied(self, model: Any) -> Iterator[None]:
-        """Within the block, ``model`` has the corrected parameters."""
+        """Within the block, ``model`` and the helper (whose derivatives terms such as a limit use) have the
+        corrected parameters; restored afterwards."""
         if not self.parameters:
             yield
             return
-        previous = model.get_parameters(list(self.parameters))
-        model.set_parameters(self.parameters)
+        instances = [model] + ([self.helper] if self.helper is not None and self.helper is not model else [])
+        previous = [m.get_parameters(list(self.parameters)) for m in instances]
+        for m in instances:
+            m.set_parameters(self.parameters)
         try:
             yield
         finally:
-            model.set_parameters(previous)
+            for m, values in zip(instances, previous):
+                m.set_parameters(values)
 
 
 def simulate_windows(model: Any, simulate_fn: Callable, time_s: np.ndarray, u: np.ndarray, x0: np.ndarray,

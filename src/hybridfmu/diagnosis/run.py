@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -220,6 +221,21 @@ def _chosen_names(selection: EquationSelection, problem: Problem) -> dict[str, l
     return out
 
 
+def selection_inputs(prepared: dict[str, PreparedManeuver], fit_names: list[str], problem: Problem, model: Any
+                     ) -> tuple[DesignCache, StackedCache, list[Any], list[Any], dict[str, str]]:
+    """What the selection works on: the per-equation designs, all examined equations stacked, the candidate
+    effects (model-wide ones joined over their equations), the parameter errors calibrated from the start
+    (empty unless ``selection.calibrate_parameters``) and the library's skipped entries with their reasons."""
+    sel = SelectionSettings.from_config(problem.settings.get("selection"))
+    library, skipped = build_library(problem, prepared[fit_names[0]].inputs, model)
+    cache = DesignCache([prepared[n].fit for n in prepared])
+    stacked = StackedCache(cache, problem.equations)
+    candidates = joint_candidates(library, problem.equations)
+    calibrate = [c for c in candidates if c.kind == "parameter"] if sel.calibrate_parameters else []
+    candidates = [c for c in candidates if not any(c is b for b in calibrate)]
+    return cache, stacked, candidates, calibrate, skipped
+
+
 def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], problem: Problem,
                    model: Any) -> dict[str, Any]:
     """One selection over all examined equations on the fitting maneuvers (:mod:`hybridfmu.diagnosis.joint`:
@@ -235,12 +251,7 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
     """
     settings = problem.settings
     sel = SelectionSettings.from_config(settings.get("selection"))
-    library, skipped = build_library(problem, prepared[fit_names[0]].inputs, model)
-    cache = DesignCache([prepared[n].fit for n in prepared])
-    stacked = StackedCache(cache, problem.equations)
-    candidates = joint_candidates(library, problem.equations)
-    calibrate = [c for c in candidates if c.kind == "parameter"] if sel.calibrate_parameters else []
-    candidates = [c for c in candidates if not any(c is b for b in calibrate)]
+    cache, stacked, candidates, calibrate, skipped = selection_inputs(prepared, fit_names, problem, model)
     started = time.perf_counter()
     selection = select_equation(stacked, JOINT, candidates, fit_names, sel, label="all equations",
                                 calibrate=calibrate)
@@ -466,6 +477,27 @@ def error_growth(model: Any, simulate_fn: Callable, prepared: dict[str, Prepared
 
 # ----------------------------------------------------------------------------- the whole diagnosis
 
+def prepare_all(problem: Problem, model: Any, measured: dict[str, MeasuredManeuver],
+                simulate_fn: Callable) -> tuple[dict[str, PreparedManeuver], list[str], list[str]]:
+    """Unmeasured states filled, the problem's data statistics set, every maneuver prepared.
+
+    Returns (maneuver name -> prepared maneuver, the fitting maneuvers (train, validation), the test ones).
+    """
+    fit_names = [n for n, m in measured.items() if m.role in ("train", "validation")]
+    test_names = [n for n, m in measured.items() if m.role == "test"]
+    if not fit_names:
+        raise ValueError("config.maneuvers: the diagnosis needs at least one train or validation maneuver to fit on")
+    for meas in measured.values():
+        fill_unmeasured(meas, problem, model, simulate_fn)
+    first = measured[fit_names[0]]
+    set_data_statistics(problem, [measured[n].x for n in fit_names], float(np.median(np.diff(first.time_s))))
+    prepared = {}
+    for count, (name, meas) in enumerate(measured.items()):
+        LOGGER.info("preparing maneuver %d/%d: %s", count + 1, len(measured), name)
+        prepared[name] = prepare_maneuver(meas, model, problem)
+    return prepared, fit_names, test_names
+
+
 def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredManeuver], *, helper: Any = None,
                   simulate_fn: Callable | None = None, open_loop: bool = True,
                   neural_model: Any = None, refit: RefitSpec | None = None) -> dict[str, Any]:
@@ -482,18 +514,7 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
             (:func:`hybridfmu.diagnosis.refit.refit_spec`), or None.
     """
     simulate_fn = simulate_fn or simulator_for(model)
-    fit_names = [n for n, m in measured.items() if m.role in ("train", "validation")]
-    test_names = [n for n, m in measured.items() if m.role == "test"]
-    if not fit_names:
-        raise ValueError("config.maneuvers: the diagnosis needs at least one train or validation maneuver to fit on")
-    for meas in measured.values():
-        fill_unmeasured(meas, problem, model, simulate_fn)
-    first = measured[fit_names[0]]
-    set_data_statistics(problem, [measured[n].x for n in fit_names], float(np.median(np.diff(first.time_s))))
-    prepared = {}
-    for count, (name, meas) in enumerate(measured.items()):
-        LOGGER.info("preparing maneuver %d/%d: %s", count + 1, len(measured), name)
-        prepared[name] = prepare_maneuver(meas, model, problem)
+    prepared, fit_names, test_names = prepare_all(problem, model, measured, simulate_fn)
     where = equation_summary(list(prepared.values()), problem)
     _set_region_edges(problem, list(prepared.values()))
     regions = {}
@@ -540,20 +561,23 @@ def how_far_not_run(test_names: list[str], open_loop: bool = True) -> str | None
     return None
 
 
-def analyse(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, str | Path],
-            segments_paths: dict[str, str | Path], calibration_path: str | Path | None = None,
-            best_json: str | Path | None = None, open_loop: bool = True) -> dict[str, Any]:
-    """Run the whole diagnosis of a case from its files (see :func:`hybridfmu.diagnosis.report.diagnose`).
+@dataclass
+class CaseInputs:
+    """A case's diagnosis inputs, loaded (:func:`load_inputs`): the problem, the calibrated model and a helper
+    instance, the measured maneuvers, the model's parameters, the calibration (or None), the settings."""
 
-    Args:
-        config: validated case config.
-        fmu_path: the case's FMU.
-        data_paths, segments_paths: maneuver name -> ingested Parquet / segments JSON.
-        calibration_path: ``{results}/calibration/calibration.json`` (parameters and unmeasured initial
-            states), or None for the FMU with ``config.fmu.parameters``.
-        best_json: ``{results}/hpo/best.json`` of a trained neural FMU, or None.
-        open_loop: also simulate open loop.
-    """
+    problem: Problem
+    model: Any
+    helper: Any
+    measured: dict[str, MeasuredManeuver]
+    parameters: dict[str, float]
+    calibration: Any
+    settings: dict[str, Any]
+
+
+def load_inputs(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, str | Path],
+                segments_paths: dict[str, str | Path], calibration_path: str | Path | None = None) -> CaseInputs:
+    """Load a case's FMU (with the calibrated parameters), maneuvers and segments (arguments: :func:`analyse`)."""
     from hybridfmu.case import case_roles, model_interface
     from hybridfmu.fmu import load_fmu
 
@@ -582,21 +606,40 @@ def analyse(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, 
         x0 = calibration.unmeasured_initial_states(name, config, interface.start_values, unmeasured) \
             if calibration is not None else {s: float(interface.start_values.get(s, 0.0)) for s in unmeasured}
         measured[name] = load_maneuver(name, role, data_paths[name], segments_paths.get(name), problem, x0)
+    return CaseInputs(problem=problem, model=model, helper=helper, measured=measured, parameters=parameters,
+                      calibration=calibration, settings=settings)
+
+
+def analyse(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, str | Path],
+            segments_paths: dict[str, str | Path], calibration_path: str | Path | None = None,
+            best_json: str | Path | None = None, open_loop: bool = True) -> dict[str, Any]:
+    """Run the whole diagnosis of a case from its files (see :func:`hybridfmu.diagnosis.report.diagnose`).
+
+    Args:
+        config: validated case config.
+        fmu_path: the case's FMU.
+        data_paths, segments_paths: maneuver name -> ingested Parquet / segments JSON.
+        calibration_path: ``{results}/calibration/calibration.json`` (parameters and unmeasured initial
+            states), or None for the FMU with ``config.fmu.parameters``.
+        best_json: ``{results}/hpo/best.json`` of a trained neural FMU, or None.
+        open_loop: also simulate open loop.
+    """
+    from hybridfmu.diagnosis.refit import refit_spec
+
+    case = load_inputs(config, fmu_path, data_paths, segments_paths, calibration_path)
     neural_model = None
     neural_error = None
-    if best_json is not None and Path(best_json).is_file() and settings.get("neural_fmu", True):
+    if best_json is not None and Path(best_json).is_file() and case.settings.get("neural_fmu", True):
         try:
             from hybridfmu.diagnosis.neural import load_neural_fmu
 
-            neural_model = load_neural_fmu(best_json, fmu_path, parameters)
+            neural_model = load_neural_fmu(best_json, fmu_path, case.parameters)
         except Exception as err:  # the comparison is optional; its failure is reported, not fatal
             neural_error = f"{type(err).__name__}: {err}"
             LOGGER.warning("neural FMU could not be loaded: %s", neural_error)
-    from hybridfmu.diagnosis.refit import refit_spec
-
-    result = run_diagnosis(problem, model, measured, helper=helper, open_loop=open_loop, neural_model=neural_model,
-                           refit=refit_spec(config, settings))
+    result = run_diagnosis(case.problem, case.model, case.measured, helper=case.helper, open_loop=open_loop,
+                           neural_model=neural_model, refit=refit_spec(config, case.settings))
     result["neural_error"] = neural_error
     result["calibration"] = None if calibration_path is None else str(calibration_path)
-    result["model_parameters"] = parameters
+    result["model_parameters"] = case.parameters
     return result
