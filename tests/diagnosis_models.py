@@ -12,15 +12,12 @@ from hybridfmu.diagnosis.prepare import MeasuredManeuver
 from hybridfmu.diagnosis.problem import build_problem, diagnosis_settings
 
 
-class MassSpringDamper:
-    """m dv/dt = F - k x - c v, dx/dt = v; states [x, v] (m, m/s), input [F] (N), parameters m, k, c."""
+class ParameterStore:
+    """``get_parameters`` / ``set_parameters`` over ``self.values`` (name -> value) as a model offers them;
+    ``positive`` names the parameters that must stay above 0."""
 
-    state_names = ["x", "v"]
-    input_names = ["F"]
-    parameter_names = ["m", "k", "c"]
-
-    def __init__(self, m: float = 1.0, k: float = 4.0, c: float = 0.4):
-        self.values = {"m": m, "k": k, "c": c}
+    parameter_names: list[str] = []
+    positive: tuple[str, ...] = ()
 
     def get_parameters(self, names=None):
         return {n: self.values[n] for n in (names or self.parameter_names)}
@@ -29,9 +26,21 @@ class MassSpringDamper:
         for name, value in values.items():
             if name not in self.values:
                 raise ValueError(f"unknown parameter {name}")
-            if name == "m" and value <= 0:
-                raise ValueError("m must be positive")
+            if name in self.positive and value <= 0:
+                raise ValueError(f"{name} must be positive")
             self.values[name] = float(value)
+
+
+class MassSpringDamper(ParameterStore):
+    """m dv/dt = F - k x - c v, dx/dt = v; states [x, v] (m, m/s), input [F] (N), parameters m, k, c."""
+
+    state_names = ["x", "v"]
+    input_names = ["F"]
+    parameter_names = ["m", "k", "c"]
+    positive = ("m",)
+
+    def __init__(self, m: float = 1.0, k: float = 4.0, c: float = 0.4):
+        self.values = {"m": m, "k": k, "c": c}
 
     def derivatives(self, x, u=None):
         x = np.atleast_2d(np.asarray(x, dtype=float))

@@ -17,13 +17,13 @@ from hybridfmu.diagnosis.problem import build_problem, diagnosis_settings, set_d
 from hybridfmu.diagnosis.refit import RefitSpec, refit_terms
 from hybridfmu.diagnosis.run import run_diagnosis
 from hybridfmu.diagnosis.selection import Term
-from diagnosis_models import simulate_truth
+from diagnosis_models import ParameterStore, simulate_truth
 
 TRUE_LEVEL = 12.0     # upper level where the real tank overflows
 TRUE_SHARE = 0.5      # share of the overflow that reaches the lower tank
 
 
-class TwoTanks:
+class TwoTanks(ParameterStore):
     """dx1/dt = -k1 sqrt(x1) + k4 u, dx2/dt = k2 sqrt(x1) - k3 sqrt(x2); states (V), input u (V)."""
 
     state_names = ["x1", "x2"]
@@ -32,15 +32,6 @@ class TwoTanks:
 
     def __init__(self, **values):
         self.values = {"k1": 0.05, "k2": 0.05, "k3": 0.05, "k4": 0.06, **values}
-
-    def get_parameters(self, names=None):
-        return {n: self.values[n] for n in (names or self.parameter_names)}
-
-    def set_parameters(self, values):
-        for name, value in values.items():
-            if name not in self.values:
-                raise ValueError(f"unknown parameter {name}")
-            self.values[name] = float(value)
 
     def derivatives(self, x, u=None):
         x = np.atleast_2d(np.asarray(x, dtype=float))

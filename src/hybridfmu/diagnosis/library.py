@@ -95,6 +95,15 @@ def _linear_bounds(values: list[float], low: float, high: float) -> tuple[float,
     return max(grid[0] - (grid[1] - grid[0]), low), min(grid[-1] + (grid[-1] - grid[-2]), high)
 
 
+def state_levels(problem: Problem, state: str, quantiles: list[float]) -> list[float]:
+    """Sorted distinct values of ``state`` at ``quantiles`` (in (0, 1)) along the fitting maneuvers ([] before the
+    problem's data statistics are set)."""
+    levels = problem.quantiles.get(state)
+    if levels is None or not len(levels):
+        return []
+    return sorted({float(np.interp(float(q), np.linspace(0, 1, len(levels)), levels)) for q in quantiles})
+
+
 # ----------------------------------------------------------------------------- state functions
 
 class StateEffect(Effect):
@@ -365,10 +374,7 @@ class Saturation(StateEffect):
                          f"term that sets in when {var} is {side} a threshold (saturation, dead zone)", formula,
                          _per(problem.rate_unit(equation), problem.unit(var)))
         self.side = side
-        levels = problem.quantiles.get(var)
-        qs = [float(q) for q in options["saturation_quantiles"]]
-        self.thresholds = sorted({float(np.interp(q, np.linspace(0, 1, len(levels)), levels)) for q in qs}) \
-            if levels is not None and len(levels) else []
+        self.thresholds = state_levels(problem, var, options["saturation_quantiles"])
         self.state_unit = problem.unit(var)
 
     def grid(self):
@@ -410,11 +416,8 @@ class Limit(StateEffect):
                          f"{var} cannot pass a level ({'upper' if side == 'above' else 'lower'} limit: an overflow, "
                          "an end stop)", formula, "-")
         self.side = side
-        levels = problem.quantiles.get(var)
         qs = [float(q) for q in options["limit_quantiles"]]
-        qs = qs if side == "above" else [1.0 - q for q in qs]
-        self.levels = sorted({float(np.interp(q, np.linspace(0, 1, len(levels)), levels)) for q in qs}) \
-            if levels is not None and len(levels) else []
+        self.levels = state_levels(problem, var, qs if side == "above" else [1.0 - q for q in qs])
         self.state_unit = problem.unit(var)
 
     def grid(self):
@@ -480,10 +483,7 @@ class Overflow(Effect):
                          f"c_l [f_{target}({source} limited) - f_{target}] + s 1[{source} >= x_c] max(f_{source}, 0)",
                          "-")
         self.variable = variable
-        levels = problem.quantiles.get(source)
-        qs = [float(q) for q in options["overflow_quantiles"]]
-        self.levels = sorted({float(np.interp(q, np.linspace(0, 1, len(levels)), levels)) for q in qs}) \
-            if levels is not None and len(levels) else []
+        self.levels = state_levels(problem, source, options["overflow_quantiles"])
         self.state_unit = problem.unit(source)
         self.source = source
 
