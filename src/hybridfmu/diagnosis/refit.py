@@ -153,6 +153,9 @@ class _Variable:
 
 def _variables(terms: list[Term], spec: RefitSpec, model: Any, maneuvers: list[MeasuredManeuver],
                problem: Problem) -> tuple[list[Term], list[_Variable]]:
+    """The terms the refit keeps (copies; parameter errors of refitted parameters left out, fixed coefficients
+    set) and its variables in order: parameters, then per term its free coefficients and refined settings,
+    then per maneuver its unmeasured initial states."""
     current = model.get_parameters(list(spec.parameter_bounds)) if spec.parameter_bounds else {}
     variables = [_Variable(f"{name}", float(current[name]), *spec.parameter_bounds[name], "parameter", name)
                  for name in spec.parameter_bounds]
