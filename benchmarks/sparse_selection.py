@@ -84,7 +84,7 @@ def score_case_files(case: str, withheld: Path, fmu: Path, expected: dict, backg
         variant["which"]["found_effects"] = [i["effect"] for i in items]
         sparse[threshold] = score_case(variant, truth, draw, expected, background)
     return {"case": case, "forward": forward, "sparse": sparse, "features_s": elapsed,
-            "n_columns": int(features.theta.shape[1])}
+            "n_columns": int(features.design.shape[1])}
 
 
 def _work(args: tuple) -> dict[str, Any]:

@@ -19,12 +19,12 @@ class _Named(Effect):
 def _features(seed: int = 0) -> tuple[Features, np.ndarray]:
     rng = np.random.default_rng(seed)
     n = 2000
-    theta = rng.standard_normal((n, 5))
-    theta[:, 4] = theta[:, 1] + 0.3 * rng.standard_normal(n)  # a look-alike of a column of effect a
+    design = rng.standard_normal((n, 5))
+    design[:, 4] = design[:, 1] + 0.3 * rng.standard_normal(n)  # a look-alike of a column of effect a
     true = np.array([0.0, 0.8, -0.5, 0.0, 0.0])  # effect a (columns 1, 2) only
-    target = theta @ true + rng.standard_normal(n)  # unit noise: rows in noise-floor units
+    target = design @ true + rng.standard_normal(n)  # unit noise: rows in noise-floor units
     terms = [Term(_Named("p", 1), {}), Term(_Named("a", 2), {}), Term(_Named("b", 1), {}), Term(_Named("c", 1), {})]
-    return Features(terms=terms, theta=theta, target=target, owner=np.array([0, 1, 1, 2, 3])), true
+    return Features(terms=terms, design=design, target=target, owner=np.array([0, 1, 1, 2, 3])), true
 
 
 def test_stlsq_names_the_effect_with_a_surviving_coefficient_and_returns_its_coefficients():

@@ -57,12 +57,11 @@ def equations_text(item: dict[str, Any]) -> str:
 
 
 def _relative_error_text(item: dict[str, Any]) -> str:
-    """``+4.1 %`` from a chosen parameter error's physical parameters (its relative error), else its name."""
-    row = next((r for r in item.get("parameters", []) if r.get("unit") == "%" or "relative" in r["name"]), None)
+    """``+4.1 %``: a chosen parameter error's ``relative_error`` (a fraction) in percent."""
+    row = next((r for r in item.get("parameters", []) if r["name"] == "relative_error"), None)
     if row is None or row.get("value") is None:
         return "relative error not reported"
-    value = float(row["value"]) * (1.0 if row.get("unit") == "%" else 100.0)
-    return f"{value:+.3g} %"
+    return f"{100.0 * float(row['value']):+.3g} %"
 
 
 def verdict(result: dict[str, Any]) -> str:

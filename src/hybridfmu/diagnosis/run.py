@@ -374,6 +374,7 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
     notes: list[str] = []
     fitted = None
     for label, active in variants:
+        names = [t.effect.name for t in active]
         if refit is not None:
             absorbed = active and _refitted_parameter(active[-1], refit)
             if not (absorbed and fitted is not None):  # an absorbed parameter error leaves the variant as it was
@@ -398,9 +399,8 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
                             time.perf_counter() - started)
                 per[name] = errors
                 trajectories[name][label] = whole
-        step = {"model": label, "effects": [t.effect.name for t in active], "per_maneuver": per, **_mean_errors(per)}
+        step = {"model": label, "effects": names, "per_maneuver": per, **_mean_errors(per)}
         if fitted is not None:
-            step["effects"] = [t.effect.name for t in variants[len(steps)][1]]
             step["refit"] = _refit_record(fitted)
         steps.append(step)
     if neural_model is not None:

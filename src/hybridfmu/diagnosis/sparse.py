@@ -31,13 +31,13 @@ class Features:
 
     Attributes:
         terms: one term per candidate (its setting fitted alone), parameter errors first.
-        theta: (n_rows, n_columns) weighted regressors of all terms side by side.
+        design: (n_rows, n_columns) weighted regressors of all terms side by side.
         target: (n_rows,) weighted equation errors.
         owner: (n_columns,) index into ``terms`` of each column.
     """
 
     terms: list[Term]
-    theta: np.ndarray
+    design: np.ndarray
     target: np.ndarray
     owner: np.ndarray
 
@@ -64,8 +64,9 @@ def candidate_features(stacked: StackedCache, candidates: list, calibrate: list,
         block = stacked.design(term.effect, term.setting, names)
         columns.append(block)
         owner += [k] * block.shape[1]
-    theta = np.concatenate(columns, axis=1) if columns else np.zeros((len(stacked.target(JOINT, names)), 0))
-    return Features(terms=terms, theta=theta, target=stacked.target(JOINT, names), owner=np.array(owner, dtype=int))
+    target = stacked.target(JOINT, names)
+    design = np.concatenate(columns, axis=1) if columns else np.zeros((len(target), 0))
+    return Features(terms=terms, design=design, target=target, owner=np.array(owner, dtype=int))
 
 
 def stlsq_select(features: Features, threshold: float, alpha: float = 1e-6) -> SparseFit:
@@ -73,13 +74,13 @@ def stlsq_select(features: Features, threshold: float, alpha: float = 1e-6) -> S
     ``alpha`` the ridge weight); the terms with a surviving coefficient, coefficients in the columns' units."""
     import pysindy as ps
 
-    theta = np.nan_to_num(features.theta)
-    norms = np.linalg.norm(theta, axis=0)
+    design = np.nan_to_num(features.design)
+    norms = np.linalg.norm(design, axis=0)
     usable = norms > 0
-    scaled = theta[:, usable] / norms[usable]
+    scaled = design[:, usable] / norms[usable]
     optimizer = ps.STLSQ(threshold=float(threshold), alpha=float(alpha), normalize_columns=False, max_iter=50)
     optimizer.fit(scaled, features.target)
-    coef = np.zeros(theta.shape[1])
+    coef = np.zeros(design.shape[1])
     coef[usable] = np.asarray(optimizer.coef_).reshape(-1) / norms[usable]
     named = []
     for k, term in enumerate(features.terms):
