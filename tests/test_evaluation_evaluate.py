@@ -80,7 +80,7 @@ def test_closed_gate_neural_fmu_equals_the_fmu(ipbmotor_fmu, maneuvers, tmp_path
     # the FMU reproduces its own data exactly; the neural FMU with g_A = 0 is the FMU with RK4 in torch
     assert test["fmu"]["angle_mae"] < 1e-9
     assert test["neural_fmu"]["angle_mae"] < 1e-6 and test["neural_fmu"]["speed_mae"] < 1e-4
-    assert test["dt_s"] == 0.0 and test["gates"] == {"omega": {"g_F": 1.0, "g_A": 0.0}}
+    assert test["dt_s"] == {"inputs": 0.0} and test["gates"] == {"omega": {"g_F": 1.0, "g_A": 0.0}}
     assert test["best_trial"]["trial_id"] == "b0c0"
     assert set(test["fmu"]) == {f"{s}_{m}" for s in ("angle", "speed") for m in ("mae", "mse", "rmse")}
     assert test["signals"] == ["angle", "speed"] and set(test["improvement"]) == set(test["fmu"])

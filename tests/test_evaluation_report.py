@@ -31,7 +31,8 @@ def test_report_tables_and_verdicts():
     weak = {"angle_mae": 5.0, "angle_mse": 100.0, "speed_mae": 6.0, "speed_mse": 90.0}  # x2, x2, x1, x1
     text = render_report(
         "tiny", {"validation": _metrics("validation", fmu, good), "test": _metrics("test", fmu, weak)},
-        {"lr": 3e-6, "width": 8}, {"trial": "t007"}, dt_s=-2.0e-5, gates=[0.9, 0.3], true_dt_s=-5.0e-5,
+        {"lr": 3e-6, "width": 8}, {"trial": "t007"}, dt_s={"inputs": -2.0e-5}, gates=[0.9, 0.3],
+        true_dt_s={"inputs": -5.0e-5},
         truth_source="raw/test.truth.json", figures=[ReportFigure("figures/test_angle.png", "Test angle")],
         mlflow_run={"run_id": "abc", "experiment": "tiny", "tracking_uri": "sqlite:///x.db"}, units=UNITS,
         reference=_reference())
@@ -41,14 +42,14 @@ def test_report_tables_and_verdicts():
     assert "| test | angle | MSE | 200 rad² | 100 rad² | ×2 | ×74 (Fig. 13) |" in text
     assert "validation angle MSE: ×100 against the paper's ×61 (Figs. 9-10) — reached." in text
     assert "test angle MAE: ×2 against the paper's ×5.4 (Fig. 13) — not reached." in text
-    assert "learned minus true: 30.00 µs" in text
+    assert "| inputs | -20.00 µs | - | -50.00 µs | +30.00 µs |" in text
     assert "![Test angle](figures/test_angle.png)" in text
     assert "| lr | 3e-06 |" in text and "Evaluation run `abc`" in text
 
 
 def test_report_without_truth():
     fmu = {"angle_mae": 1.0, "angle_mse": 1.0, "speed_mae": 1.0, "speed_mse": 1.0}
-    text = render_report("user", {"test": _metrics("test", fmu, fmu)}, {}, {}, dt_s=1e-6, gates=None,
+    text = render_report("user", {"test": _metrics("test", fmu, fmu)}, {}, {}, dt_s={"inputs": 1e-6}, gates=None,
                          true_dt_s=None, truth_source=None, figures=[], mlflow_run=None)
     assert "no ground truth" in text and "| validation |" not in text
     assert "paper" not in text  # no reference configured: nothing to compare with
@@ -65,7 +66,8 @@ def test_write_report_from_files(tmp_path):
     neural = {"angle_mae": 2.0, "angle_mse": 2.0, "speed_mae": 3.0, "speed_mse": 10.0}
     paths = []
     for role in ("validation", "test"):
-        metrics = {**_metrics(role, fmu, neural), "maneuvers": [role], "dt_s": 2.5e-5,
+        metrics = {**_metrics(role, fmu, neural), "maneuvers": [role],
+                   "dt_s": {"duties": 2.5e-5, "rest": -1e-6},
                    "gates": {"omega": {"g_F": 1.0, "g_A": 0.3}}}
         path = tmp_path / "metrics" / f"{role}.json"
         path.parent.mkdir(exist_ok=True)
@@ -73,22 +75,30 @@ def test_write_report_from_files(tmp_path):
         paths.append(str(path))
     best = tmp_path / "best.json"
     best.write_text(json.dumps({"trial_id": "b2c1", "hyperparameters": {"lr": 3e-6, "depth": 4},
-                                "checkpoint": "x.pt", "objective": 0.12, "mlflow_run_id": "r1"}))
+                                "checkpoint": "x.pt", "objective": 0.12, "mlflow_run_id": "r1",
+                                "model_spec": {"delay_groups": {"duties": ["d_a", "d_b", "d_c"],
+                                                                "rest": ["u_dc", "tau_load"]}}}))
     run = tmp_path / "run.json"
     run.write_text(json.dumps({"tracking_uri": "sqlite:///x", "experiment": "e", "run_id": "r2"}))
     offset = tmp_path / "offset.json"
     offset.write_text(json.dumps({"maneuver": "train", "t_start_s": 1.0, "t_end_s": 1.02, "input_delay_s": 3e-5,
                                   "signals": ["angle", "speed"], "mse_without_delay": {"angle": 0.1, "speed": 4.0},
-                                  "mse_with_delay": {"angle": 0.05, "speed": 1.0}}))
+                                  "mse_with_delay": {"angle": 0.05, "speed": 1.0},
+                                  "groups": {"duties": {"delay_s": 3.1e-5, "windows": 100, "window_samples": 4},
+                                             "rest": {"delay_s": 2e-6, "windows": 80, "window_samples": 4}}}))
     truth = tmp_path / "test.truth.json"
-    truth.write_text(json.dumps({"time_offset": {"input_delay_s": 3e-5}}))
+    truth.write_text(json.dumps({"time_offset": {"input_delay_s": 3e-5, "channels": ["DUTY_A", "DUTY_B",
+                                                                   "DUTY_C"]}}))
     figures = {"validation_angle": str(tmp_path / "figures" / "validation_angle.png"),
                "time_offset": str(tmp_path / "figures" / "time_offset.png")}
     report = write_report(tmp_path / "report.md", "tiny", paths, best, run, offset, figures, [str(truth)],
                           roles=motor_roles(), reference=_reference(), log_to_mlflow=False)
     text = report.read_text()
     assert "| validation | angle | MAE | 10 rad | 2 rad | ×5 | ×4.6 (Figs. 9-10) |" in text
-    assert "learned input delay Δt: 2.5e-05 s (25.00 µs)" in text and "learned minus true: -5.00 µs" in text
+    # the truth applies to the logged channels it names; the other inputs are true to 0
+    assert "| duties | 25.00 µs | 31.00 µs | 30.00 µs | -5.00 µs |" in text
+    assert "| rest | -1.00 µs | 2.00 µs | 0.00 µs | -1.00 µs |" in text
+    assert "duties 31.00 µs (100 windows of 4 steps)" in text
     assert "![Validation maneuver 'validation': angle, whole trajectory, open loop (cf. paper Fig. 9).]" \
            "(figures/validation_angle.png)" in text
     assert "speed MSE 4 → 1 (rad/s)²" in text
@@ -98,3 +108,9 @@ def test_write_report_from_files(tmp_path):
     with pytest.raises(ValueError, match=r"bad\.truth\.json: field 'time_offset.input_delay_s' missing"):
         true_input_delay([str(bad)])
     assert true_input_delay([]) == (None, None)
+    # a group mixing offset and plain channels has no single true offset; without channels all inputs are offset
+    channels = {"d_a": "DUTY_A", "u_dc": "U_DC"}
+    assert true_input_delay([str(truth)], {"all": ["d_a", "u_dc"]}, channels)[0] == {"all": None}
+    plain = tmp_path / "plain.truth.json"
+    plain.write_text(json.dumps({"time_offset": {"input_delay_s": 3e-5}}))
+    assert true_input_delay([str(plain)], {"all": ["d_a", "u_dc"]}, channels)[0] == {"all": 3e-5}

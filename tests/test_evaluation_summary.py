@@ -64,3 +64,28 @@ def test_a_benchmark_block_is_copied_from_its_file(tmp_path):
                                   "<!-- /measured:workflow_wall -->\nb\n")
     with pytest.raises(SystemExit):
         main([str(readme), "--block", "no-equals-sign"])
+
+
+def test_summary_quotes_the_learned_delays_beside_the_truth(tmp_path):
+    import json
+
+    from hybridfmu.evaluation.summary import write_case_summary
+    from test_evaluation_baseline import motor_roles
+
+    metrics = {**TEST_METRICS, "dt_s": {"duties": 2.4e-5, "rest": 1e-6}}
+    paths = {name: tmp_path / f"{name}.json" for name in ("metrics", "best", "offset", "truth")}
+    paths["metrics"].write_text(json.dumps(metrics))
+    paths["best"].write_text(json.dumps({"model_spec": {"delay_groups": {
+        "duties": ["d_a", "d_b", "d_c"], "rest": ["u_dc", "tau_load"]}}}))
+    paths["offset"].write_text(json.dumps({"groups": {"duties": {"delay_s": 2.7e-5}, "rest": {"delay_s": 0.0}}}))
+    paths["truth"].write_text(json.dumps({"time_offset": {"input_delay_s": 3e-5,
+                                                          "channels": ["DUTY_A", "DUTY_B", "DUTY_C"]}}))
+    out = write_case_summary(tmp_path / "summary.md", "ipb", paths["metrics"], None, {"level": "V"},
+                             best_path=paths["best"], time_offset_path=paths["offset"],
+                             truth_paths=[str(paths["truth"])], roles=motor_roles())
+    text = out.read_text()
+    assert "| duties | 24.00 µs | 27.00 µs | 30.00 µs | -6.00 µs |" in text
+    assert "| rest | 1.00 µs | 0.00 µs | 0.00 µs | +1.00 µs |" in text
+    # without the run's files the summary has no delay table
+    plain = write_case_summary(tmp_path / "plain.md", "ipb", paths["metrics"], None, {"level": "V"})
+    assert "learned" not in plain.read_text().lower()

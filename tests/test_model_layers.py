@@ -66,7 +66,7 @@ def inputs(batch, length, seed=0):
 def test_delay_shifts_by_whole_samples_and_interpolates():
     seq = torch.arange(20, dtype=torch.float64).reshape(1, 20, 1)
     delay = InputDelay(H, -5e-4, 5e-4, init_s=2 * H, sample_position="sample_instant")
-    assert delay.delay_s().item() == pytest.approx(2 * H, rel=1e-12)
+    assert delay.delays_s().item() == pytest.approx(2 * H, rel=1e-12)
     out = delay(seq, 5, 4)
     assert torch.allclose(out.flatten(), torch.tensor([7.0, 8.0, 9.0, 10.0], dtype=torch.float64))
     half = InputDelay(H, -5e-4, 5e-4, init_s=-0.25 * H, sample_position="sample_instant")(seq, 5, 3, 0.5)
@@ -82,7 +82,7 @@ def test_delay_is_bounded_and_gradient_is_right():
     delay = InputDelay(H, -2e-4, 3e-4, init_s=0.0, scale_s=1e-4)
     with torch.no_grad():
         delay.raw.fill_(1e6)
-    assert delay.delay_s().item() <= 3e-4 + 1e-18
+    assert delay.delays_s().item() <= 3e-4 + 1e-18
     delay = InputDelay(H, -5e-4, 5e-4, init_s=0.37 * H, scale_s=1e-4)
     seq = torch.randn(2, 30, 3, dtype=torch.float64, requires_grad=True)
     raw = delay.raw.detach().clone().requires_grad_(True)
@@ -97,14 +97,14 @@ def test_delay_is_bounded_and_gradient_is_right():
     (grad_raw,) = torch.autograd.grad(out.sum(), raw)
     position = 10 + 0.5 - 0.5 + 0.37
     slope = (seq[:, 11:23] - seq[:, 10:22]).sum() / H
-    d_delay_d_raw = 1e-4 * (1 - (delay.delay_s() / 5e-4) ** 2)
+    d_delay_d_raw = 1e-4 * (1 - (delay.delays_s() / 5e-4) ** 2)
     assert int(position) == 10 and grad_raw.item() == pytest.approx((slope * d_delay_d_raw).item(), rel=1e-9)
 
 
 def test_fixed_delay_has_no_parameter():
     delay = InputDelay(H, 1e-4, 1e-4, init_s=1e-4)
     assert list(delay.parameters()) == []
-    assert delay.delay_s().item() == pytest.approx(1e-4)
+    assert delay.delays_s().item() == pytest.approx(1e-4)
 
 
 def test_gates_mix_and_forward():
@@ -302,3 +302,35 @@ def test_torchdiffeq_solver_agrees_with_the_classical_rk4(gradients):
     stopped = NeuralFmu(Pendulum(), make_spec(end_stop=EndStop("p", "v", -1.0, 0.02)), STATS)
     with pytest.raises(ValueError, match="end stop"):
         rollout(stopped, u, 10, x0, 40, gradients=gradients)
+
+
+def test_groups_of_inputs_get_their_own_delay():
+    seq = torch.stack([torch.arange(20.0), 100.0 + torch.arange(20.0), 200.0 + torch.arange(20.0)],
+                      dim=-1).to(torch.float64).reshape(1, 20, 3)
+    delay = InputDelay(H, -5e-4, 5e-4, init_s={"fast": 2 * H, "slow": -0.5 * H}, sample_position="sample_instant",
+                       groups=[("fast", [0, 2]), ("slow", [1])], n_inputs=3)
+    out = delay(seq, 5, 2)
+    assert torch.allclose(out[0], torch.tensor([[7.0, 104.5, 207.0], [8.0, 105.5, 208.0]], dtype=torch.float64))
+    assert torch.allclose(delay.input_delays_s(), torch.tensor([2 * H, -0.5 * H, 2 * H], dtype=torch.float64))
+    # each group's delay gets the gradient of its own inputs only
+    delay(seq, 5, 2)[..., 1].sum().backward()
+    assert delay.raw.grad[0] == 0.0 and delay.raw.grad[1] != 0.0
+    with pytest.raises(ValueError, match="exactly once"):
+        InputDelay(H, -5e-4, 5e-4, groups=[("a", [0]), ("b", [0, 1])], n_inputs=2)
+    with pytest.raises(ValueError, match="name every group"):
+        InputDelay(H, -5e-4, 5e-4, init_s={"a": 0.0}, groups=[("a", [0]), ("b", [1])], n_inputs=2)
+
+
+def test_spec_checks_the_delay_groups():
+    spec = make_spec(delay_groups={"drive": ["f"], "gain": ["g"]}, delay_init_s={"drive": 1e-4, "gain": 0.0})
+    assert spec.delay_group_columns() == {"drive": [0], "gain": [1]}
+    model = NeuralFmu(Pendulum(), spec, STATS)
+    assert model.delay_s() == pytest.approx({"drive": 1e-4, "gain": 0.0})
+    assert model.input_delays_s() == pytest.approx({"f": 1e-4, "g": 0.0})
+    assert make_spec().delay_group_columns() == {"inputs": [0, 1]}
+    with pytest.raises(ValueError, match=r"in none \['g'\]"):
+        make_spec(delay_groups={"drive": ["f"]})
+    with pytest.raises(ValueError, match=r"unknown \['h'\]"):
+        make_spec(delay_groups={"drive": ["f", "h"], "gain": ["g"]})
+    with pytest.raises(ValueError, match="a value for each group"):
+        make_spec(delay_groups={"drive": ["f"], "gain": ["g"]}, delay_init_s={"drive": 0.0})

@@ -32,7 +32,7 @@ WORKER = textwrap.dedent('''
                       "fmu": {"path": "IPBMotor.fmu", "sha256": "0" * 64}, "resource_s": history[-1][0],
                       "validation": {"objective": 0.5 / (rung + 1), "position_mae": 0.1, "position_mse": 0.01,
                                      "position_rmse": 0.1, "loss": 0.3},
-                      "validations": validations, "delay_s": 1e-5, "skipped_steps": 3,
+                      "validations": validations, "delay_s": {"inputs": 1e-5}, "skipped_steps": 3,
                       "gates": {"v": {"g_F": 1.0, "g_A": 0.3}}, "checkpoint": "c.pt"}
             run_id = log_trial_rung(tracking, "search-1", result, history, model, spec, run_id)
     print("done", worker)
@@ -206,7 +206,7 @@ def _rung_result(rung, history, validations):
     return {"trial_id": "b0c0", "bracket": 0, "rung": rung, "config": 0, "hash": "abc", "status": "ok", "reason": "",
             "objective": 0.5 / (rung + 1), "hyperparameters": {"lr": 1e-3}, "resource_s": history[-1][0],
             "fmu": {"path": "IPBMotor.fmu", "sha256": "0" * 64}, "validation": {"objective": 0.5 / (rung + 1)},
-            "validations": validations, "delay_s": 1e-5, "skipped_steps": 0, "gates": {"v": {"g_F": 1.0}},
+            "validations": validations, "delay_s": {"inputs": 1e-5}, "skipped_steps": 0, "gates": {"v": {"g_F": 1.0}},
             "checkpoint": "c.pt"}
 
 

@@ -170,7 +170,7 @@ def test_training_is_deterministic_and_learns(arrays, statistics):
     assert np.mean(losses[-10:]) < 0.8 * np.mean(losses[:10])
     # dt is trained: from 0 it moves to 3.98e-6 s in these 0.32 s of training (bounds +-3e-4 s); a delay left
     # out of the optimiser, or without gradient, stays at exactly 0
-    assert 1e-6 < abs(a.model.delay_s()) < 3e-4
+    assert 1e-6 < abs(a.model.delay_s()["inputs"]) < 3e-4
     objective = Objective("MAE", {"p": 0.5, "v": 0.5})
     short = dataclasses.replace(arrays, spans=np.array([[300, 700], [1600, 2000]]))
     trained = validate(a.model, short, "MAE", WEIGHTS, objective, statistics)
@@ -284,3 +284,29 @@ def test_the_gradients_setting_chooses_how_a_step_is_differentiated(arrays, stat
     trainer = make_trainer(arrays, statistics, settings=TrainerSettings(gradients="backprop"))
     with pytest.raises(ValueError, match="gradients must be"):
         trainer.step()
+
+
+def test_delays_take_their_own_adam_step(arrays, statistics):
+    """With step_s the delays move by about step_s per step whatever the network's lr (Adam's first step is
+    lr in every coordinate); without it they move by about lr * scale_s."""
+    def first_step_change(**spec_changes):
+        model = make_model(statistics)
+        model.spec = dataclasses.replace(model.spec, **spec_changes)
+        trainer = Trainer(model, arrays, HYPER, statistics, TrainerSettings(), 5, WEIGHTS)
+        before = model.delay_s()["inputs"]
+        trainer.step()
+        return abs(model.delay_s()["inputs"] - before), trainer
+
+    change, trainer = first_step_change(delay_step_s=2e-6)
+    assert change == pytest.approx(2e-6, rel=1e-3)
+    assert [group["lr"] for group in trainer.optimizer.param_groups] == [HYPER.lr, pytest.approx(2e-6 / 1e-4)]
+    change, _ = first_step_change()
+    assert change == pytest.approx(HYPER.lr * 1e-4, rel=1e-3)
+    # the optimizer's state with two groups has torch.optim.Adam's layout and loads into it
+    model = trainer.model
+    state = trainer.optimizer.state_dict()
+    reference = torch.optim.Adam([{"params": [p for p in model.parameters() if p is not model.delay.raw]},
+                                  {"params": [model.delay.raw], "lr": 0.02}], lr=HYPER.lr)
+    reference.load_state_dict(state)
+    assert [len(g["params"]) for g in reference.state_dict()["param_groups"]] == \
+           [len(g["params"]) for g in state["param_groups"]]

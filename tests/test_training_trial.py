@@ -75,7 +75,7 @@ def case(tmp_path_factory):
     plan_search(case="synthetic", seed=11, hpo_config=hpo, training_config=training, model_config=model,
                 plan_path=plan_path, tracking_uri=None, experiment=None, roles=ROLES)
     return {"root": root, "fmu": fmu_path, "arrays": arrays, "statistics": statistics, "plan": plan_path,
-            "model": model, "training": training, "calibration": calibration}
+            "model": model, "training": training, "calibration": calibration, "hpo": hpo}
 
 
 def train(case, bracket, rung, config, plan=None):
@@ -445,3 +445,35 @@ def test_tracking_store_lost_mid_search_keeps_the_rung_and_logs_it_later(case, t
     record_pending(plan_path, lost, tmp_path / "hpo/b1/r0/c1/result.json", "again")
     assert set(sync_pending(plan_path)) == {"b1c1"}  # logging it a second time adds no rows
     assert [m.step for m in client.get_metric_history(run_id, "train_loss")] == steps
+
+
+def test_delays_start_at_the_time_offset_estimates(case, tmp_path):
+    """init_s: time_offset puts each group's estimate into the plan (and its search id); the trained model
+    starts from them."""
+    from hybridfmu.fmu import FmuRhs
+    from hybridfmu.model import NeuralFmu
+    from hybridfmu.training.build import model_spec
+    from hybridfmu.training.hpo import initial_delays_from_time_offset
+
+    model = dict(case["model"], input_delay=dict(case["model"]["input_delay"], init_s="time_offset", groups={
+        "duties": ["d_a", "d_b", "d_c"], "rest": ["u_dc", "tau_load"]}))
+    offset = tmp_path / "time_offset.json"
+    offset.write_text(json.dumps({"groups": {"duties": {"delay_s": 2.5e-5}, "rest": {"delay_s": -1e-5}}}))
+    assert initial_delays_from_time_offset(model, offset) == {"duties": 2.5e-5, "rest": -1e-5}
+    assert initial_delays_from_time_offset(case["model"], offset) is None  # a number in the config is kept
+    plan_path = tmp_path / "hpo" / "plan.json"
+    hpo = read_json(case["plan"])
+    plan = plan_search(case="synthetic", seed=11, hpo_config=case["hpo"],
+        training_config=case["training"], model_config=model, plan_path=plan_path, tracking_uri=None,
+        experiment=None, roles=ROLES, time_offset_path=offset)
+    assert plan["initial_delays_s"] == {"duties": 2.5e-5, "rest": -1e-5}
+    assert plan["search_id"] != hpo["search_id"]
+    fmu_model = load_fmu(case["fmu"])
+    spec = model_spec(model, fmu_model, H, width=8, depth=2, gate_opening=0.3,
+                      delay_init_s=plan["initial_delays_s"])
+    assert NeuralFmu(FmuRhs(fmu_model), spec, None).delay_s() == pytest.approx({"duties": 2.5e-5, "rest": -1e-5})
+    with pytest.raises(ValueError, match="no estimate was given"):
+        model_spec(model, fmu_model, H, width=8, depth=2, gate_opening=0.3)
+    offset.write_text(json.dumps({"groups": {"inputs": {"delay_s": 0.0}}}))
+    with pytest.raises(ValueError, match=r"time_offset\.json: field 'groups' estimates \['inputs'\]"):
+        initial_delays_from_time_offset(model, offset)

@@ -3,6 +3,7 @@
 # simulates the FMU loads it with the calibrated parameters (rule calibrate) and reads the data through
 # the case's roles; the definitions below are shared with train.smk and evaluate.smk.
 from hybridfmu.case import case_roles
+from hybridfmu.data.settings import section_settings
 
 CALIBRATION_JSON = f"{RESULTS}/calibration/calibration.json"
 _ROLES = case_roles(config)
@@ -63,6 +64,9 @@ rule time_offset:
     params:
         maneuver=time_offset_maneuver(),
         options=config.get("evaluation", {}).get("time_offset", {}),
+        # the delay's groups and range (what the per-group estimate searches), not how it is trained
+        delay={key: section_settings(config.get("model"), "model")["input_delay"][key]
+               for key in ("groups", "min_s", "max_s")},
         case=case_sections(),
     log:
         f"{RESULTS}/logs/time_offset/time_offset.log",

@@ -7,6 +7,9 @@ if "test" in EVAL_ROLES:
         input:
             test_metrics=f"{RESULTS}/metrics/test.json",
             diagnosis=f"{DIAGNOSIS}/diagnosis.json",
+            best=f"{RESULTS}/hpo/best.json",
+            time_offset=f"{RESULTS}/evaluation/time_offset.json",
+            truth=truth_files(),
         output:
             summary=f"{RESULTS}/summary.md",
         params:

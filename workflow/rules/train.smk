@@ -74,6 +74,9 @@ rule hpo_plan:
         train=f"{HPO_DIR}/prepared/train.npz",
         validation=f"{HPO_DIR}/prepared/validation.npz",
         statistics=f"{HPO_DIR}/prepared/statistics.json",
+        # the delays start at the time-offset stage's estimates when model.input_delay.init_s is time_offset
+        time_offset=[f"{RESULTS}/evaluation/time_offset.json"]
+        if MODEL["input_delay"]["init_s"] == "time_offset" else [],
     output:
         plan=f"{HPO_DIR}/plan.json",
     params:

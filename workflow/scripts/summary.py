@@ -7,4 +7,6 @@ from hybridfmu.progress import setup_rule_logging
 setup_rule_logging(snakemake.log[0])
 roles = case_roles(snakemake.params.case_sections)
 write_case_summary(snakemake.output.summary, snakemake.params.case, snakemake.input.test_metrics,
-                   snakemake.input.get("diagnosis"), {name: s.unit for name, s in roles.signals.items()})
+                   snakemake.input.get("diagnosis"), {name: s.unit for name, s in roles.signals.items()},
+                   best_path=snakemake.input.best, time_offset_path=snakemake.input.time_offset,
+                   truth_paths=list(snakemake.input.truth), roles=roles)

@@ -15,4 +15,5 @@ run_time_offset(
     roles=case_roles(snakemake.params.case),
     maneuvers=snakemake.params.case["maneuvers"],
     maneuver=snakemake.params.maneuver,
+    delay_config=snakemake.params.delay,
 )

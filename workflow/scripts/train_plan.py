@@ -21,4 +21,5 @@ plan_search(
     tracking_uri=snakemake.params.tracking_uri,
     experiment=snakemake.params.experiment,
     roles=case_roles(snakemake.params.case_sections),
+    time_offset_path=next(iter(snakemake.input.time_offset), None),  # a list input: empty or the summary
 )

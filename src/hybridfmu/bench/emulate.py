@@ -289,6 +289,7 @@ def ground_truth(run: BenchRun, settings: BenchSettings, planned: Mapping[str, A
         "time_offset": {
             "duty_channels_offset_s": offset_s,
             "input_delay_s": offset_s,
+            "channels": [name for name in CHANNELS if name.startswith("MotCtl_Duty")],  # the offset ones
             "convention": "the duty applied from time t is logged with time stamp t + offset; "
                           "u_true(t) = u_logged(t + input_delay_s)",
         },

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from hybridfmu.diagnosis.corrected_model import shift_inputs
+from hybridfmu.evaluation.offset import shift_inputs
 from hybridfmu.diagnosis.joint import terms_in_equation
 from hybridfmu.diagnosis.selection import Term
 
@@ -29,8 +29,9 @@ def load_neural_fmu(best_json: str | Path, fmu_path: str | Path, parameters: dic
     return load_trained_neural_fmu(best_json, fmu_path, parameters or None)
 
 
-def learned_delay_s(model: Any) -> float:
-    return float(model.delay_s())
+def learned_delay_s(model: Any) -> dict[str, float]:
+    """The learned input delays {input: dt (s)}, FMU order."""
+    return {name: float(value) for name, value in model.input_delays_s().items()}
 
 
 def gate_values(model: Any) -> Any:
@@ -66,7 +67,7 @@ def compare_learned_correction(model: Any, prepared: dict[str, Any], fit_names: 
     for name in fit_names:
         p = prepared[name]
         idx = p.fit.centres
-        u = shift_inputs(p.measured.u, delay, p.error.dt_s)[:-1][idx]
+        u = shift_inputs(p.measured.u, np.array(list(delay.values())), p.error.dt_s)[:-1][idx]
         learned.append(learned_correction(model, p.error.x[idx], u))
     c_all = np.concatenate(learned, axis=0) if learned else np.zeros((0, problem.n_x))
     corrected = [i for i in range(problem.n_x) if c_all.size and float(np.max(np.abs(c_all[:, i]))) > 0]

@@ -262,7 +262,7 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
     nn = record.get("neural_fmu")
     if nn:
         lines += ["### Compared with the trained neural FMU", "",
-                  f"Learned input delay {_fmt(nn['learned_delay_s'], 3)} s, gates {nn['gates']}. Learned correction per "
+                  f"Learned input delays {_delays_text(nn['learned_delay_s'])}, gates {nn['gates']}. Learned correction per "
                   "equation: " + "; ".join(f"d{k}/dt: RMS {_fmt(v['learned_correction_rms'], 3)} {v['unit']}, joint "
                                              f"R^2 of the chosen effects {_fmt(v['r2_joint'], 3)}"
                                              for k, v in nn["equations"].items()) + ".", "",
@@ -404,3 +404,13 @@ def diagnose(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str,
         write_json_atomic(paths["json"], paths["record"])
     LOGGER.info("diagnosis: %s", paths["record"]["verdict"])
     return paths["record"]
+
+
+def _delays_text(delays: Any) -> str:
+    """``{input: s}`` (or one number, of older records) as 'd_a, d_b 28.1 µs; u_dc 0 µs'."""
+    if not isinstance(delays, dict):
+        return f"{_fmt(delays, 3)} s"
+    by_value: dict[float, list[str]] = {}
+    for name, value in delays.items():
+        by_value.setdefault(float(value), []).append(name)
+    return "; ".join(f"{', '.join(names)} {value * 1e6:.3g} µs" for value, names in by_value.items())

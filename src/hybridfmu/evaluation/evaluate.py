@@ -24,6 +24,7 @@ from hybridfmu.evaluation.best import best_trial_summary
 from hybridfmu.evaluation.comparison import ManeuverRun, role_metrics
 from hybridfmu.evaluation.tracking import log_evaluation_run, resolve_tracking
 from hybridfmu.io import read_json, write_json_atomic, write_parquet_atomic
+from hybridfmu.model.delay import describe_delays
 
 LOG = logging.getLogger(__name__)
 
@@ -44,8 +45,8 @@ def read_baseline(path: str | Path, state_names: list[str], time_s: np.ndarray) 
 
 
 def learned_quantities(model: Any) -> dict[str, Any]:
-    """The learned input delay ``dt_s`` (s) and the gates ``{state: {"g_F", "g_A"}}`` of a neural FMU."""
-    return {"dt_s": float(model.delay_s()), "gates": model.gate_values()}
+    """The learned input delays ``dt_s`` ({group: s}) and the gates ``{state: {"g_F", "g_A"}}`` of a neural FMU."""
+    return {"dt_s": model.delay_s(), "gates": model.gate_values()}
 
 
 def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path: str | Path | None,
@@ -83,8 +84,8 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
     target_index = [state_names.index(name) for name in measured.target_states]
     learned = learned_quantities(model)
     duration_s = float(time_s[-1] - time_s[0])
-    LOG.info("%s: neural FMU (trial %s, dt = %.4g s, gates %s) open loop over %.3f s (%d samples) ...", maneuver,
-             summary["trial_id"], learned["dt_s"], learned["gates"], duration_s, time_s.size)
+    LOG.info("%s: neural FMU (trial %s, delays %s, gates %s) open loop over %.3f s (%d samples) ...", maneuver,
+             summary["trial_id"], describe_delays(learned["dt_s"]), learned["gates"], duration_s, time_s.size)
     start = time.perf_counter()
     states = np.asarray(simulate_neural_fmu(model, time_s, measured.u, x0), dtype=float)
     wall_s = time.perf_counter() - start
@@ -164,7 +165,8 @@ def run_evaluation(best_path: str | Path, trajectory_paths: list[str], learned_p
             f"{signal} MAE x{_fmt(improvement[f'{signal}_mae'])}, MSE x{_fmt(improvement[f'{signal}_mse'])}"
             for signal in signals))
     uri, experiment = resolve_tracking(mlflow_config, results_dir, case)
-    params = {"dt_s": extra["dt_s"], "best_trial_id": summary["trial_id"],
+    params = {**{f"dt_s.{group}": value for group, value in extra["dt_s"].items()},
+              "best_trial_id": summary["trial_id"],
               **{f"hp.{k}": v for k, v in summary["hyperparameters"].items()},
               **{f"gate.{state}.{gate}": value for state, gates in (extra["gates"] or {}).items()
                  for gate, value in gates.items()}}

@@ -50,19 +50,23 @@ def normalising_scales(values: np.ndarray) -> np.ndarray:
     return np.where(spread > 0, spread, 1.0)
 
 
-def shift_inputs(u: np.ndarray, delay_s: float, step_s: float) -> np.ndarray:
+def shift_inputs(u: np.ndarray, delay_s: float | np.ndarray, step_s: float) -> np.ndarray:
     """Inputs seen with an input delay: row k = u(t_k + h/2 + delay_s), each sample j placed at the centre
     t_j + h/2 of the step it is held over, linear between samples, held beyond the ends.
 
     With ``delay_s = 0`` the sequence is returned unchanged; with a whole number of steps it is shifted by
-    whole rows. Args: u (T, n_u); delay_s and step_s (h) in s. Returns (T, n_u).
+    whole rows. Args: u (T, n_u); delay_s (s): one value, or (n_u,) one per input column; step_s (h) in s.
+    Returns (T, n_u).
     """
     u = np.asarray(u, dtype=float)
-    position = np.arange(u.shape[0]) + delay_s / step_s
+    delays = np.broadcast_to(np.asarray(delay_s, dtype=float), (u.shape[1],))
+    position = np.arange(u.shape[0])[:, None] + delays[None, :] / step_s  # (T, n_u)
     lower = np.floor(position).astype(int)
-    fraction = (position - lower)[:, None]
+    fraction = position - lower
     last = u.shape[0] - 1
-    return (1.0 - fraction) * u[np.clip(lower, 0, last)] + fraction * u[np.clip(lower + 1, 0, last)]
+    columns = np.arange(u.shape[1])[None, :]
+    return ((1.0 - fraction) * u[np.clip(lower, 0, last), columns]
+            + fraction * u[np.clip(lower + 1, 0, last), columns])
 
 
 def estimate_input_delay_s(simulate, measured: np.ndarray, candidates_s: np.ndarray,
@@ -92,7 +96,8 @@ def estimate_input_delay_s(simulate, measured: np.ndarray, candidates_s: np.ndar
 
 def run_time_offset(fmu_path: str | Path, calibration_path: str | Path | None, data_path: str | Path,
                     window_path: str | Path, summary_path: str | Path, options: dict[str, Any], roles: Any,
-                    maneuvers: dict[str, Any] | None, maneuver: str, resolution: int = 20) -> dict[str, Any]:
+                    maneuvers: dict[str, Any] | None, maneuver: str, resolution: int = 20,
+                    delay_config: dict[str, Any] | None = None) -> dict[str, Any]:
     """Simulate the calibrated FMU on the time-offset window and estimate the input delay (rule ``time_offset``).
 
     The FMU starts from the measured state at the window's start (unmeasured states: the FMU's baseline
@@ -100,15 +105,23 @@ def run_time_offset(fmu_path: str | Path, calibration_path: str | Path | None, d
     every candidate input delay u(t + dt) (grid of ``step / resolution`` within ``±max_lag_s``); the delay
     whose normalised target states fit the data best is the estimate.
 
+    Then every group of inputs of ``delay_config`` gets its own estimate over many short windows
+    (:mod:`hybridfmu.evaluation.group_offset`), searched within the delay's bounds: the start of the
+    learned delays when ``model.input_delay.init_s`` is ``time_offset``.
+
     Args:
-        options: config ``evaluation.time_offset`` (``length_s``, ``t_start_s`` or None, ``max_lag_s``).
+        options: config ``evaluation.time_offset`` (``length_s``, ``t_start_s`` or None, ``max_lag_s``,
+            ``groups``: ``window_samples``, ``windows``).
         roles: :class:`hybridfmu.case.CaseRoles`; maneuvers: config ``maneuvers``; maneuver: its name.
+        delay_config: config ``model.input_delay`` (``groups``, ``min_s``, ``max_s``); None: one group of all
+            inputs within ``±max_lag_s``.
 
     Writes ``window_path`` (Parquet: ``time_s`` and, per target signal, ``data_<signal>``, ``fmu_<signal>``,
     ``fmu_delayed_<signal>`` (with the estimated delay)) and ``summary_path`` (JSON: maneuver, window,
     ``signals``, ``scales`` (the normalising spreads), ``input_delay_s``, ``mse_without_delay`` and
-    ``mse_with_delay`` per target signal, ``cost_without_delay`` / ``cost_with_delay`` (normalised)).
-    Returns the summary.
+    ``mse_with_delay`` per target signal, ``cost_without_delay`` / ``cost_with_delay`` (normalised), and
+    ``groups``: {group: {inputs, delay_s, windows, window_samples, identified, cost_without_delay,
+    cost_with_delay}}). Returns the summary.
     """
     from hybridfmu.evaluation.baseline import simulate_fmu_open_loop
     from hybridfmu.training.measured import initial_state, load_calibrated_fmu, load_calibration, read_measured
@@ -160,6 +173,8 @@ def run_time_offset(fmu_path: str | Path, calibration_path: str | Path | None, d
         count = int(np.floor(max_lag_s / fine_s))
         delay_s, delayed = estimate_input_delay_s(lambda d: simulate(d)[:, target_index], data,
                                                   np.arange(-count, count + 1) * fine_s, scales)
+        groups = _group_estimates(model, measured, roles, calibration, maneuver, maneuvers, options,
+                                  delay_config, max_lag_s, fine_s, step_s)
     columns: dict[str, np.ndarray] = {"time_s": t}
     for k, signal in enumerate(signals):
         columns.update({f"data_{signal}": data[:, k], f"fmu_{signal}": plain[:, k],
@@ -174,7 +189,65 @@ def run_time_offset(fmu_path: str | Path, calibration_path: str | Path | None, d
                "mse_with_delay": dict(zip(signals, mse_delayed.tolist())),
                "cost_without_delay": float(np.sum(mse_plain / scales ** 2)),
                "cost_with_delay": float(np.sum(mse_delayed / scales ** 2)),
+               "groups": groups,
                "convention": "the FMU sees the logged inputs as u(t + input_delay_s), as the neural FMU's delay"}
     write_json_atomic(summary_path, summary)
     LOG.info("%s: time-offset window %.4f-%.4f s, estimated input delay %.3g s", maneuver, t[0], t[-1], delay_s)
     return summary
+
+
+def _group_estimates(model: Any, measured: Any, roles: Any, calibration: Any, maneuver: str,
+                     maneuvers: dict[str, Any] | None, options: dict[str, Any], delay_config: dict[str, Any] | None,
+                     max_lag_s: float, fine_s: float, step_s: float) -> dict[str, Any]:
+    """Each input group's delay over many short windows (``group_offset``): {group: {inputs, delay_s, ...}}."""
+    from hybridfmu.evaluation.baseline import simulate_fmu_open_loop
+    from hybridfmu.evaluation.group_offset import estimate_group_delays
+    from hybridfmu.training.measured import initial_state
+
+    settings = dict(options.get("groups") or {})
+    window_samples = int(settings.get("window_samples", 4))
+    windows = int(settings.get("windows", 100))
+    lead_samples = int(settings.get("lead_samples", 2))
+    min_improvement = float(settings.get("min_improvement", 0.05))
+    input_names = list(roles.input_names)
+    configured = dict((delay_config or {}).get("groups") or {})
+    groups = ({name: [input_names.index(i) for i in inputs] for name, inputs in configured.items()}
+              if configured else {"inputs": list(range(len(input_names)))})
+    low_s = float((delay_config or {}).get("min_s", -max_lag_s))
+    high_s = float((delay_config or {}).get("max_s", max_lag_s))
+    if not high_s > low_s:
+        return {name: {"inputs": [input_names[c] for c in columns], "delay_s": low_s, "windows": 0,
+                       "cost_without_delay": None, "cost_with_delay": None, "note": "the delay is fixed"}
+                for name, columns in groups.items()}
+    # candidates strictly inside the delay's bounds (a learned delay starts inside them)
+    candidates = np.arange(np.ceil(low_s / fine_s + 1e-9), np.floor(high_s / fine_s - 1e-9) + 1) * fine_s
+    candidates = candidates[(candidates > low_s) & (candidates < high_s)]
+    x = measured.x.copy()
+    if roles.unmeasured_states:  # unmeasured states from the FMU's open loop from the calibrated start
+        x0 = initial_state(model, measured.x[0], roles, calibration, maneuver, maneuvers)
+        baseline = simulate_fmu_open_loop(model, measured.time_s, measured.u, x0, label=f"{maneuver} baseline")[0]
+        x = np.where(np.isfinite(x), x, baseline)
+    measured_index = [list(roles.state_names).index(name) for name in roles.measured_states]
+    spread = normalising_scales(measured.x[:, measured_index])
+    margin = int(np.ceil(max(abs(low_s), abs(high_s)) / step_s)) + 2
+
+    def simulate_window(start: int, delays_s: np.ndarray) -> np.ndarray:
+        lo, hi = start - margin, start + window_samples + 1 + margin
+        shifted = shift_inputs(measured.u[lo:hi], delays_s, step_s)[margin:margin + window_samples + 1]
+        states = simulate_fmu_open_loop(model, measured.time_s[start:start + window_samples + 1], shifted,
+                                        x[start].copy(), label=f"{maneuver} time-offset window at sample {start}")[0]
+        first = measured.x[start, measured_index]
+        data = measured.x[start + 1:start + window_samples + 1][:, measured_index]
+        return (states[1:, measured_index] - first) / spread, (data - first) / spread
+
+    estimate = estimate_group_delays(simulate_window, measured.u, groups, window_samples, windows, candidates,
+                                     margin, lead_samples, min_improvement)
+    return {name: {"inputs": [input_names[c] for c in columns], "delay_s": estimate.delays_s[name],
+                   "windows": estimate.windows[name], "window_samples": window_samples,
+                   "lead_samples": lead_samples,
+                   "gains": dict(zip(roles.measured_states, estimate.gains[name])),
+                   "identified": estimate.identified[name], "improvement": estimate.improvement[name],
+                   "not_identified_because": estimate.reasons.get(name),
+                   "cost_without_delay": estimate.cost_without_delay[name],
+                   "cost_with_delay": estimate.cost_with_delay[name]}
+            for name, columns in groups.items()}

@@ -116,21 +116,43 @@ def verdicts(metrics_by_role: dict[str, dict], reference: dict[str, Any] | None 
     return lines
 
 
-def delay_lines(dt_s: float | None, true_dt_s: float | None, truth_source: str | None,
-                reference: dict[str, Any] | None = None) -> list[str]:
-    """Lines on the learned input delay, against the ground truth when the case has one."""
-    lines = []
-    if dt_s is None:
+def delay_lines(dt_s: dict[str, float] | None, true_dt_s: dict[str, float | None] | None,
+                truth_source: str | None, reference: dict[str, Any] | None = None,
+                estimates_s: dict[str, float] | None = None) -> list[str]:
+    """A table of the learned input delays per group, beside the time-offset stage's estimate and, when the
+    case has a ground truth, the true offset of the group's logged inputs.
+
+    Args:
+        dt_s: {group: learned delay (s)}; true_dt_s: {group: true offset (s), None where its inputs differ}.
+        estimates_s: {group: the time-offset stage's estimate (s)}.
+    """
+    if not dt_s:
         return ["The model has no learned input delay."]
-    lines.append(f"- learned input delay Δt: {dt_s:.4g} s ({dt_s * 1e6:.2f} µs)")
+    if not isinstance(dt_s, dict):
+        dt_s = {"inputs": float(dt_s)}
+    header = "| input group | learned Δt | time-offset estimate |"
+    rule = "|---|---|---|"
     if true_dt_s is not None:
-        error = dt_s - true_dt_s
-        lines.append(f"- true time offset of the logged inputs ({truth_source}): {true_dt_s:.4g} s "
-                     f"({true_dt_s * 1e6:.2f} µs); learned minus true: {error * 1e6:.2f} µs")
+        header += " true offset | learned − true |"
+        rule += "---|---|"
+    lines = [header, rule]
+    for group, value in dt_s.items():
+        estimate = (estimates_s or {}).get(group)
+        row = (f"| {group} | {value * 1e6:.2f} µs | "
+               f"{'-' if estimate is None else f'{estimate * 1e6:.2f} µs'} |")
+        if true_dt_s is not None:
+            truth = true_dt_s.get(group)
+            row += (" its inputs are offset differently | - |" if truth is None
+                    else f" {truth * 1e6:.2f} µs | {(value - truth) * 1e6:+.2f} µs |")
+        lines.append(row)
+    lines.append("")
+    if true_dt_s is not None:
+        lines.append(f"True offsets from {truth_source} (convention u_true(t) = u_logged(t + Δt)).")
     else:
-        lines.append("- the case has no ground truth for the time offset (no truth file beside the raw logs)")
+        lines.append("The case has no ground truth for the time offset (no truth file beside the raw logs).")
     if (reference or {}).get("input_delay_s") is not None:
-        lines.append(f"- {reference.get('name', 'reference')}: Δt ≈ {float(reference['input_delay_s']):.4g} s")
+        lines.append(f"{reference.get('name', 'reference')}: Δt ≈ {float(reference['input_delay_s']) * 1e6:.2f} µs "
+                     "(one delay for all inputs).")
     return lines
 
 
@@ -145,7 +167,8 @@ def hyperparameter_lines(hyperparameters: dict[str, Any]) -> list[str]:
 def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: dict[str, Any],
                   best_summary: dict[str, Any], dt_s: float | None, gates: Any, true_dt_s: float | None,
                   truth_source: str | None, figures: list[ReportFigure], mlflow_run: dict[str, Any] | None,
-                  units: dict[str, str] | None = None, reference: dict[str, Any] | None = None) -> str:
+                  units: dict[str, str] | None = None, reference: dict[str, Any] | None = None,
+                  delay_estimates_s: dict[str, float] | None = None) -> str:
     """The report as Markdown text.
 
     Args:
@@ -153,8 +176,9 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
         metrics_by_role: ``{"validation": metrics, "test": metrics}`` as written by ``evaluate``.
         hyperparameters: the best configuration's hyperparameters.
         best_summary: other facts about the best trial (trial id, validation loss, resource ...).
-        dt_s: learned input delay (s) or None; gates: the learned gates.
-        true_dt_s, truth_source: the true offset (s) and where it comes from, or None.
+        dt_s: learned input delays ({group: s}) or None; gates: the learned gates.
+        true_dt_s, truth_source: the true offset of each delay group ({group: s}) and where it comes from, or None.
+        delay_estimates_s: the time-offset stage's estimate of each group ({group: s}).
         figures: the figures, paths relative to the report.
         mlflow_run: ``{"tracking_uri", "experiment", "run_id"}`` of the evaluation run, or None.
         units: target signal -> unit (``Signal.unit``) for the tables.
@@ -171,7 +195,8 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
             "Chosen where the FMU and the data part most, from the FMU's error alone (`auto`), or set in the "
             "config (`config`).", ""]
     out += zoom_table(metrics_by_role, units) + [""]
-    out += ["## Learned input delay and gates", ""] + delay_lines(dt_s, true_dt_s, truth_source, reference)
+    out += ["## Learned input delay and gates", ""] + delay_lines(dt_s, true_dt_s, truth_source, reference,
+                                                                         delay_estimates_s)
     out += [f"- gates (ẋ = g_F·ẋ_FMU + g_A·ẋ_ANN): {_gates_text(gates)}", ""]
     out += ["## Best hyperparameters", ""]
     if best_summary:
@@ -220,30 +245,68 @@ def figure_caption(name: str, maneuver_roles: dict[str, str], time_offset: dict[
     return name
 
 
-def true_input_delay(truth_paths: list[str]) -> tuple[float | None, str | None]:
-    """The true input delay (s) from the bench's ground-truth files, and the file it comes from.
+def true_input_delay(truth_paths: list[str], groups: dict[str, list[str]] | None = None,
+                     input_channels: dict[str, str | None] | None = None
+                     ) -> tuple[dict[str, float | None] | None, str | None]:
+    """The true offset of each input group (s) from the bench's ground-truth files, and the file it comes from.
 
     Reads ``time_offset.input_delay_s`` (convention u_true(t) = u_logged(t + input_delay_s), the same
-    as the neural FMU's learned delay). None when there is no truth file.
+    as the neural FMU's learned delay) and ``time_offset.channels``, the logged channels it applies to (all
+    inputs when absent); the other inputs are true to 0. A group whose inputs have different true offsets
+    gets None.
+
+    Args:
+        groups: {group: FMU inputs} of the learned delays (None: one group "inputs" of ``input_channels``).
+        input_channels: {FMU input: raw channel it is read from, None for a derived signal}.
+
+    Returns:
+        ({group: s or None}, file) or (None, None) when there is no truth file.
 
     Raises:
         ValueError: the files disagree, or the field is missing (names the file).
     """
     from hybridfmu.io import read_json
 
-    found: list[tuple[float, str]] = []
+    found: list[tuple[float, tuple[str, ...] | None, str]] = []
     for path in truth_paths:
         truth = read_json(path)
         try:
-            found.append((float(truth["time_offset"]["input_delay_s"]), str(path)))
-        except (KeyError, TypeError):
+            offset = truth["time_offset"]
+            channels = offset.get("channels")
+            found.append((float(offset["input_delay_s"]), None if channels is None else tuple(channels), str(path)))
+        except (KeyError, TypeError, AttributeError):
             raise ValueError(f"{path}: field 'time_offset.input_delay_s' missing (expected a bench ground truth)") from None
     if not found:
         return None, None
-    values = {value for value, _ in found}
-    if len(values) > 1:
-        raise ValueError(f"ground-truth files disagree on time_offset.input_delay_s: {found}")
-    return found[0]
+    if len({(value, channels) for value, channels, _ in found}) > 1:
+        raise ValueError(f"ground-truth files disagree on time_offset (input_delay_s, channels): {found}")
+    value, channels, source = found[0]
+    input_channels = input_channels or {}
+    groups = groups or {"inputs": list(input_channels)}
+    result: dict[str, float | None] = {}
+    for group, inputs in groups.items():
+        values = {value if channels is None or input_channels.get(name) in channels else 0.0 for name in inputs}
+        result[group] = values.pop() if len(values) == 1 else None
+    return result, source
+
+
+def group_estimate_text(group: str, entry: dict[str, Any]) -> str:
+    """One input group's time-offset estimate (an entry of the summary's ``groups``) as report text."""
+    text = f"{group} {entry['delay_s'] * 1e6:.2f} µs ({entry['windows']} windows of {entry.get('window_samples', '?')} steps"
+    if not entry.get("identified", True):
+        text += f"; not identified: {entry.get('not_identified_because') or 'see the log'}"
+    return text + ")"
+
+
+def learned_delay_facts(best: dict[str, Any], time_offset: dict[str, Any], truth_paths: list[str],
+                        roles: Any) -> tuple[dict[str, float | None] | None, str | None, dict[str, float]]:
+    """What the delay table needs besides the learned delays: ({group: true offset} or None, the truth's
+    file, {group: the time-offset stage's estimate}); ``best`` is ``hpo/best.json`` (its ``model_spec``)."""
+    learned_groups = (best.get("model_spec") or {}).get("delay_groups") or {"inputs": list(roles.input_names)}
+    input_channels = {name: roles.signals[roles.inputs[name]].channel for name in roles.input_names}
+    true_dt_s, truth_source = true_input_delay(truth_paths, learned_groups, input_channels)
+    estimates_s = {group: entry["delay_s"] for group, entry in (time_offset.get("groups") or {}).items()}
+    return true_dt_s, truth_source, estimates_s
 
 
 def write_report(report_path: str | Path, case: str, metrics_paths: list[str], best_path: str | Path,
@@ -272,7 +335,7 @@ def write_report(report_path: str | Path, case: str, metrics_paths: list[str], b
     first = next(iter(metrics_by_role.values()))
     run = read_json(run_path)
     time_offset = read_json(time_offset_summary_path)
-    true_dt_s, truth_source = true_input_delay(truth_paths)
+    true_dt_s, truth_source, estimates_s = learned_delay_facts(best, time_offset, truth_paths, roles)
     maneuver_roles = {m: role for role, metrics in metrics_by_role.items() for m in metrics.get("maneuvers", [])}
     folder = Path(report_path).parent
     signals = {name: roles.signals[name] for name in roles.target_signals}
@@ -284,7 +347,7 @@ def write_report(report_path: str | Path, case: str, metrics_paths: list[str], b
     best_facts = {key: summary[key] for key in ("trial_id", "bracket", "rung", "objective", "resource_s",
                                                 "mlflow_run_id") if summary.get(key) is not None}
     text = render_report(case, metrics_by_role, summary["hyperparameters"], best_facts, first.get("dt_s"),
-                         first.get("gates"), true_dt_s, truth_source, figures, run, units, reference)
+                         first.get("gates"), true_dt_s, truth_source, figures, run, units, reference, estimates_s)
     changes = ", ".join(
         f"{signal} MSE {_number(time_offset['mse_without_delay'][signal])} → "
         f"{_number(time_offset['mse_with_delay'][signal])} {squared_unit(units.get(signal, ''))}"
@@ -294,7 +357,10 @@ def write_report(report_path: str | Path, case: str, metrics_paths: list[str], b
              f"({time_offset['t_start_s']:.4f}–{time_offset['t_end_s']:.4f} s) gives "
              f"{time_offset['input_delay_s'] * 1e6:.1f} µs ({changes}). "
              "On one window the delay also absorbs the FMU's other errors there, so this "
-             "estimate is indicative only; the neural FMU learns its delay together with the correction.\n")
+             "estimate is indicative only. Each input group's estimate over many short windows after its inputs "
+             "change (the start of the learned delays when `model.input_delay.init_s` is `time_offset`): "
+             + "; ".join(group_estimate_text(group, entry)
+                         for group, entry in (time_offset.get("groups") or {}).items()) + ".\n")
     write_text_atomic(report_path, text)
     if log_to_mlflow:
         from hybridfmu.evaluation.tracking import log_report_artifacts

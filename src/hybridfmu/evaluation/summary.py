@@ -67,10 +67,23 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
 
 
 def write_case_summary(out_path: str | Path, case: str, test_metrics_path: str | Path,
-                       diagnosis_path: str | Path | None, units: dict[str, str]) -> Path:
-    """Render :func:`case_summary` from the run's files and write it atomically."""
+                       diagnosis_path: str | Path | None, units: dict[str, str], best_path: str | Path | None = None,
+                       time_offset_path: str | Path | None = None, truth_paths: list[str] | None = None,
+                       roles: Any = None) -> Path:
+    """Render :func:`case_summary` from the run's files and write it atomically; with ``best_path``,
+    ``time_offset_path`` and ``roles`` the learned input delays follow (beside the time-offset stage's
+    estimates and the ground truth of ``truth_paths`` when there is one)."""
+    from hybridfmu.evaluation.report import delay_lines, learned_delay_facts
+
     diagnosis = read_json(diagnosis_path) if diagnosis_path else None
-    text = case_summary(case, read_json(test_metrics_path), diagnosis, units)
+    test_metrics = read_json(test_metrics_path)
+    text = case_summary(case, test_metrics, diagnosis, units)
+    if best_path and time_offset_path and roles is not None and test_metrics.get("dt_s"):
+        true_dt_s, source, estimates_s = learned_delay_facts(read_json(best_path), read_json(time_offset_path),
+                                                             list(truth_paths or []), roles)
+        text += "\nLearned input delays of the neural FMU:\n\n" + "\n".join(
+            delay_lines(test_metrics["dt_s"], true_dt_s, Path(source).name if source else None, None,
+                        estimates_s)) + "\n"
     with atomic_path(out_path) as tmp:
         Path(tmp).write_text(text)
     return Path(out_path)

@@ -39,7 +39,8 @@ class NeuralFmu(nn.Module):
         n_x, n_u = len(spec.state_names), len(spec.input_names)
         self.n_states, self.n_inputs = n_x, n_u
         self.delay = InputDelay(spec.sample_period_s, spec.delay_min_s, spec.delay_max_s, spec.delay_init_s,
-                                spec.delay_scale_s, spec.sample_position)
+                                spec.delay_scale_s, spec.sample_position,
+                                groups=list(spec.delay_group_columns().items()), n_inputs=n_u)
         self.fmu = FmuLayer(rhs, n_x, n_u)
         self.register_buffer("idx_states", torch.tensor(spec.state_index(spec.ann_states), dtype=torch.long))
         self.register_buffer("idx_inputs", torch.tensor(spec.input_index(spec.ann_inputs), dtype=torch.long))
@@ -114,9 +115,14 @@ class NeuralFmu(nn.Module):
             b_first=bias, hidden=hidden, w_out=w_out, b_out=b_out, g_fmu=self.gates.fmu_gate_vector())
 
     # ------------------------------------------------------------------ learned quantities
-    def delay_s(self) -> float:
-        """Learned input time offset dt (s)."""
-        return float(self.delay.delay_s().detach())
+    def delay_s(self) -> dict[str, float]:
+        """Learned input time offsets {group: dt (s)}."""
+        values = self.delay.delays_s().detach().tolist()
+        return dict(zip(self.delay.group_names, values))
+
+    def input_delays_s(self) -> dict[str, float]:
+        """Learned time offset of every input {input: dt (s)}, FMU order."""
+        return dict(zip(self.spec.input_names, self.delay.input_delays_s().detach().tolist()))
 
     def gate_values(self) -> dict[str, dict[str, float]]:
         """{corrected state: {"g_F": ..., "g_A": ...}}."""

@@ -32,7 +32,12 @@ class NeuralFmuSpec:
         ann_output_init: "zero" starts the MLP's output layer at zero (the untrained neural FMU is the FMU
             plus g_A times the post-processing shift; the ANN's share grows with training), "random" keeps
             torch's default initialisation.
-        delay_min_s, delay_max_s, delay_init_s, delay_scale_s: input-delay bounds, start and raw scale (s).
+        delay_min_s, delay_max_s, delay_scale_s: input-delay bounds and raw scale (s), shared by the groups.
+        delay_groups: group name -> inputs sharing one learned delay; every input in exactly one group.
+            Empty: one group ``"inputs"`` of all inputs.
+        delay_init_s: initial delay (s): one value for every group, or ``{group: value}``.
+        delay_step_s: Adam step size of the delays (s per step: how far a delay moves per step at most,
+            about); None: the delays train with the network's learning rate (dt moves about lr * scale_s).
         sample_position: how sampled inputs are placed within their interval (see ``InputDelay``).
         solver: fixed-step method on the sample grid ("rk4" or "euler").
         end_stop: optional hard stop of a position state.
@@ -51,8 +56,10 @@ class NeuralFmuSpec:
     ann_output_init: str = "zero"
     delay_min_s: float = 0.0
     delay_max_s: float = 0.0
-    delay_init_s: float = 0.0
+    delay_init_s: float | dict[str, float] = 0.0
     delay_scale_s: float = 1e-4
+    delay_groups: dict[str, list[str]] = field(default_factory=dict)
+    delay_step_s: float | None = None
     sample_position: str = "hold_center"
     solver: str = "rk4"
     end_stop: EndStop | None = None
@@ -74,6 +81,22 @@ class NeuralFmuSpec:
             raise ValueError(f"model.ann_output_init: expected 'zero' or 'random', got {self.ann_output_init!r}")
         if self.solver not in ("rk4", "euler"):
             raise ValueError(f"model.solver: expected 'rk4' or 'euler', got {self.solver!r}")
+        if self.delay_groups:
+            listed = [name for inputs in self.delay_groups.values() for name in inputs]
+            unknown = [name for name in listed if name not in self.input_names]
+            repeated = sorted({name for name in listed if listed.count(name) > 1})
+            missing = [name for name in self.input_names if name not in listed]
+            if unknown or repeated or missing:
+                raise ValueError(f"model.input_delay.groups: every FMU input must be in exactly one group; unknown "
+                                 f"{unknown}, in several groups {repeated}, in none {missing} (the FMU's inputs are "
+                                 f"{self.input_names})")
+        if isinstance(self.delay_init_s, dict):
+            names = list(self.delay_group_columns())
+            if sorted(self.delay_init_s) != sorted(names):
+                raise ValueError(f"model.input_delay.init_s: expected a value for each group {names}, got "
+                                 f"{sorted(self.delay_init_s)}")
+        if self.delay_step_s is not None and not self.delay_step_s > 0:
+            raise ValueError(f"model.input_delay.step_s: expected > 0, got {self.delay_step_s}")
         if self.end_stop is not None:
             for name in (self.end_stop.state, self.end_stop.rate_state):
                 if name not in self.state_names:
@@ -84,6 +107,12 @@ class NeuralFmuSpec:
 
     def input_index(self, names: list[str]) -> list[int]:
         return [self.input_names.index(name) for name in names]
+
+    def delay_group_columns(self) -> dict[str, list[int]]:
+        """Group name -> indices of its inputs (FMU order); one group ``"inputs"`` when none are configured."""
+        if not self.delay_groups:
+            return {"inputs": list(range(len(self.input_names)))}
+        return {name: self.input_index(list(inputs)) for name, inputs in self.delay_groups.items()}
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

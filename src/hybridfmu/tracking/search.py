@@ -149,7 +149,8 @@ def log_trial_rung(tracking: dict[str, str], search_id: str, result: dict[str, A
             metrics.append((f"val_{key}", validation[key], int(round(1000 * resource_s))))
     if result["objective"] is not None:
         metrics.append(("best_val_objective", result["objective"], step))
-    metrics.append(("delay_s", result["delay_s"], step))
+    for group, value in result["delay_s"].items():
+        metrics.append((f"delay_s_{group}", value, step))
     metrics.append(("skipped_steps", float(result["skipped_steps"]), step))
     for state, gates in result["gates"].items():
         for gate, value in gates.items():

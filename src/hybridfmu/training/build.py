@@ -20,11 +20,25 @@ def _names(value: Any, available: list[str], field: str) -> list[str]:
 
 
 def model_spec(model_config: dict[str, Any], fmu_model: Any, sample_period_s: float, width: int, depth: int,
-               gate_opening: float) -> NeuralFmuSpec:
+               gate_opening: float, delay_init_s: float | dict[str, float] | None = None) -> NeuralFmuSpec:
     """The architecture: ``model_config`` is the validated ``model`` section; the FMU gives the state and
-    input names (and the end-stop values from its parameters)."""
+    input names (and the end-stop values from its parameters).
+
+    ``delay_init_s``: the delays' start (s, one value or ``{group: value}``) when ``input_delay.init_s`` is
+    ``time_offset`` (the search's plan holds the time-offset stage's estimates, ``initial_delays_s``);
+    a number in the config is used as it is."""
     states, inputs = list(fmu_model.state_names), list(fmu_model.input_names)
     delay = model_config["input_delay"]
+    init_s = delay["init_s"]
+    if init_s == "time_offset":
+        if delay_init_s is None:
+            raise ValueError("config.model.input_delay.init_s is 'time_offset', but no estimate was given (the "
+                             "search's plan holds it: rerun rule hpo_plan)")
+        init_s = delay_init_s
+    elif isinstance(init_s, dict):
+        init_s = {name: float(value) for name, value in init_s.items()}
+    else:
+        init_s = float(init_s)
     end_stop = None
     stop = model_config.get("end_stop")
     if stop:
@@ -46,7 +60,9 @@ def model_spec(model_config: dict[str, Any], fmu_model: Any, sample_period_s: fl
         ann_inputs=_names(ann["inputs"], inputs, "ann_inputs.inputs"),
         ann_derivatives=_names(ann["derivatives"], states, "ann_inputs.derivatives"),
         sample_period_s=float(sample_period_s), width=int(width), depth=int(depth), gate_opening=float(gate_opening),
-        delay_min_s=float(delay["min_s"]), delay_max_s=float(delay["max_s"]), delay_init_s=float(delay["init_s"]),
+        delay_min_s=float(delay["min_s"]), delay_max_s=float(delay["max_s"]), delay_init_s=init_s,
+        delay_groups={name: list(inputs) for name, inputs in (delay.get("groups") or {}).items()},
+        delay_step_s=None if delay.get("step_s") is None else float(delay["step_s"]),
         ann_output_init=model_config["ann_output_init"],
         delay_scale_s=float(delay["scale_s"]), sample_position=delay["sample_position"],
         solver=model_config["solver"], end_stop=end_stop)

@@ -10,6 +10,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from hybridfmu.model.delay import describe_delays
 from hybridfmu.io import atomic_path, read_json, write_json_atomic
 from hybridfmu.training.data import build_maneuver_arrays
 from hybridfmu.training.hyperband import rank_results, select_survivors
@@ -94,16 +95,26 @@ def search_id(case: str, seed: int, sections: dict[str, Any]) -> str:
 
 def plan_search(*, case: str, seed: int, hpo_config: dict[str, Any], training_config: dict[str, Any],
                 model_config: dict[str, Any], plan_path: str | Path, tracking_uri: str | None,
-                experiment: str | None, roles: Any = None) -> dict[str, Any]:
+                experiment: str | None, roles: Any = None, time_offset_path: str | Path | None = None
+                ) -> dict[str, Any]:
     """Write the search plan (brackets, rungs, sampled configurations) and create the MLflow parent run
     (skipped when ``tracking_uri`` is None). With ``roles`` the target weights ``w_<state>`` of the search
-    space and the objective are checked against the case's target states."""
+    space and the objective are checked against the case's target states.
+
+    When ``model.input_delay.init_s`` is ``time_offset``, the plan's ``initial_delays_s`` ({group: s}) are
+    the time-offset stage's estimates (``time_offset_path``, rule ``time_offset``), the start of every
+    configuration's delays."""
     sections = {"hpo": hpo_config, "training": training_config, "model": model_config}
+    initial_delays = initial_delays_from_time_offset(model_config, time_offset_path)
+    if initial_delays is not None:
+        sections["initial_delays_s"] = initial_delays
     if roles is not None:
         check_target_weights(hpo_config, roles)
         sections["targets"] = dict(roles.target_weights)
     identifier = search_id(case, seed, sections)
     plan = search_plan(hpo_config, training_config, seed, identifier)
+    if initial_delays is not None:
+        plan["initial_delays_s"] = initial_delays
     if tracking_uri:
         from hybridfmu.tracking.search import start_search
 
@@ -111,11 +122,34 @@ def plan_search(*, case: str, seed: int, hpo_config: dict[str, Any], training_co
                   "unit_s": plan["unit_s"], "n_configurations": plan["n_configurations"],
                   "objective": json.dumps(plan["objective"]), "seed": seed,
                   "search_space": json.dumps(hpo_config["search_space"], sort_keys=True)}
+        if initial_delays is not None:
+            params["initial_delays_s"] = json.dumps(initial_delays, sort_keys=True)
         plan["tracking"] = start_search(tracking_uri, experiment or case, identifier, case, params)
     write_json_atomic(plan_path, plan)
     LOG.info("search %s: %d brackets, %d configurations, one unit = %.4g s of data", identifier,
              len(plan["brackets"]), plan["n_configurations"], plan["unit_s"])
     return plan
+
+
+def initial_delays_from_time_offset(model_config: dict[str, Any],
+                                    time_offset_path: str | Path | None) -> dict[str, float] | None:
+    """{group: s} from the time-offset summary when ``model.input_delay.init_s`` is ``time_offset``, else None.
+
+    Raises:
+        ValueError: the summary is missing, or does not estimate exactly the configured groups.
+    """
+    delay = model_config.get("input_delay", {})
+    if delay.get("init_s") != "time_offset":
+        return None
+    if not time_offset_path:
+        raise ValueError("config.model.input_delay.init_s is 'time_offset', but the time-offset summary "
+                         "(rule time_offset) was not given")
+    groups = read_json(time_offset_path).get("groups")
+    expected = sorted((delay.get("groups") or {"inputs": None}).keys())
+    if not isinstance(groups, dict) or sorted(groups) != expected:
+        raise ValueError(f"{time_offset_path}: field 'groups' estimates {sorted(groups or {})}, expected the groups "
+                         f"of config.model.input_delay {expected}; rerun rule time_offset")
+    return {name: float(groups[name]["delay_s"]) for name in expected}
 
 
 def select_rung(*, plan_path: str | Path, bracket: int, rung: int, result_paths: list[str],
@@ -198,6 +232,6 @@ def select_best(*, plan_path: str | Path, selection_paths: list[str], best_path:
     if plan.get("tracking"):
         from hybridfmu.tracking.search import finish_search
         finish_search(plan["tracking"], record, summary_path)
-    LOG.info("best: %s (objective %.4g, dt = %.4g s, gates %s)", best["trial_id"], best["objective"],
-             best["delay_s"], best["gates"])
+    LOG.info("best: %s (objective %.4g, delays %s, gates %s)", best["trial_id"], best["objective"],
+             describe_delays(best["delay_s"]), best["gates"])
     return record

@@ -20,7 +20,7 @@ def load_trained_neural_fmu(best_json_path: str | Path, fmu_path: str | Path,
                             fmu_parameters: dict[str, float] | None = None) -> NeuralFmu:
     """The neural FMU named by ``hpo/best.json`` (its ``checkpoint``), around the FMU at ``fmu_path``.
 
-    The learned delay is ``model.delay_s()`` (s), the gates ``model.gate_values()``.
+    The learned delays are ``model.delay_s()`` ({group: s}), the gates ``model.gate_values()``.
     """
     from hybridfmu.fmu import FmuRhs, load_fmu
     from hybridfmu.training.trial import load_checkpoint

@@ -1,4 +1,4 @@
-"""Adam for the trainer: the update of ``torch.optim.Adam`` without ``torch.optim.Optimizer``.
+"""Adam for the trainer (groups of parameters with their own learning rates): the update of ``torch.optim.Adam`` without ``torch.optim.Optimizer``.
 
 Every method of ``torch.optim.Optimizer`` (constructor, ``step``, ``zero_grad``, ``state_dict``) imports
 ``torch._dynamo`` on first use, about 2 s of every training job's start-up; the job never compiles anything.
@@ -24,11 +24,28 @@ def _scalar_dtype() -> torch.dtype:
 
 
 class Adam:
-    """Adam over one group of parameters (``torch.optim.Adam(params, lr, betas)`` with its defaults)."""
+    """Adam over groups of parameters, as ``torch.optim.Adam(params, lr, betas)`` with its defaults.
 
-    def __init__(self, params: Iterable[torch.Tensor], lr: float, betas: tuple[float, float]) -> None:
-        self.params = list(params)
-        self.param_groups = [{"lr": lr, "betas": tuple(betas), **GROUP_DEFAULTS}]
+    ``params`` is an iterable of tensors (one group) or of dicts ``{"params": [...], "lr": ...}`` (a group
+    each; a group without ``"lr"`` uses ``lr``), as torch's optimizers take them.
+    """
+
+    def __init__(self, params: Iterable[Any], lr: float, betas: tuple[float, float]) -> None:
+        items = list(params)
+        if items and isinstance(items[0], dict):
+            groups = [dict(item) for item in items]
+        else:
+            groups = [{"params": items}]
+        self.param_groups: list[dict[str, Any]] = []
+        self.params: list[torch.Tensor] = []
+        for group in groups:
+            members = list(group.pop("params"))
+            unknown = [key for key in group if key != "lr"]
+            if unknown:
+                raise ValueError(f"Adam: parameter group options {unknown} are not supported (only 'lr')")
+            self.param_groups.append({"lr": float(group.get("lr", lr)), "betas": tuple(betas), **GROUP_DEFAULTS,
+                                      "_members": list(range(len(self.params), len(self.params) + len(members)))})
+            self.params.extend(members)
         self.state: list[dict[str, torch.Tensor]] = [{} for _ in self.params]
 
     def zero_grad(self, set_to_none: bool = True) -> None:
@@ -44,10 +61,14 @@ class Adam:
 
     @torch.no_grad()
     def step(self) -> None:
-        group = self.param_groups[0]
+        for group in self.param_groups:
+            self._step_group(group)
+
+    def _step_group(self, group: dict[str, Any]) -> None:
         params, grads, exp_avgs, exp_avg_sqs, steps = [], [], [], [], []
         has_complex = False
-        for p, state in zip(self.params, self.state):
+        for index in group["_members"]:
+            p, state = self.params[index], self.state[index]
             if p.grad is None:
                 continue
             has_complex |= torch.is_complex(p)
@@ -60,6 +81,8 @@ class Adam:
             exp_avgs.append(state["exp_avg"])
             exp_avg_sqs.append(state["exp_avg_sq"])
             steps.append(state["step"])
+        if not params:
+            return
         beta1, beta2 = group["betas"]
         _adam_update(params, grads, exp_avgs, exp_avg_sqs, [], steps, amsgrad=group["amsgrad"],
                      has_complex=has_complex, beta1=beta1, beta2=beta2, lr=group["lr"],
@@ -71,25 +94,31 @@ class Adam:
     def state_dict(self) -> dict[str, Any]:
         """``{"state": {index: {"step", "exp_avg", "exp_avg_sq"}}, "param_groups": [{..., "params": [indices]}]}``,
         the layout of ``torch.optim.Adam.state_dict()``."""
-        return {"state": {i: dict(state) for i, state in enumerate(self.state) if state},
-                "param_groups": [{**self.param_groups[0], "params": list(range(len(self.params)))}]}
+        groups = [{**{k: v for k, v in group.items() if k != "_members"}, "params": list(group["_members"])}
+                  for group in self.param_groups]
+        return {"state": {i: dict(state) for i, state in enumerate(self.state) if state}, "param_groups": groups}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
-        """Load a state written by :meth:`state_dict` or by ``torch.optim.Adam.state_dict()``."""
+        """Load a state written by :meth:`state_dict` or by ``torch.optim.Adam.state_dict()`` (same groups)."""
         groups = state_dict["param_groups"]
-        if len(groups) != 1 or len(groups[0]["params"]) != len(self.params):
+        if [len(g["params"]) for g in groups] != [len(g["_members"]) for g in self.param_groups]:
             raise ValueError(f"optimizer state: {len(groups)} parameter group(s) with "
-                             f"{[len(g['params']) for g in groups]} parameters, expected one with {len(self.params)}")
+                             f"{[len(g['params']) for g in groups]} parameters, expected "
+                             f"{[len(g['_members']) for g in self.param_groups]}")
         saved = state_dict["state"]
-        states: list[dict[str, torch.Tensor]] = []
-        for p, index in zip(self.params, groups[0]["params"]):
-            state = {}
-            for key, value in saved.get(index, {}).items():
-                if key != "step" and torch.is_tensor(value) and p.is_floating_point():
-                    value = value.to(dtype=p.dtype, device=p.device)
-                state[key] = value.clone() if torch.is_tensor(value) else value
-            states.append(state)
+        states: list[dict[str, torch.Tensor]] = [{} for _ in self.params]
+        new_groups = []
+        for mine, theirs in zip(self.param_groups, groups):
+            for index, saved_index in zip(mine["_members"], theirs["params"]):
+                p = self.params[index]
+                state = {}
+                for key, value in saved.get(saved_index, {}).items():
+                    if key != "step" and torch.is_tensor(value) and p.is_floating_point():
+                        value = value.to(dtype=p.dtype, device=p.device)
+                    state[key] = value.clone() if torch.is_tensor(value) else value
+                states[index] = state
+            group = {key: value for key, value in theirs.items() if key != "params"}
+            group["betas"] = tuple(group["betas"])
+            new_groups.append({**GROUP_DEFAULTS, **group, "_members": list(mine["_members"])})
         self.state = states
-        group = {key: value for key, value in groups[0].items() if key != "params"}
-        group["betas"] = tuple(group["betas"])
-        self.param_groups = [{**GROUP_DEFAULTS, **group}]
+        self.param_groups = new_groups

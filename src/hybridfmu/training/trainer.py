@@ -77,6 +77,17 @@ class TrainerSettings:
     gradients: str = "adjoint"
 
 
+def parameter_groups(model: NeuralFmu) -> list[dict[str, Any]]:
+    """Adam's parameter groups: the network at the configuration's learning rate and, when ``model.spec.delay_step_s`` is set, the input
+    delays at their own rate step_s / scale_s (so a delay moves about step_s per step at most, whatever lr)."""
+    spec = model.spec
+    delay_raw = model.delay.raw
+    if spec.delay_step_s is None or not model.delay.trainable:
+        return [{"params": list(model.parameters())}]
+    network = [p for p in model.parameters() if p is not delay_raw]
+    return [{"params": network}, {"params": [delay_raw], "lr": spec.delay_step_s / spec.delay_scale_s}]
+
+
 class TrialDiverged(RuntimeError):
     """Too many steps had to be skipped; the trial ends."""
 
@@ -113,7 +124,7 @@ class Trainer:
         self.target_index = torch.as_tensor([spec.state_names.index(name) for name in arrays.target_states],
                                             dtype=torch.long)
         # torch.optim.Adam's numbers without torch.optim.Optimizer (whose first use imports torch._dynamo)
-        self.optimizer = Adam(model.parameters(), lr=hyper.lr, betas=(hyper.beta1, hyper.beta2))
+        self.optimizer = Adam(parameter_groups(model), lr=hyper.lr, betas=(hyper.beta1, hyper.beta2))
         self.rng = np.random.Generator(np.random.PCG64(seed))
         self.used_samples = 0
         self.steps = 0

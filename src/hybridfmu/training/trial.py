@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from hybridfmu.io import atomic_path, read_json, write_json_atomic
+from hybridfmu.model.delay import describe_delays
 from hybridfmu.progress import Progress
 from hybridfmu.training.build import build_neural_fmu, model_spec
 from hybridfmu.training.data import ManeuverArrays
@@ -176,7 +177,8 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
     weights = roles.weights_with(hyper.target_weights)
     objective = objective_from_config(plan["objective"], roles)
     fmu_model = load_calibrated_fmu(fmu_path, load_calibration(calibration_path))
-    spec = model_spec(model_config, fmu_model, train.sample_period_s, hyper.width, hyper.depth, hyper.gate_opening)
+    spec = model_spec(model_config, fmu_model, train.sample_period_s, hyper.width, hyper.depth, hyper.gate_opening,
+                      delay_init_s=plan.get("initial_delays_s"))
     model = build_neural_fmu(FmuRhs(fmu_model), spec, statistics, entry["seed"])
     settings = TrainerSettings(max_skipped_steps=int(training_config["max_skipped_steps"]),
                                max_grad_norm=float(training_config["max_grad_norm"]),
@@ -277,7 +279,7 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
             plan, plan_path, result, result_path, trainer.history if trainer else [], model, spec, mlflow_run_id,
             tracking_options or {})
         write_json_atomic(result_path, result)
-    LOG.info("trial %s rung %d: %s, objective %s, %.4g s of data, %d steps (%d skipped), dt = %.4g s, %.1f s wall",
+    LOG.info("trial %s rung %d: %s, objective %s, %.4g s of data, %d steps (%d skipped), delays %s, %.1f s wall",
              trial_id, rung, status, result["objective"], result["resource_s"], result["steps"],
-             result["skipped_steps"], result["delay_s"], result["wall_time_s"])
+             result["skipped_steps"], describe_delays(result["delay_s"]), result["wall_time_s"])
     return result
