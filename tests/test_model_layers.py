@@ -334,3 +334,11 @@ def test_spec_checks_the_delay_groups():
         make_spec(delay_groups={"drive": ["f", "h"], "gain": ["g"]})
     with pytest.raises(ValueError, match="a value for each group"):
         make_spec(delay_groups={"drive": ["f"], "gain": ["g"]}, delay_init_s={"drive": 0.0})
+
+
+def test_delays_are_written_in_a_unit_that_fits():
+    from hybridfmu.model.delay import describe_delays, format_delay
+
+    assert format_delay(2.814e-5) == "28.14 µs" and format_delay(-0.04408) == "-44.08 ms"
+    assert format_delay(2.5) == "2.5 s"
+    assert describe_delays({"duties": 3e-5, "supply": 0.0}) == "duties 30.00 µs, supply 0.00 µs"

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from hybridfmu.evaluation.figures import squared_unit
+from hybridfmu.model.delay import format_delay
 
 #: Measures of the improvement table: key suffix -> (text, squared unit?).
 _MEASURE_TEXT = {"mae": ("MAE", False), "mse": ("MSE", True), "rmse": ("RMSE", False)}
@@ -138,12 +139,12 @@ def delay_lines(dt_s: dict[str, float] | None, true_dt_s: dict[str, float | None
     lines = [header, rule]
     for group, value in dt_s.items():
         estimate = (estimates_s or {}).get(group)
-        row = (f"| {group} | {value * 1e6:.2f} µs | "
-               f"{'-' if estimate is None else f'{estimate * 1e6:.2f} µs'} |")
+        row = f"| {group} | {format_delay(value)} | {'-' if estimate is None else format_delay(estimate)} |"
         if true_dt_s is not None:
             truth = true_dt_s.get(group)
+            error = "" if truth is None else format_delay(value - truth)
             row += (" its inputs are offset differently | - |" if truth is None
-                    else f" {truth * 1e6:.2f} µs | {(value - truth) * 1e6:+.2f} µs |")
+                    else f" {format_delay(truth)} | {'' if error.startswith('-') else '+'}{error} |")
         lines.append(row)
     lines.append("")
     if true_dt_s is not None:
@@ -151,7 +152,7 @@ def delay_lines(dt_s: dict[str, float] | None, true_dt_s: dict[str, float | None
     else:
         lines.append("The case has no ground truth for the time offset (no truth file beside the raw logs).")
     if (reference or {}).get("input_delay_s") is not None:
-        lines.append(f"{reference.get('name', 'reference')}: Δt ≈ {float(reference['input_delay_s']) * 1e6:.2f} µs "
+        lines.append(f"{reference.get('name', 'reference')}: Δt ≈ {format_delay(reference['input_delay_s'])} "
                      "(one delay for all inputs).")
     return lines
 
@@ -292,7 +293,8 @@ def true_input_delay(truth_paths: list[str], groups: dict[str, list[str]] | None
 
 def group_estimate_text(group: str, entry: dict[str, Any]) -> str:
     """One input group's time-offset estimate (an entry of the summary's ``groups``) as report text."""
-    text = f"{group} {entry['delay_s'] * 1e6:.2f} µs ({entry['windows']} windows of {entry.get('window_samples', '?')} steps"
+    text = (f"{group} {format_delay(entry['delay_s'])} ({entry['windows']} windows of "
+            f"{entry.get('window_samples', '?')} steps")
     if not entry.get("identified", True):
         text += f"; not identified: {entry.get('not_identified_because') or 'see the log'}"
     return text + ")"

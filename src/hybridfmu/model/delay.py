@@ -124,11 +124,21 @@ class InputDelay(nn.Module):
         return shifted
 
 
+def format_delay(value_s: float) -> str:
+    """A delay for people: '28.14 µs' below 1 ms, '44.08 ms' below 1 s, else '2.5 s'."""
+    value_s = float(value_s)
+    if abs(value_s) < 1e-3:
+        return f"{value_s * 1e6:.2f} µs"
+    if abs(value_s) < 1.0:
+        return f"{value_s * 1e3:.4g} ms"
+    return f"{value_s:.4g} s"
+
+
 def describe_delays(delays_s: Mapping[str, float] | float) -> str:
-    """Learned delays for a log line or a table cell: ``{group: s}`` -> 'duties 28.1 µs, supply -2 µs'."""
+    """Learned delays for a log line or a table cell: ``{group: s}`` -> 'duties 28.14 µs, supply -2.00 µs'."""
     if not isinstance(delays_s, Mapping):
-        return f"{float(delays_s) * 1e6:.3g} µs"
-    return ", ".join(f"{name} {float(value) * 1e6:.3g} µs" for name, value in delays_s.items())
+        return format_delay(delays_s)
+    return ", ".join(f"{name} {format_delay(value)}" for name, value in delays_s.items())
 
 
 def _interpolate(u_seq: torch.Tensor, position: torch.Tensor, n_samples: int) -> torch.Tensor:
