@@ -11,6 +11,7 @@ import numpy as np
 
 from hybridfmu.diagnosis import figures
 from hybridfmu.io import write_json_atomic, write_text_atomic
+from hybridfmu.model.delay import format_delay
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -406,11 +407,9 @@ def diagnose(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str,
     return paths["record"]
 
 
-def _delays_text(delays: Any) -> str:
-    """``{input: s}`` (or one number, of older records) as 'd_a, d_b 28.1 µs; u_dc 0 µs'."""
-    if not isinstance(delays, dict):
-        return f"{_fmt(delays, 3)} s"
+def _delays_text(delays: dict[str, float]) -> str:
+    """``{input: s}`` with the inputs of one value together: 'u1, u2 28.14 µs; u3 0.00 µs'."""
     by_value: dict[float, list[str]] = {}
     for name, value in delays.items():
         by_value.setdefault(float(value), []).append(name)
-    return "; ".join(f"{', '.join(names)} {value * 1e6:.3g} µs" for value, names in by_value.items())
+    return "; ".join(f"{', '.join(names)} {format_delay(value)}" for value, names in by_value.items())

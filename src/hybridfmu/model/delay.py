@@ -134,10 +134,8 @@ def format_delay(value_s: float) -> str:
     return f"{value_s:.4g} s"
 
 
-def describe_delays(delays_s: Mapping[str, float] | float) -> str:
-    """Learned delays for a log line or a table cell: ``{group: s}`` -> 'duties 28.14 µs, supply -2.00 µs'."""
-    if not isinstance(delays_s, Mapping):
-        return format_delay(delays_s)
+def describe_delays(delays_s: Mapping[str, float]) -> str:
+    """Learned delays for a log line: ``{group: s}`` -> 'g1 28.14 µs, g2 -2.00 µs'."""
     return ", ".join(f"{name} {format_delay(value)}" for name, value in delays_s.items())
 
 
