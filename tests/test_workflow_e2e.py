@@ -84,6 +84,11 @@ def test_every_stage_writes_its_outputs(tiny_run):
         for model in ("fmu", "neural_fmu", "improvement"):
             assert set(metrics[model]) == {f"{signal}_{measure}" for signal in ("angle", "speed")
                                            for measure in ("mae", "mse", "rmse")}
+        for model in ("fmu_effects", "hybrid", "improvement_fmu_effects", "improvement_hybrid"):
+            assert set(metrics[model]) == set(metrics["fmu"]), model
+        assert metrics["improvement_hybrid"]["angle_mae"] == pytest.approx(
+            metrics["fmu"]["angle_mae"] / metrics["hybrid"]["angle_mae"])
+        assert metrics["hybrid_learned"]["effects"] and metrics["hybrid_learned"]["dt_s"]
         assert metrics["fmu"]["angle_mae"] > 0 and metrics["neural_fmu"]["angle_mae"] > 0
         assert metrics["improvement"]["angle_mae"] == pytest.approx(
             metrics["fmu"]["angle_mae"] / metrics["neural_fmu"]["angle_mae"])
@@ -104,7 +109,9 @@ def test_every_stage_writes_its_outputs(tiny_run):
 
     client = MlflowClient(tracking_uri=run["tracking_uri"])
     logged = client.get_run(run["run_id"])
-    assert "test/improvement/angle_mae" in logged.data.metrics
+    assert {"test/improvement/angle_mae", "test/hybrid/angle_mae", "test/improvement_fmu_effects/angle_mae"} \
+        <= set(logged.data.metrics)
+    assert "## All models" in report and "hybrid (FMU + effects + ANN)" in report
     assert {a.path for a in client.list_artifacts(run["run_id"])} >= {"figures", "metrics", "report.md"}
 
 
@@ -219,7 +226,10 @@ SECTION_CHANGES = {
                                {"time_offset", "plot", "report", "summary"}),
     "evaluation.plot": (_set("evaluation", "plot", "dpi", 61), {"plot", "report"}),
     "evaluation.reference": (_set("evaluation", "reference", "name", "paper, 2nd reading"), {"report"}),
-    "diagnosis": (_set("diagnosis", "selection", "bootstrap_samples", 21), {"diagnose", "summary"}),
+    # the diagnosed model is the hybrid's physical layer and a model of the evaluation
+    "diagnosis": (_set("diagnosis", "selection", "bootstrap_samples", 21),
+                  {"diagnose", "train_rung", "select_rung", "select_best", "simulate_best", "evaluate", "plot",
+                   "report", "summary"}),
     "withheld": (_set("withheld", "duration_s", 5.0), set()),  # the `withheld` target only
     "bench": (_set("bench", "effects", "inertia_mismatch", "scale", 1.07), FROM_EMULATION),
 }

@@ -28,6 +28,9 @@ for _warning in case_warnings(config, CONFIG_FILE):
 CASE = config["case"]
 RESULTS = f"{config.get('results_dir', 'results')}/{CASE}"
 MANEUVERS = list(config["maneuvers"])
+# a hybrid (model.physics_terms): a second search (train.smk) and a fourth model in the evaluation
+from hybridfmu.model.physics import uses_physics
+HYBRID = uses_physics(config.get("model") or {})
 ALL_TARGETS = []
 
 

@@ -5,7 +5,9 @@
 # unmeasured initial states).
 # A case that trains a neural FMU (a `training` or `hpo` section) has the search's best model
 # {RESULTS}/hpo/best.json as an input, so the diagnosis always compares with it and runs once after
-# the search; a case without one is diagnosed without the comparison.
+# the search; a case without one is diagnosed without the comparison. The model the held-out check ends
+# with (FMU + effects) is saved as diagnosed_model.pkl: the evaluation simulates it, and a hybrid
+# (model.physics_terms, search "hybrid" in train.smk) trains its ANN on top of it.
 
 DIAGNOSIS = f"{RESULTS}/diagnosis"
 DIAGNOSIS_HAS_TEST = any(item["role"] == "test" for item in config["maneuvers"].values())
@@ -28,6 +30,7 @@ rule diagnose:
     output:
         json=f"{DIAGNOSIS}/diagnosis.json",
         report=f"{DIAGNOSIS}/report.md",
+        diagnosed=f"{DIAGNOSIS}/diagnosed_model.pkl",
         figures=expand(f"{DIAGNOSIS}/{{figure}}.png", figure=DIAGNOSIS_FIGURES),
     params:
         maneuvers=MANEUVERS,

@@ -1,4 +1,5 @@
-# Evaluation of the best neural FMU against the FMU on the validation and test maneuvers: the open-loop
+# Evaluation of the best neural FMU against the FMU on the validation and test maneuvers, beside the FMU plus
+# the diagnosed effects and (model.physics_terms) the best hybrid: the open-loop
 # simulation of each whole maneuver (rule simulate_best, one job per maneuver), the errors on whole
 # trajectories and zoomed intervals with the MLflow run (rule evaluate), the paper's figures (rule plot)
 # and the report (rule report).
@@ -46,6 +47,9 @@ rule simulate_best:
         calibration=CALIBRATION_JSON,
         data=f"{RESULTS}/data/{{maneuver}}.parquet",
         baseline=f"{RESULTS}/baseline/{{maneuver}}.parquet",
+        # the FMU plus the diagnosed effects, and the hybrid around it when the case trains one
+        diagnosed=f"{RESULTS}/diagnosis/diagnosed_model.pkl",
+        hybrid_best=[f"{RESULTS}/hybrid/best.json"] if HYBRID else [],
     output:
         trajectory=f"{RESULTS}/evaluation/trajectories/{{maneuver}}.parquet",
         learned=f"{RESULTS}/evaluation/trajectories/{{maneuver}}.learned.json",

@@ -1,8 +1,11 @@
-# Hyperparameter search over neural FMUs (Hyperband, paper Sec. 3.2): the training data are prepared
-# once (rule hpo_prepare), then the search is planned and its MLflow parent run created (rule hpo_plan),
+# Hyperparameter searches over neural FMUs (Hyperband, paper Sec. 3.2): the training data are prepared
+# once (rule hpo_prepare), then each search is planned and its MLflow parent run created (rule hpo_plan),
 # every (configuration, rung) is one job (rule train_rung) that resumes the previous rung's checkpoint, the
 # survivors of each (bracket, rung) are chosen by a checkpoint rule (select_rung), and the best
-# configuration over all brackets is written to hpo/best.json (rule select_best).
+# configuration over all brackets is written to {search}/best.json (rule select_best).
+# Search "hpo" trains the paper's neural FMU (the FMU under the ANN). When model.physics_terms names a
+# physical layer, search "hybrid" trains the hybrid (the FMU plus the diagnosed effects under the ANN) with
+# the same search space and budget, after the diagnosis (its diagnosis/diagnosed_model.pkl).
 from hybridfmu.data.settings import section_settings
 from hybridfmu.io import read_json
 from hybridfmu.tracking import experiment_name, tracking_uri
@@ -12,10 +15,21 @@ from hybridfmu.training.hyperband import hyperband_brackets
 HPO = section_settings(config.get("hpo"), "hpo")
 TRAINING = section_settings(config.get("training"), "training")
 MODEL = section_settings(config.get("model"), "model")
-HPO_DIR = f"{RESULTS}/hpo"
+PREPARED_DIR = f"{RESULTS}/hpo/prepared"
+# search -> its model section: the neural FMU without a physical layer, the hybrid with the configured one
+SEARCH_MODELS = {"hpo": {**MODEL, "physics_terms": "none"}}
+if HYBRID:
+    SEARCH_MODELS["hybrid"] = MODEL
+SEARCHES = list(SEARCH_MODELS)
+DIAGNOSED_MODEL = f"{RESULTS}/diagnosis/diagnosed_model.pkl"
 HPO_BRACKETS = {bracket.s: bracket for bracket in hyperband_brackets(HPO["R"], HPO["eta"])}
 TRAIN_MANEUVERS = {"train": role_maneuver(config, "train", TRAINING["train_maneuver"]),
                    "validation": role_maneuver(config, "validation", TRAINING["validation_maneuver"])}
+
+
+def search_diagnosed_model(wildcards):
+    """The diagnosed model a search's jobs read: the hybrid's physical layer (none for the neural FMU)."""
+    return [DIAGNOSED_MODEL] if wildcards.search == "hybrid" else []
 
 
 def previous_rung_checkpoint(wildcards):
@@ -23,21 +37,21 @@ def previous_rung_checkpoint(wildcards):
     rung = int(wildcards.rung)
     if rung == 0:
         return []
-    return f"{HPO_DIR}/b{wildcards.bracket}/r{rung - 1}/c{wildcards.config}/checkpoint.pt"
+    return f"{RESULTS}/{wildcards.search}/b{wildcards.bracket}/r{rung - 1}/c{wildcards.config}/checkpoint.pt"
 
 
-def rung_configs(bracket, rung):
+def rung_configs(search, bracket, rung):
     """Configurations trained in a rung: all of the bracket in rung 0, else the previous rung's survivors."""
     if rung == 0:
         return list(range(HPO_BRACKETS[bracket].n_configs))
-    selection = checkpoints.select_rung.get(bracket=bracket, rung=rung - 1).output.selection
+    selection = checkpoints.select_rung.get(search=search, bracket=bracket, rung=rung - 1).output.selection
     return read_json(selection)["survivors"]
 
 
 def rung_results(wildcards):
     bracket, rung = int(wildcards.bracket), int(wildcards.rung)
-    return [f"{HPO_DIR}/b{bracket}/r{rung}/c{config_index}/result.json"
-            for config_index in rung_configs(bracket, rung)]
+    return [f"{RESULTS}/{wildcards.search}/b{bracket}/r{rung}/c{config_index}/result.json"
+            for config_index in rung_configs(wildcards.search, bracket, rung)]
 
 
 rule hpo_prepare:
@@ -52,9 +66,9 @@ rule hpo_prepare:
         baselines=[f"{RESULTS}/baseline/{name}.parquet" for name in TRAIN_MANEUVERS.values()]
         if UNMEASURED_STATES else [],
     output:
-        train=f"{HPO_DIR}/prepared/train.npz",
-        validation=f"{HPO_DIR}/prepared/validation.npz",
-        statistics=f"{HPO_DIR}/prepared/statistics.json",
+        train=f"{PREPARED_DIR}/train.npz",
+        validation=f"{PREPARED_DIR}/validation.npz",
+        statistics=f"{PREPARED_DIR}/statistics.json",
     params:
         maneuvers=TRAIN_MANEUVERS,
         baselines={role: f"{RESULTS}/baseline/{name}.parquet" for role, name in TRAIN_MANEUVERS.items()},
@@ -71,96 +85,103 @@ rule hpo_plan:
     input:
         # planned only once the data are ingested, segmented and prepared: a bad log or a bad setting of
         # those stages stops the run before the search (and its MLflow parent run) exists
-        train=f"{HPO_DIR}/prepared/train.npz",
-        validation=f"{HPO_DIR}/prepared/validation.npz",
-        statistics=f"{HPO_DIR}/prepared/statistics.json",
+        train=f"{PREPARED_DIR}/train.npz",
+        validation=f"{PREPARED_DIR}/validation.npz",
+        statistics=f"{PREPARED_DIR}/statistics.json",
         # the delays start at the time-offset stage's estimates when model.input_delay.init_s is time_offset
         time_offset=[f"{RESULTS}/evaluation/time_offset.json"]
         if MODEL["input_delay"]["init_s"] == "time_offset" else [],
     output:
-        plan=f"{HPO_DIR}/plan.json",
+        plan=f"{RESULTS}/{{search}}/plan.json",
     params:
         case=CASE,
         seed=config.get("seed", 0),
         hpo=HPO,
         training=TRAINING,
-        model=MODEL,
+        model=lambda wildcards: SEARCH_MODELS[wildcards.search],
         case_sections=case_sections(),
         tracking_uri=tracking_uri(config.get("mlflow"), config.get("results_dir", "results")),
         experiment=experiment_name(config.get("mlflow"), CASE),
         mlflow=config.get("mlflow", {}),  # the MLflow client's settings (retries, timeouts)
+    wildcard_constraints:
+        search="|".join(SEARCHES),
     log:
-        f"{RESULTS}/logs/hpo_plan/hpo_plan.log",
+        f"{RESULTS}/logs/hpo_plan/{{search}}.log",
     benchmark:
-        f"{RESULTS}/benchmarks/hpo_plan/hpo_plan.tsv"
+        f"{RESULTS}/benchmarks/hpo_plan/{{search}}.tsv"
     script:
         "../scripts/train_plan.py"
 
 
 rule train_rung:
     input:
-        plan=f"{HPO_DIR}/plan.json",
-        train=f"{HPO_DIR}/prepared/train.npz",
-        validation=f"{HPO_DIR}/prepared/validation.npz",
-        statistics=f"{HPO_DIR}/prepared/statistics.json",
+        plan=f"{RESULTS}/{{search}}/plan.json",
+        train=f"{PREPARED_DIR}/train.npz",
+        validation=f"{PREPARED_DIR}/validation.npz",
+        statistics=f"{PREPARED_DIR}/statistics.json",
         fmu=fmu_path(),
         calibration=CALIBRATION_JSON,
         previous=previous_rung_checkpoint,
+        diagnosed=search_diagnosed_model,
     output:
-        checkpoint=f"{HPO_DIR}/b{{bracket}}/r{{rung}}/c{{config}}/checkpoint.pt",
-        result=f"{HPO_DIR}/b{{bracket}}/r{{rung}}/c{{config}}/result.json",
+        checkpoint=f"{RESULTS}/{{search}}/b{{bracket}}/r{{rung}}/c{{config}}/checkpoint.pt",
+        result=f"{RESULTS}/{{search}}/b{{bracket}}/r{{rung}}/c{{config}}/result.json",
     params:
         # the search settings (config.hpo) reach a rung through the plan
-        model=MODEL,
+        model=lambda wildcards: SEARCH_MODELS[wildcards.search],
         training=TRAINING,
         case=case_sections(),
         mlflow=config.get("mlflow", {}),  # the MLflow client's settings (retries, timeouts)
     wildcard_constraints:
+        search="|".join(SEARCHES),
         bracket=r"\d+",
         rung=r"\d+",
         config=r"\d+",
     threads: 1
     log:
-        f"{RESULTS}/logs/train_rung/b{{bracket}}_r{{rung}}_c{{config}}.log",
+        f"{RESULTS}/logs/train_rung/{{search}}/b{{bracket}}_r{{rung}}_c{{config}}.log",
     benchmark:
-        f"{RESULTS}/benchmarks/train_rung/b{{bracket}}_r{{rung}}_c{{config}}.tsv"
+        f"{RESULTS}/benchmarks/train_rung/{{search}}/b{{bracket}}_r{{rung}}_c{{config}}.tsv"
     script:
         "../scripts/train_rung.py"
 
 
 checkpoint select_rung:
     input:
-        plan=f"{HPO_DIR}/plan.json",
+        plan=f"{RESULTS}/{{search}}/plan.json",
         results=rung_results,
     output:
-        selection=f"{HPO_DIR}/b{{bracket}}/r{{rung}}/selection.json",
+        selection=f"{RESULTS}/{{search}}/b{{bracket}}/r{{rung}}/selection.json",
     wildcard_constraints:
+        search="|".join(SEARCHES),
         bracket=r"\d+",
         rung=r"\d+",
     log:
-        f"{RESULTS}/logs/select_rung/b{{bracket}}_r{{rung}}.log",
+        f"{RESULTS}/logs/select_rung/{{search}}/b{{bracket}}_r{{rung}}.log",
     script:
         "../scripts/train_select_rung.py"
 
 
 rule select_best:
     input:
-        plan=f"{HPO_DIR}/plan.json",
-        selections=[f"{HPO_DIR}/b{bracket.s}/r{rung.index}/selection.json"
+        plan=f"{RESULTS}/{{search}}/plan.json",
+        selections=[f"{RESULTS}/{{search}}/b{bracket.s}/r{rung.index}/selection.json"
                     for bracket in HPO_BRACKETS.values() for rung in bracket.rungs],
     output:
-        best=f"{HPO_DIR}/best.json",
-        model=f"{HPO_DIR}/best_model.pt",
-        summary=f"{HPO_DIR}/summary.json",
+        best=f"{RESULTS}/{{search}}/best.json",
+        model=f"{RESULTS}/{{search}}/best_model.pt",
+        summary=f"{RESULTS}/{{search}}/summary.json",
     params:
         case=CASE,
         mlflow=config.get("mlflow", {}),  # the MLflow client's settings (retries, timeouts)
+    wildcard_constraints:
+        search="|".join(SEARCHES),
     log:
-        f"{RESULTS}/logs/select_best/select_best.log",
+        f"{RESULTS}/logs/select_best/{{search}}.log",
     benchmark:
-        f"{RESULTS}/benchmarks/select_best/select_best.tsv"
+        f"{RESULTS}/benchmarks/select_best/{{search}}.tsv"
     script:
         "../scripts/train_select_best.py"
 
 
-ALL_TARGETS.extend([f"{HPO_DIR}/best.json", f"{HPO_DIR}/summary.json"])
+ALL_TARGETS.extend([f"{RESULTS}/{search}/{name}.json" for search in SEARCHES for name in ("best", "summary")])

@@ -19,4 +19,6 @@ simulate_best(
     roles=case_roles(snakemake.params.case),
     maneuvers=snakemake.params.case["maneuvers"],
     maneuver=snakemake.wildcards.maneuver,
+    diagnosed_path=snakemake.input.diagnosed,
+    hybrid_best_path=snakemake.input.hybrid_best[0] if snakemake.input.hybrid_best else None,
 )

@@ -17,7 +17,7 @@ from hybridfmu.training.trial import run_trial_rung
 # intra-op threads: the job's share of the cores (rule train_rung's threads), not torch's default of all cores
 torch.set_num_threads(max(1, int(snakemake.threads)))
 setup_rule_logging(snakemake.log[0])
-label = f"train_rung b{snakemake.wildcards.bracket} r{snakemake.wildcards.rung} c{snakemake.wildcards.config}"
+label = f"train_rung {snakemake.wildcards.search} b{snakemake.wildcards.bracket} r{snakemake.wildcards.rung} c{snakemake.wildcards.config}"
 with job_guard(Path(snakemake.output.checkpoint).with_name("job.lock"), label):
     run_trial_rung(
         plan_path=snakemake.input.plan,
@@ -36,4 +36,5 @@ with job_guard(Path(snakemake.output.checkpoint).with_name("job.lock"), label):
         checkpoint_path=snakemake.output.checkpoint,
         result_path=snakemake.output.result,
         tracking_options=retry_settings(snakemake.config.get("mlflow")),
+        diagnosed_path=snakemake.input.diagnosed[0] if snakemake.input.diagnosed else None,
     )

@@ -24,7 +24,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from hybridfmu.diagnosis.effects import input_derivative
+from hybridfmu.diagnosis.effects import EffectInputs, input_derivative
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.selection import Term
 
@@ -118,6 +118,8 @@ class CorrectedModel:
         self.n_x, self.n_u = problem.n_x, problem.n_u
         self.helper = helper
         self.rows: list[tuple[int, Callable]] = []
+        #: the row terms' (equation, effect, coefficients, setting), for :meth:`additive_batch`
+        self.row_terms: list[tuple[int, Any, np.ndarray, dict[str, float]]] = []
         self.batches: list[tuple[int, Callable]] = []
         self.parameters: dict[str, float] = {}
         #: input column -> [(effect kind, change)] in rank order (see ``Effect.input_change``)
@@ -149,6 +151,7 @@ class CorrectedModel:
                 row = member.row_function(coef, setting)
                 if row is not None:
                     self.rows.append((member.equation, row))
+                    self.row_terms.append((member.equation, member, np.asarray(coef, dtype=float), dict(setting)))
                     continue
                 batch = member.batch_function(coef, setting, helper)
                 if batch is None:
@@ -175,6 +178,23 @@ class CorrectedModel:
                 x_row, u_row = x[r].tolist(), u[r].tolist()
                 for equation, func in self.rows:
                     out[r, equation] += func(x_row, u_row)
+        for equation, batch in self.batches:
+            out[:, equation] += batch(x, u)
+        return out
+
+    def additive_batch(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The additive derivative terms vectorised over rows: (N, n_x), (N, n_u) -> (N, n_x).
+
+        Same values as :meth:`__call__`: a row term is its effect's regressors at (x, u) times its coefficients
+        (the row functions are the regressors' plain-float form), so many rows cost one array evaluation.
+        """
+        x = np.asarray(x, dtype=float).reshape(-1, self.n_x)
+        u = np.asarray(u, dtype=float).reshape(-1, self.n_u)
+        out = np.zeros_like(x)
+        if self.row_terms:
+            inputs = EffectInputs(x, u, model=self.helper)
+            for equation, effect, coef, setting in self.row_terms:
+                out[:, equation] += np.asarray(effect.regressors(inputs, setting), dtype=float) @ coef
         for equation, batch in self.batches:
             out[:, equation] += batch(x, u)
         return out

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from hybridfmu.diagnosis import figures
+from hybridfmu.diagnosis.export import DIAGNOSED_MODEL, save_diagnosed
 from hybridfmu.io import write_json_atomic, write_text_atomic
 from hybridfmu.model.delay import format_delay
 
@@ -324,7 +325,8 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
 
 
 def write_outputs(result: dict[str, Any], config: dict[str, Any], out_dir: str | Path) -> dict[str, Any]:
-    """Write ``diagnosis.json``, ``report.md`` and the figures to ``out_dir``; return the record and paths."""
+    """Write ``diagnosis.json``, ``report.md``, the figures and the diagnosed model (``diagnosed_model.pkl``,
+    :mod:`hybridfmu.diagnosis.export`) to ``out_dir``; return the record and paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     dpi = int(result["settings"].get("figures_dpi") or 120)
@@ -335,6 +337,8 @@ def write_outputs(result: dict[str, Any], config: dict[str, Any], out_dir: str |
     written = []
     for name, maker in makers.items():
         written.append(maker(result, out_dir / name, dpi))
+    if result.get("diagnosed") is not None:
+        save_diagnosed(result["diagnosed"], out_dir / DIAGNOSED_MODEL)
     write_json_atomic(out_dir / "diagnosis.json", record)
     write_text_atomic(out_dir / "report.md", report_markdown(record, [p.name for p in written]))
     return {"record": record, "figures": written, "json": out_dir / "diagnosis.json", "report": out_dir / "report.md"}

@@ -20,6 +20,7 @@ import numpy as np
 
 from hybridfmu.diagnosis.corrected_model import CorrectedModel, open_loop_errors, simulate, simulator_for
 from hybridfmu.diagnosis.derivatives import smooth_at
+from hybridfmu.diagnosis.export import DiagnosedModel
 from hybridfmu.diagnosis.joint import JOINT, StackedCache, effect_equations, effect_key, joint_candidates, \
     terms_in_equation
 from hybridfmu.diagnosis.library import build_library
@@ -421,10 +422,14 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
         steps.append({"model": "neural FMU", "effects": [], "per_maneuver": per, **_mean_errors(per)})
     before, after = steps[0], steps[len(terms)]
     keys = [k for k in before if k not in ("model", "effects", "per_maneuver")]
+    diagnosed = DiagnosedModel(list(active), dict(fitted.parameters) if fitted is not None else {}, problem,
+                               [t.effect.name for t in terms],
+                               {name: dict(fitted.initial_states_of(name, refit)) for name in prepared
+                                if fitted.initial_states_of(name, refit)} if fitted is not None else {})
     result = {"steps": steps, "before": {k: before[k] for k in keys}, "after": {k: after[k] for k in keys},
               "gap_before": before["gap"], "gap_after": after["gap"],
               "shrink_factor": before["gap"] / after["gap"] if after["gap"] and after["gap"] > 0 else float("inf"),
-              "notes": notes, "trajectories": trajectories}
+              "notes": notes, "trajectories": trajectories, "diagnosed": diagnosed}
     if "window_gap" in before:
         result["window_gap_before"], result["window_gap_after"] = before["window_gap"], after["window_gap"]
     return result
@@ -545,7 +550,11 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
         growth = error_growth(model, simulate_fn, prepared, problem)
     else:
         LOGGER.warning("diagnosis: %s", not_run)
+    # the model the held-out check ends with (recalibrated with its effects when refit is on)
+    diagnosed = far.pop("diagnosed") if far is not None else \
+        DiagnosedModel(list(which["terms"]), {}, problem, [t.effect.name for t in which["terms"]])
     return {"settings": problem.settings, "problem": problem, "prepared": prepared, "fit_names": fit_names,
+            "diagnosed": diagnosed,
             "test_names": test_names, "where": where, "regions": regions, "which": which, "neural": neural,
             "how_far": far, "how_far_not_run": not_run, "growth": growth}
 

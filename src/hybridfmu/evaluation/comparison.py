@@ -1,11 +1,12 @@
-"""Comparison of the FMU and the neural FMU with the data on whole maneuvers and zoomed intervals.
+"""Comparison of the FMU and the neural FMU with the data on whole maneuvers and zoomed intervals, and of the
+further models a case has (:data:`MODELS`: the FMU plus the diagnosed effects, the hybrid) on whole maneuvers.
 
 Pure array work on the target signals: the simulations are done elsewhere (``baseline``, ``evaluate``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -17,6 +18,13 @@ from hybridfmu.evaluation.zoom import choose_zoom_intervals, zoom_choices
 #: Sources of the saved trajectories: column ``<source>_<signal>`` per target signal (the files also
 #: hold ``fmu_state_<state>`` and ``neural_fmu_state_<state>`` for every FMU state).
 SOURCES = ("data", "fmu", "neural_fmu")
+
+#: Further models of the saved trajectories (columns ``<model>_<signal>`` and ``<model>_state_<state>`` when the
+#: case has them): the FMU plus the diagnosed effects, and the hybrid (the same under an ANN).
+FURTHER_MODELS = ("fmu_effects", "hybrid")
+
+#: Every compared model, in the order of the reports.
+MODELS = ("fmu", "fmu_effects", "neural_fmu", "hybrid")
 
 
 def trajectory_columns(signals: list[str]) -> list[str]:
@@ -33,6 +41,7 @@ class ManeuverRun:
         time_s: (T,) time grid, s, starting at the maneuver's first sample.
         signals: (n_t,) target signal names (columns of the arrays below).
         data, fmu, neural_fmu: (T, n_t) measured, FMU open loop, neural FMU open loop (model units).
+        further: :data:`FURTHER_MODELS` name -> (T, n_t) open loop, for those the case has.
     """
 
     maneuver: str
@@ -41,16 +50,30 @@ class ManeuverRun:
     data: np.ndarray
     fmu: np.ndarray
     neural_fmu: np.ndarray
+    further: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         expected = (np.shape(self.time_s)[0], len(self.signals))
-        for name in SOURCES:
-            value = np.asarray(getattr(self, name), dtype=float)
+        unknown = sorted(set(self.further) - set(FURTHER_MODELS))
+        if unknown:
+            raise ValueError(f"{self.maneuver}: unknown model(s) {unknown}; expected some of {list(FURTHER_MODELS)}")
+
+        def checked(name: str, value: Any) -> np.ndarray:
+            value = np.asarray(value, dtype=float)
             if value.ndim == 1 and len(self.signals) == 1:
                 value = value[:, None]
             if value.shape != expected:
                 raise ValueError(f"{self.maneuver}: {name} has shape {value.shape}, expected {expected}")
-            setattr(self, name, value)
+            return value
+
+        for name in SOURCES:
+            setattr(self, name, checked(name, getattr(self, name)))
+        self.further = {name: checked(name, value) for name, value in self.further.items()}
+
+    @property
+    def models(self) -> list[str]:
+        """The models this maneuver has, in the order of :data:`MODELS`."""
+        return [m for m in MODELS if m in ("fmu", "neural_fmu") or m in self.further]
 
     @classmethod
     def from_frame(cls, frame: pd.DataFrame, maneuver: str, signals: list[str], source: str = "") -> "ManeuverRun":
@@ -59,12 +82,16 @@ class ManeuverRun:
         if missing:
             raise ValueError(f"{source or maneuver}: column(s) {missing} missing (expected saved trajectories)")
         arrays = [frame[[f"{kind}_{signal}" for signal in signals]].to_numpy(dtype=float) for kind in SOURCES]
-        return cls(maneuver, frame["time_s"].to_numpy(dtype=float), list(signals), *arrays)
+        further = {name: frame[[f"{name}_{signal}" for signal in signals]].to_numpy(dtype=float)
+                   for name in FURTHER_MODELS if all(f"{name}_{signal}" in frame.columns for signal in signals)}
+        return cls(maneuver, frame["time_s"].to_numpy(dtype=float), list(signals), *arrays, further=further)
 
     def values(self, model: str) -> np.ndarray:
-        """(T, n_t) of ``model``: "fmu" or "neural_fmu"."""
+        """(T, n_t) of ``model``: one of :attr:`models`."""
+        if model in self.further:
+            return self.further[model]
         if model not in SOURCES[1:]:
-            raise ValueError(f"model must be 'fmu' or 'neural_fmu', got {model!r}")
+            raise ValueError(f"{self.maneuver}: model must be one of {self.models}, got {model!r}")
         return getattr(self, model)
 
     def errors(self, model: str, mask: np.ndarray | None = None) -> dict[str, float]:
@@ -76,6 +103,15 @@ class ManeuverRun:
 def compare(reference: dict[str, float], candidate: dict[str, float]) -> dict[str, dict]:
     """``{"fmu": reference, "neural_fmu": candidate, "improvement": reference / candidate}``."""
     return {"fmu": reference, "neural_fmu": candidate, "improvement": improvement_factors(reference, candidate)}
+
+
+def compare_further(fmu: dict[str, float], further: dict[str, dict[str, float]]) -> dict[str, dict]:
+    """Per further model ``name``: ``{name: its errors, "improvement_<name>": fmu errors / its errors}``."""
+    out: dict[str, dict] = {}
+    for name, errors in further.items():
+        out[name] = errors
+        out[f"improvement_{name}"] = improvement_factors(fmu, errors)
+    return out
 
 
 def zoom_comparisons(run: ManeuverRun, zoom_settings: dict[str, Any] | None,
@@ -110,7 +146,8 @@ def role_metrics(role: str, runs: list[ManeuverRun], zoom_settings: dict, extra:
         ``{"role", "maneuvers", "signals", "samples", "duration_s", "fmu", "neural_fmu", "improvement",
         <extra>, "zooms": [...], "per_maneuver": {...}}``; ``fmu`` and ``neural_fmu`` hold
         ``<signal>_mae`` / ``_mse`` / ``_rmse`` per target signal over the whole trajectories (model units),
-        ``improvement`` the FMU error over the neural FMU error for each of them.
+        ``improvement`` the FMU error over the neural FMU error for each of them; for each further model
+        every maneuver has (``fmu_effects``, ``hybrid``) its errors and ``improvement_<model>`` likewise.
     """
     if not runs:
         raise ValueError(f"no maneuver with role {role!r} to evaluate")
@@ -120,12 +157,17 @@ def role_metrics(role: str, runs: list[ManeuverRun], zoom_settings: dict, extra:
         raise ValueError(f"maneuver(s) {different} have other target signals than {signals}")
     intervals = (zoom_settings or {}).get("intervals", {}) or {}
     zooms, per_maneuver = [], {}
+    further = [m for m in FURTHER_MODELS if all(m in r.further for r in runs)]
     for run in runs:
         zooms += zoom_comparisons(run, zoom_settings, intervals.get(run.maneuver))
+        fmu = run.errors("fmu")
         per_maneuver[run.maneuver] = {"duration_s": float(run.time_s[-1] - run.time_s[0]),
-                                      **compare(run.errors("fmu"), run.errors("neural_fmu"))}
+                                      **compare(fmu, run.errors("neural_fmu")),
+                                      **compare_further(fmu, {m: run.errors(m) for m in further})}
+    fmu = pooled_errors(runs, "fmu")
     return {"role": role, "maneuvers": [r.maneuver for r in runs], "signals": list(signals),
             "samples": int(sum(r.time_s.size for r in runs)),
             "duration_s": float(sum(r.time_s[-1] - r.time_s[0] for r in runs)),
-            **compare(pooled_errors(runs, "fmu"), pooled_errors(runs, "neural_fmu")),
+            **compare(fmu, pooled_errors(runs, "neural_fmu")),
+            **compare_further(fmu, {m: pooled_errors(runs, m) for m in further}),
             **extra, "zooms": zooms, "per_maneuver": per_maneuver}

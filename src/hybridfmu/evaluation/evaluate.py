@@ -49,10 +49,44 @@ def learned_quantities(model: Any) -> dict[str, Any]:
     return {"dt_s": model.delay_s(), "gates": model.gate_values()}
 
 
+def checked_states(states: np.ndarray, time_s: np.ndarray, n_states: int, maneuver: str, label: str) -> np.ndarray:
+    """``states`` (T, n_x) of an open-loop simulation over ``time_s`` (T,), checked for shape and finiteness.
+
+    Raises:
+        ValueError: another shape. FloatingPointError: a non-finite state (the time it first appears).
+    """
+    if states.shape != (time_s.size, n_states):
+        raise ValueError(f"{maneuver}: {label} returned states of shape {states.shape}, expected "
+                         f"({time_s.size}, {n_states})")
+    if not np.all(np.isfinite(states)):
+        bad = int(np.argmax(~np.all(np.isfinite(states), axis=1)))
+        raise FloatingPointError(f"{maneuver}: {label} open-loop simulation diverged at t = {time_s[bad]:.6g} s")
+    return states
+
+
+def simulate_diagnosed(diagnosed_path: str | Path, fmu_path: str | Path, fmu_parameters: dict[str, float],
+                       time_s: np.ndarray, u: np.ndarray, x0: np.ndarray, maneuver: str) -> np.ndarray:
+    """States (T, n_x) of the FMU plus the diagnosed effects open loop from ``x0`` (n_x,) with the logged
+    inputs ``u`` (T, n_u) (:meth:`hybridfmu.diagnosis.export.DiagnosedModel.simulate`)."""
+    from hybridfmu.diagnosis.export import load_diagnosed
+    from hybridfmu.fmu import load_fmu
+
+    diagnosed = load_diagnosed(diagnosed_path)
+    x0 = diagnosed.initial_state(x0, maneuver)
+    start = time.perf_counter()
+    with load_fmu(fmu_path, parameters=dict(fmu_parameters) or None) as fmu, \
+            load_fmu(fmu_path, parameters=dict(fmu_parameters) or None) as helper:
+        states = diagnosed.simulate(fmu, helper, time_s, u, x0)
+    LOG.info("%s: FMU + %d diagnosed effect(s) (%s) open loop in %.1f s", maneuver, len(diagnosed.terms),
+             ", ".join(diagnosed.effects) or "parameters only", time.perf_counter() - start)
+    return checked_states(np.asarray(states, dtype=float), np.asarray(time_s), len(x0), maneuver, "FMU + effects")
+
+
 def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path: str | Path | None,
                   data_path: str | Path, baseline_path: str | Path, trajectory_path: str | Path,
                   learned_path: str | Path, roles: Any, maneuvers: dict[str, Any] | None,
-                  maneuver: str) -> dict[str, Any]:
+                  maneuver: str, diagnosed_path: str | Path | None = None,
+                  hybrid_best_path: str | Path | None = None) -> dict[str, Any]:
     """Simulate the best neural FMU open loop over the whole maneuver; save it beside data and FMU.
 
     Args:
@@ -60,12 +94,18 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
             configured); data_path, baseline_path: the ingested maneuver and the FMU's baseline of it.
         trajectory_path, learned_path: outputs.
         roles: :class:`hybridfmu.case.CaseRoles`; maneuvers: config ``maneuvers``; maneuver: its name.
+        diagnosed_path: ``diagnosis/diagnosed_model.pkl``: the FMU plus the diagnosed effects is simulated too
+            (model ``fmu_effects``), or None.
+        hybrid_best_path: ``hybrid/best.json`` of the hybrid's search (model ``hybrid``, around the diagnosed
+            model), or None.
 
     Writes ``trajectory_path`` (Parquet: ``time_s``; per target signal ``data_<signal>``, ``fmu_<signal>``,
-    ``neural_fmu_<signal>``; per FMU state ``fmu_state_<state>``, ``neural_fmu_state_<state>``; model
-    units) and ``learned_path`` (JSON: ``{"maneuver", "trial_id", "signals", "dt_s", "gates", "x0",
-    "wall_time_s"}``). Returns the latter.
+    ``neural_fmu_<signal>`` and ``<model>_<signal>`` of the further models; per FMU state ``fmu_state_<state>``,
+    ``neural_fmu_state_<state>``, ``<model>_state_<state>``; model units) and ``learned_path`` (JSON:
+    ``{"maneuver", "trial_id", "signals", "dt_s", "gates", "x0", "wall_time_s"}``, and ``hybrid``: the
+    hybrid's ``{"trial_id", "dt_s", "gates", "effects"}``). Returns the latter.
     """
+    from hybridfmu.diagnosis.export import load_diagnosed
     from hybridfmu.training.inference import load_trained_neural_fmu, simulate_neural_fmu
     from hybridfmu.training.measured import initial_state, load_calibration, read_measured
 
@@ -89,12 +129,7 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
     start = time.perf_counter()
     states = np.asarray(simulate_neural_fmu(model, time_s, measured.u, x0), dtype=float)
     wall_s = time.perf_counter() - start
-    if states.shape != (time_s.size, len(state_names)):
-        raise ValueError(f"{maneuver}: neural FMU returned states of shape {states.shape}, "
-                         f"expected ({time_s.size}, {len(state_names)})")
-    if not np.all(np.isfinite(states)):
-        bad = int(np.argmax(~np.all(np.isfinite(states), axis=1)))
-        raise FloatingPointError(f"{maneuver}: neural FMU open-loop simulation diverged at t = {time_s[bad]:.6g} s")
+    states = checked_states(states, time_s, len(state_names), maneuver, "neural FMU")
     LOG.info("%s: %.3f s simulated in %.1f s wall time (%.3g s per simulated second)", maneuver, duration_s, wall_s,
              wall_s / max(duration_s, 1e-12))
     columns: dict[str, np.ndarray] = {"time_s": time_s}
@@ -105,9 +140,30 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
     for i, name in enumerate(state_names):
         columns[f"fmu_state_{name}"] = fmu_states[:, i]
         columns[f"neural_fmu_state_{name}"] = states[:, i]
-    write_parquet_atomic(trajectory_path, pd.DataFrame(columns))
     record = {"maneuver": maneuver, "trial_id": summary["trial_id"], "signals": list(measured.target_signals),
               **learned, "x0": dict(zip(state_names, x0.tolist())), "wall_time_s": wall_s}
+    further: dict[str, np.ndarray] = {}
+    if diagnosed_path is not None:
+        further["fmu_effects"] = simulate_diagnosed(diagnosed_path, fmu_path, calibration.parameters, time_s,
+                                                    measured.u, x0, maneuver)
+    if hybrid_best_path is not None:
+        hybrid = load_trained_neural_fmu(hybrid_best_path, fmu_path, dict(calibration.parameters) or None,
+                                         diagnosed_path)
+        hybrid_summary = best_trial_summary(read_json(hybrid_best_path), hybrid_best_path)
+        record["hybrid"] = {"trial_id": hybrid_summary["trial_id"], **learned_quantities(hybrid),
+                            "effects": list(hybrid.spec.physics_effects or [])}
+        LOG.info("%s: hybrid (trial %s, delays %s) open loop ...", maneuver, hybrid_summary["trial_id"],
+                 describe_delays(record["hybrid"]["dt_s"]))
+        x0_hybrid = load_diagnosed(diagnosed_path).initial_state(x0, maneuver)  # its physical layer's start
+        further["hybrid"] = checked_states(
+            np.asarray(simulate_neural_fmu(hybrid, time_s, measured.u, x0_hybrid), dtype=float), time_s,
+            len(state_names), maneuver, "hybrid")
+    for model_name, model_states in further.items():
+        for k, signal in enumerate(measured.target_signals):
+            columns[f"{model_name}_{signal}"] = model_states[:, target_index[k]]
+        for i, name in enumerate(state_names):
+            columns[f"{model_name}_state_{name}"] = model_states[:, i]
+    write_parquet_atomic(trajectory_path, pd.DataFrame(columns))
     write_json_atomic(learned_path, record)
     return record
 
@@ -155,17 +211,26 @@ def run_evaluation(best_path: str | Path, trajectory_paths: list[str], learned_p
         run = ManeuverRun.from_frame(pd.read_parquet(path), name, signals, str(path))
         runs_by_role.setdefault(maneuver_roles[name], []).append(run)
     extra = {"dt_s": learned[0]["dt_s"], "gates": learned[0]["gates"], "best_trial": summary}
+    if learned[0].get("hybrid"):
+        extra["hybrid_learned"] = learned[0]["hybrid"]
     metrics_by_role: dict[str, dict] = {}
     for path in metrics_paths:
         role = Path(path).stem
         metrics_by_role[role] = role_metrics(role, runs_by_role.get(role, []), zoom_settings or {}, extra)
         write_json_atomic(path, metrics_by_role[role])
-        improvement = metrics_by_role[role]["improvement"]
-        LOG.info("%s: improvement %s", role, "; ".join(
-            f"{signal} MAE x{_fmt(improvement[f'{signal}_mae'])}, MSE x{_fmt(improvement[f'{signal}_mse'])}"
-            for signal in signals))
+        for key, label in (("improvement", "neural FMU"), ("improvement_fmu_effects", "FMU + effects"),
+                           ("improvement_hybrid", "hybrid")):
+            improvement = metrics_by_role[role].get(key)
+            if improvement:
+                LOG.info("%s: %s against the FMU: %s", role, label, "; ".join(
+                    f"{signal} MAE x{_fmt(improvement[f'{signal}_mae'])}, MSE x{_fmt(improvement[f'{signal}_mse'])}"
+                    for signal in signals))
     uri, experiment = resolve_tracking(mlflow_config, results_dir, case)
+    hybrid = extra.get("hybrid_learned") or {}
     params = {**{f"dt_s.{group}": value for group, value in extra["dt_s"].items()},
+              **{f"hybrid.dt_s.{group}": value for group, value in (hybrid.get("dt_s") or {}).items()},
+              **({"hybrid.trial_id": hybrid["trial_id"], "hybrid.effects": ", ".join(hybrid.get("effects") or [])}
+                 if hybrid else {}),
               "best_trial_id": summary["trial_id"],
               **{f"hp.{k}": v for k, v in summary["hyperparameters"].items()},
               **{f"gate.{state}.{gate}": value for state, gates in (extra["gates"] or {}).items()

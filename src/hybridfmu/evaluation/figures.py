@@ -24,6 +24,9 @@ from hybridfmu.io import atomic_path  # noqa: E402
 DATA_STYLE = {"color": "black", "label": "data"}
 FMU_STYLE = {"color": "tab:red"}
 NEURAL_STYLE = {"color": "tab:blue"}
+#: Styles and legend names of the further models (saved trajectories ``<model>_<signal>``).
+FURTHER_STYLES = {"fmu_effects": ({"color": "tab:orange"}, "FMU + effects"),
+                  "hybrid": ({"color": "tab:green"}, "hybrid")}
 
 
 
@@ -67,6 +70,7 @@ class Trajectories:
         signal: the target signal (label and unit of the axis and legends).
         time_s: (T,) s; data, fmu, neural_fmu: (T,) in the signal's unit.
         zooms: zoomed intervals (t_start_s, t_end_s).
+        further: further models (``fmu_effects``, ``hybrid``) -> (T,) in the signal's unit.
     """
 
     maneuver: str
@@ -76,6 +80,7 @@ class Trajectories:
     fmu: np.ndarray
     neural_fmu: np.ndarray
     zooms: list[tuple[float, float]] = field(default_factory=list)
+    further: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def decimate_minmax(time_s: np.ndarray, values: np.ndarray, max_points: int) -> tuple[np.ndarray, np.ndarray]:
@@ -124,8 +129,11 @@ def _save(fig: plt.Figure, path: str | Path, options: PlotOptions) -> Path:
 
 def _draw_lines(ax: plt.Axes, traj: Trajectories, mask: np.ndarray, options: PlotOptions) -> None:
     t = traj.time_s[mask]
-    for values, style, name in ((traj.data, DATA_STYLE, None), (traj.fmu, FMU_STYLE, "FMU"),
-                                (traj.neural_fmu, NEURAL_STYLE, "neural FMU")):
+    lines = [(traj.data, DATA_STYLE, None), (traj.fmu, FMU_STYLE, "FMU")]
+    lines += [(traj.further[m], *FURTHER_STYLES[m]) for m in ("fmu_effects",) if m in traj.further]
+    lines += [(traj.neural_fmu, NEURAL_STYLE, "neural FMU")]
+    lines += [(traj.further[m], *FURTHER_STYLES[m]) for m in ("hybrid",) if m in traj.further]
+    for values, style, name in lines:
         x, y = decimate_minmax(t, values[mask], options.max_points)
         label = style.get("label") if name is None else _loss_label(name, values[mask], traj.data[mask],
                                                                     traj.signal.unit)
@@ -228,9 +236,9 @@ def _check(traj: Trajectories) -> None:
     for attribute in ("name", "label", "unit"):
         if not hasattr(traj.signal, attribute):
             raise ValueError(f"{traj.maneuver}: the signal must have name, label and unit, got {traj.signal!r}")
-    shapes = {np.shape(a) for a in (traj.time_s, traj.data, traj.fmu, traj.neural_fmu)}
+    shapes = {np.shape(a) for a in (traj.time_s, traj.data, traj.fmu, traj.neural_fmu, *traj.further.values())}
     if len(shapes) != 1:
-        raise ValueError(f"{traj.maneuver} {traj.signal.name}: time, data, FMU and neural FMU differ in shape {shapes}")
+        raise ValueError(f"{traj.maneuver} {traj.signal.name}: time, data and the models differ in shape {shapes}")
 
 
 def _bracket_colors(brackets: Sequence[int]) -> dict[int, tuple]:

@@ -8,7 +8,7 @@ from typing import Any
 
 import pandas as pd
 
-from hybridfmu.evaluation.figures import (PlotOptions, Trajectories, plot_hyperband, plot_time_offset,
+from hybridfmu.evaluation.figures import (FURTHER_STYLES, PlotOptions, Trajectories, plot_hyperband, plot_time_offset,
                                           plot_training_curves, plot_trajectory, plot_zooms)
 from hybridfmu.evaluation.history import read_histories
 from hybridfmu.io import read_json
@@ -21,9 +21,11 @@ def _trajectories(frame: pd.DataFrame, maneuver: str, signal: Any, zooms: list[d
     missing = [c for c in columns if c not in frame.columns]
     if missing:
         raise ValueError(f"{path}: column(s) {missing} missing (expected the trajectories written by evaluate)")
+    further = {model: frame[f"{model}_{signal.name}"].to_numpy(dtype=float) for model in FURTHER_STYLES
+               if f"{model}_{signal.name}" in frame.columns}
     return Trajectories(maneuver, signal, *(frame[c].to_numpy(dtype=float) for c in columns),
                         zooms=[(z["t_start_s"], z["t_end_s"]) for z in zooms
-                               if z["maneuver"] == maneuver and z.get("signal") == signal.name])
+                               if z["maneuver"] == maneuver and z.get("signal") == signal.name], further=further)
 
 
 def draw_all(figure_paths: dict[str, str], metrics_paths: list[str], trajectory_paths: list[str],

@@ -85,6 +85,40 @@ def improvement_table(metrics_by_role: dict[str, dict], units: dict[str, str] | 
     return lines
 
 
+#: Column titles of the compared models.
+MODEL_TITLES = {"fmu": "FMU", "fmu_effects": "FMU + diagnosed effects", "neural_fmu": "neural FMU",
+                "hybrid": "hybrid (FMU + effects + ANN)"}
+
+
+def models_table(metrics_by_role: dict[str, dict], units: dict[str, str] | None = None) -> list[str]:
+    """Markdown table of every model the metrics hold (FMU, FMU + diagnosed effects, neural FMU, hybrid): per role,
+    target signal and measure the error and, in brackets, the factor by which it is below the FMU's; [] when the
+    metrics hold only the FMU and the neural FMU (the improvement table shows them)."""
+    from hybridfmu.evaluation.comparison import MODELS
+
+    models = [m for m in MODELS if all(m in metrics for metrics in metrics_by_role.values())]
+    if len(models) <= 2:
+        return []
+    lines = ["| data | signal | measure | " + " | ".join(MODEL_TITLES[m] for m in models) + " |",
+             "|---|---|---|" + "---|" * len(models)]
+    for role, metrics in metrics_by_role.items():
+        for signal in _signals_of(metrics):
+            for measure, (text, _) in _MEASURE_TEXT.items():
+                key = f"{signal}_{measure}"
+                if key not in metrics["fmu"]:
+                    continue
+                unit = _unit(units, signal, measure)
+                cells = []
+                for model in models:
+                    cell = f"{_number(metrics[model][key])} {unit}".rstrip()
+                    if model != "fmu":
+                        factor = metrics["improvement" if model == "neural_fmu" else f"improvement_{model}"][key]
+                        cell += f" (×{_number(factor)})"
+                    cells.append(cell)
+                lines.append(f"| {role} | {signal} | {text} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def zoom_table(metrics_by_role: dict[str, dict], units: dict[str, str] | None = None) -> list[str]:
     """Markdown table of the zoomed intervals with the improvement of the signal each was chosen for."""
     lines = ["| data | maneuver | interval [s] | chosen for | how | FMU MAE | neural FMU MAE | improvement MAE | "
@@ -192,6 +226,12 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
            f"neural FMU error; the factors the {name} reports are given beside this run's where configured.", "",
            "## Improvement factors", ""]
     out += improvement_table(metrics_by_role, units, reference) + [""] + verdicts(metrics_by_role, reference) + [""]
+    models = models_table(metrics_by_role, units)
+    if models:
+        out += ["## All models", "",
+                "The FMU plus the effects the diagnosis identified (with the diagnosis' fitted values), the neural "
+                "FMU as in the paper, and the hybrid: the same ANN trained on top of the FMU plus the effects. In "
+                "brackets: the FMU's error over the model's.", ""] + models + [""]
     out += ["## Zoomed intervals", "",
             "Chosen where the FMU and the data part most, from the FMU's error alone (`auto`), or set in the "
             "config (`config`).", ""]
@@ -199,6 +239,12 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
     out += ["## Learned input delay and gates", ""] + delay_lines(dt_s, true_dt_s, truth_source, reference,
                                                                          delay_estimates_s)
     out += [f"- gates (ẋ = g_F·ẋ_FMU + g_A·ẋ_ANN): {_gates_text(gates)}", ""]
+    hybrid = next((m["hybrid_learned"] for m in metrics_by_role.values() if m.get("hybrid_learned")), None)
+    if hybrid:
+        out += ["### The hybrid's", "", f"Physical layer: the FMU plus {', '.join(hybrid.get('effects') or []) or 'no effects'} "
+                f"(trial {hybrid.get('trial_id')}).", ""]
+        out += delay_lines(hybrid.get("dt_s"), true_dt_s, truth_source, None, delay_estimates_s)
+        out += [f"- gates: {_gates_text(hybrid.get('gates'))}", ""]
     out += ["## Best hyperparameters", ""]
     if best_summary:
         out += [", ".join(f"{k}: {_number(v, 4) if isinstance(v, float) else v}" for k, v in best_summary.items()), ""]

@@ -56,9 +56,12 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
         unit = f" {units.get(signal, '')}".rstrip()
         fmu = test_metrics["fmu"]
         rows = [("FMU", fmu), ("neural FMU", test_metrics["neural_fmu"])]
-        if far.get("after"):
+        effects_errors = test_metrics.get("fmu_effects") or far.get("after")
+        if effects_errors:
             refitted = any("refit" in step for step in far.get("steps", []))
-            rows.append((f"FMU + diagnosed effects{', recalibrated' if refitted else ''} ({effects})", far["after"]))
+            rows.append((f"FMU + diagnosed effects{', recalibrated' if refitted else ''} ({effects})", effects_errors))
+        if test_metrics.get("hybrid"):
+            rows.append(("hybrid: FMU + diagnosed effects + ANN", test_metrics["hybrid"]))
         for label, values in rows:
             rmse, mae = values.get(f"{signal}_rmse"), values.get(f"{signal}_mae")
             lines.append(f"| {signal} | {label} | {_number(rmse)}{unit} | {_number(mae)}{unit} | "
@@ -84,6 +87,11 @@ def write_case_summary(out_path: str | Path, case: str, test_metrics_path: str |
         text += "\nLearned input delays of the neural FMU:\n\n" + "\n".join(
             delay_lines(test_metrics["dt_s"], true_dt_s, Path(source).name if source else None, None,
                         estimates_s)) + "\n"
+        hybrid = test_metrics.get("hybrid_learned") or {}
+        if hybrid.get("dt_s"):
+            text += "\nLearned input delays of the hybrid:\n\n" + "\n".join(
+                delay_lines(hybrid["dt_s"], true_dt_s, Path(source).name if source else None, None,
+                            estimates_s)) + "\n"
     with atomic_path(out_path) as tmp:
         Path(tmp).write_text(text)
     return Path(out_path)

@@ -28,10 +28,14 @@ def resolve_tracking(mlflow_config: dict[str, Any] | None, results_dir: str | Pa
 
 def flat_metrics(metrics_by_role: dict[str, dict]) -> dict[str, float]:
     """MLflow metric names -> values, ``<role>/<model>/<signal>_<measure>``, e.g. ``test/neural_fmu/angle_mae``
-    (model: fmu, neural_fmu, improvement)."""
+    (model: fmu, neural_fmu, improvement, and those of fmu_effects, hybrid, improvement_fmu_effects,
+    improvement_hybrid the metrics hold)."""
+    from hybridfmu.evaluation.comparison import FURTHER_MODELS
+
     flat: dict[str, float] = {}
     for role, metrics in metrics_by_role.items():
-        for model in ("fmu", "neural_fmu", "improvement"):
+        further = [k for m in FURTHER_MODELS if m in metrics for k in (m, f"improvement_{m}")]
+        for model in ("fmu", "neural_fmu", "improvement", *further):
             for key, value in metrics[model].items():
                 if value is not None:
                     flat[f"{role}/{model}/{key}"] = float(value)

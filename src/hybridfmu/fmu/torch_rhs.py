@@ -54,6 +54,11 @@ class _FmuRhsFunction(torch.autograd.Function):
         return grad_x, grad_u, None, None
 
 
+#: What a model other than an FmuModel must offer to stand behind :class:`FmuRhs` (e.g. the physical layer
+#: of a hybrid, ``hybridfmu.model.physics.PhysicsModel``).
+MODEL_INTERFACE = ("state_names", "input_names", "n_states", "n_inputs", "model_name", "derivatives", "jacobians")
+
+
 class FmuRhs(torch.nn.Module):
     """Differentiable right-hand side of an FMU: ``rhs(x, u, t_s=0.0) -> dx``.
 
@@ -66,8 +71,9 @@ class FmuRhs(torch.nn.Module):
 
     def __init__(self, model: FmuModel):
         super().__init__()
-        if not isinstance(model, FmuModel):
-            raise ValueError(f"model: expected an FmuModel (from load_fmu), got {type(model).__name__}")
+        if not isinstance(model, FmuModel) and not all(hasattr(model, name) for name in MODEL_INTERFACE):
+            raise ValueError(f"model: expected an FmuModel (from load_fmu) or a model with its batched interface "
+                             f"({', '.join(MODEL_INTERFACE)}), got {type(model).__name__}")
         self.model = model
 
     def forward(self, x: torch.Tensor, u: torch.Tensor | None = None, t_s=0.0) -> torch.Tensor:

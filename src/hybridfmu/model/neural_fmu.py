@@ -73,6 +73,10 @@ class NeuralFmu(nn.Module):
         if statistics is None:
             return torch.zeros(n_corrected, dtype=torch.float64), torch.ones(n_corrected, dtype=torch.float64)
         mean = torch.as_tensor(statistics["xdot_mean"], dtype=torch.float64)[self.idx_corrected]
+        if self.spec.physics_effects is not None:
+            # a hybrid's ANN corrects what the physical layer leaves, a residual around zero: no shift, so that
+            # with a zero output layer the untrained hybrid is its physical layer exactly
+            mean = torch.zeros_like(mean)
         std = torch.as_tensor(statistics["xdot_std"], dtype=torch.float64)[self.idx_corrected]
         return mean, torch.where(std > 0, std, torch.ones_like(std))
 

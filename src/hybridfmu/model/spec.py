@@ -41,6 +41,9 @@ class NeuralFmuSpec:
         sample_position: how sampled inputs are placed within their interval (see ``InputDelay``).
         solver: fixed-step method on the sample grid ("rk4" or "euler").
         end_stop: optional hard stop of a position state.
+        physics_effects: None for the paper's neural FMU (the FMU under the ANN); for a hybrid, the diagnosed
+            effects its physical layer adds to the FMU (:mod:`hybridfmu.model.physics`; [] for the diagnosed
+            model's parameters alone).
     """
 
     state_names: list[str]
@@ -63,6 +66,7 @@ class NeuralFmuSpec:
     sample_position: str = "hold_center"
     solver: str = "rk4"
     end_stop: EndStop | None = None
+    physics_effects: list[str] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:

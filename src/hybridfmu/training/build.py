@@ -20,13 +20,15 @@ def _names(value: Any, available: list[str], field: str) -> list[str]:
 
 
 def model_spec(model_config: dict[str, Any], fmu_model: Any, sample_period_s: float, width: int, depth: int,
-               gate_opening: float, delay_init_s: float | dict[str, float] | None = None) -> NeuralFmuSpec:
+               gate_opening: float, delay_init_s: float | dict[str, float] | None = None,
+               physics_effects: list[str] | None = None) -> NeuralFmuSpec:
     """The architecture: ``model_config`` is the validated ``model`` section; the FMU gives the state and
     input names (and the end-stop values from its parameters).
 
     ``delay_init_s``: the delays' start (s, one value or ``{group: value}``) when ``input_delay.init_s`` is
     ``time_offset`` (the search's plan holds the time-offset stage's estimates, ``initial_delays_s``);
-    a number in the config is used as it is."""
+    a number in the config is used as it is. ``physics_effects``: the effects of a hybrid's physical layer
+    (``PhysicsModel.effects``), None for the paper's neural FMU."""
     states, inputs = list(fmu_model.state_names), list(fmu_model.input_names)
     delay = model_config["input_delay"]
     init_s = delay["init_s"]
@@ -65,7 +67,8 @@ def model_spec(model_config: dict[str, Any], fmu_model: Any, sample_period_s: fl
         delay_step_s=None if delay.get("step_s") is None else float(delay["step_s"]),
         ann_output_init=model_config["ann_output_init"],
         delay_scale_s=float(delay["scale_s"]), sample_position=delay["sample_position"],
-        solver=model_config["solver"], end_stop=end_stop)
+        solver=model_config["solver"], end_stop=end_stop,
+        physics_effects=None if physics_effects is None else list(physics_effects))
 
 
 def build_neural_fmu(rhs: Any, spec: NeuralFmuSpec, statistics: dict[str, Any] | None, seed: int) -> NeuralFmu:

@@ -17,10 +17,13 @@ from hybridfmu.training.windows import delay_padding
 
 
 def load_trained_neural_fmu(best_json_path: str | Path, fmu_path: str | Path,
-                            fmu_parameters: dict[str, float] | None = None) -> NeuralFmu:
+                            fmu_parameters: dict[str, float] | None = None,
+                            diagnosed_path: str | Path | None = None) -> NeuralFmu:
     """The neural FMU named by ``hpo/best.json`` (its ``checkpoint``), around the FMU at ``fmu_path``.
 
-    The learned delays are ``model.delay_s()`` ({group: s}), the gates ``model.gate_values()``.
+    A hybrid (its spec names ``physics_effects``) is built around the FMU plus those effects of the diagnosed
+    model at ``diagnosed_path`` (``diagnosis/diagnosed_model.pkl``). The learned delays are
+    ``model.delay_s()`` ({group: s}), the gates ``model.gate_values()``.
     """
     from hybridfmu.fmu import FmuRhs, load_fmu
     from hybridfmu.training.trial import load_checkpoint
@@ -39,7 +42,17 @@ def load_trained_neural_fmu(best_json_path: str | Path, fmu_path: str | Path,
     if list(fmu_model.state_names) != spec.state_names or list(fmu_model.input_names) != spec.input_names:
         raise ValueError(f"{fmu_path}: FMU states {fmu_model.state_names} / inputs {fmu_model.input_names} differ "
                          f"from the trained model's {spec.state_names} / {spec.input_names}")
-    model = NeuralFmu(FmuRhs(fmu_model), spec, None)
+    rhs_model = fmu_model
+    if spec.physics_effects is not None:
+        from hybridfmu.diagnosis.export import load_diagnosed
+        from hybridfmu.model.physics import PhysicsModel
+
+        if diagnosed_path is None:
+            raise ValueError(f"{checkpoint_path}: a hybrid (spec field 'physics_effects' "
+                             f"{spec.physics_effects}) needs the diagnosed model (diagnosis/diagnosed_model.pkl)")
+        helper = load_fmu(fmu_path, parameters=fmu_parameters or None)
+        rhs_model = PhysicsModel(fmu_model, helper, load_diagnosed(diagnosed_path).selected(spec.physics_effects))
+    model = NeuralFmu(FmuRhs(rhs_model), spec, None)
     model.load_state_dict(checkpoint["model"])
     model.eval()
     return model
@@ -69,9 +82,21 @@ def simulate_neural_fmu(model: NeuralFmu, time_s: Any, u: Any, x0: Any) -> np.nd
         raise ValueError(f"simulate_neural_fmu: u has shape {u.shape}, expected {(time_s.size, len(spec.input_names))}")
     if x0.shape != (len(spec.state_names),):
         raise ValueError(f"simulate_neural_fmu: x0 has shape {x0.shape}, expected ({len(spec.state_names)},)")
+    physics = physical_layer(model)
+    if physics is not None:  # a hybrid sees the inputs through the diagnosed input changes
+        u = physics.inputs(u, spec.sample_period_s)
     pad = delay_padding(spec.sample_period_s, spec.delay_min_s, spec.delay_max_s)
     index = np.clip(np.arange(-pad, time_s.size + pad), 0, time_s.size - 1)
     u_seq = torch.from_numpy(np.ascontiguousarray(u[index]))[None]
     with torch.no_grad():
         states = rollout(model, u_seq, pad, torch.from_numpy(x0)[None], time_s.size - 1)
     return states[0].numpy()
+
+
+def physical_layer(model: NeuralFmu):
+    """The physical layer of a hybrid (``hybridfmu.model.physics.PhysicsModel``), or None for a neural FMU
+    around a plain FMU."""
+    from hybridfmu.model.physics import PhysicsModel
+
+    inner = getattr(model.fmu.rhs, "model", None)
+    return inner if isinstance(inner, PhysicsModel) else None

@@ -8,6 +8,7 @@ selection ranks it last and the search goes on.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import logging
 import math
@@ -117,6 +118,38 @@ def _track_rung(plan: dict[str, Any], plan_path: str | Path, result: dict[str, A
     return run_id, {"status": "logged", "error": ""}
 
 
+def hybrid_physics(model_config: dict[str, Any], fmu_path: str | Path, fmu_parameters: dict[str, float],
+                   diagnosed_path: str | Path | None):
+    """The physical layer of a hybrid (``model.physics_terms`` other than ``none``), else None.
+
+    A hybrid whose input delay is trainable (``input_delay.max_s`` > ``min_s``) leaves the diagnosed time offsets
+    of inputs out of its physical layer: its own delay carries them (started where ``input_delay.init_s`` says).
+
+    Raises:
+        ValueError: a hybrid without the diagnosed model's path.
+    """
+    from hybridfmu.model.physics import DELAY_KINDS, physics_effects, physics_model, uses_physics
+
+    if not uses_physics(model_config):
+        return None
+    if diagnosed_path is None:
+        raise ValueError(f"config.model.physics_terms is {model_config['physics_terms']!r}: a hybrid needs the "
+                         "diagnosed model (diagnosis/diagnosed_model.pkl, rule diagnose)")
+    delay = model_config.get("input_delay") or {}
+    learned_delay = float(delay.get("max_s", 0.0)) > float(delay.get("min_s", 0.0))
+    physics = physics_model(fmu_path, fmu_parameters, diagnosed_path, physics_effects(model_config["physics_terms"]),
+                            DELAY_KINDS if learned_delay else ())
+    LOG.info("physical layer: %s (parameters %s)", ", ".join(physics.effects) or "no effects", physics.parameters)
+    for note in physics.notes:
+        LOG.warning("physical layer: %s", note)
+    return physics
+
+
+def physics_inputs(arrays: ManeuverArrays, physics: Any) -> ManeuverArrays:
+    """The maneuver with its inputs as the hybrid's physical layer sees them (the diagnosed input changes)."""
+    return dataclasses.replace(arrays, u=physics.inputs(arrays.u, arrays.sample_period_s))
+
+
 def validation_points(start_s: float, target_s: float, every_s: float | None) -> list[float]:
     """Resources (s of data) at which a rung from ``start_s`` to ``target_s`` validates: evenly spaced, at most
     ``every_s`` apart, the last at ``target_s`` (only there if ``every_s`` is None)."""
@@ -132,7 +165,8 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
                    model_config: dict[str, Any], training_config: dict[str, Any],
                    previous_checkpoint: str | Path | None,
                    checkpoint_path: str | Path, result_path: str | Path, track: bool = True,
-                   tracking_options: dict[str, Any] | None = None) -> dict[str, Any]:
+                   tracking_options: dict[str, Any] | None = None,
+                   diagnosed_path: str | Path | None = None) -> dict[str, Any]:
     """Train configuration ``config_index`` of ``bracket`` up to the resource of ``rung`` and validate it.
 
     Validation (open loop over the validation segments) runs at the rung's end and, with
@@ -153,6 +187,9 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
         track: log to MLflow (the plan's tracking store).
         tracking_options: :class:`hybridfmu.tracking.Tracker` options (``retry_budget_s``,
             ``request_timeout_s``, ``http_retries``; config section ``mlflow``).
+        diagnosed_path: the diagnosed model (``diagnosis/diagnosed_model.pkl``), for a hybrid
+            (``model.physics_terms``): its physical layer is the FMU plus the diagnosed effects, and the data's
+            inputs pass through the effects' input changes (:mod:`hybridfmu.model.physics`).
 
     The checkpoint and the result are written before anything is logged: a tracking store that is locked
     too long, lost or unreachable does not fail the job. The result's ``tracking`` records what happened
@@ -176,10 +213,15 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
     statistics = read_json(statistics_path)
     weights = roles.weights_with(hyper.target_weights)
     objective = objective_from_config(plan["objective"], roles)
-    fmu_model = load_calibrated_fmu(fmu_path, load_calibration(calibration_path))
+    calibration = load_calibration(calibration_path)
+    fmu_model = load_calibrated_fmu(fmu_path, calibration)
+    physics = hybrid_physics(model_config, fmu_path, calibration.parameters, diagnosed_path)
+    if physics is not None:
+        train, valid = physics_inputs(train, physics), physics_inputs(valid, physics)
     spec = model_spec(model_config, fmu_model, train.sample_period_s, hyper.width, hyper.depth, hyper.gate_opening,
-                      delay_init_s=plan.get("initial_delays_s"))
-    model = build_neural_fmu(FmuRhs(fmu_model), spec, statistics, entry["seed"])
+                      delay_init_s=plan.get("initial_delays_s"),
+                      physics_effects=None if physics is None else physics.effects)
+    model = build_neural_fmu(FmuRhs(fmu_model if physics is None else physics), spec, statistics, entry["seed"])
     settings = TrainerSettings(max_skipped_steps=int(training_config["max_skipped_steps"]),
                                max_grad_norm=float(training_config["max_grad_norm"]),
                                gradients=str(training_config.get("gradients", "adjoint")))
@@ -217,8 +259,12 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
             progress = Progress(max(entry["resource_s"] - trainer.resource_used_s, 0.0), f"trial {trial_id} rung {rung}",
                                 unit="s of data", logger=LOG, interval_s=10.0)
             valid_batch = None  # the validation segments' data, built at the first validation, shared by the rest
-            for target_s in validation_points(start_resource_s, entry["resource_s"],
-                                              training_config.get("validation_every_s")):
+            points = validation_points(start_resource_s, entry["resource_s"], training_config.get("validation_every_s"))
+            if rung == 0 and spec.physics_effects is not None:
+                # a hybrid's untrained state is its physical layer (the ANN's output zero): a candidate too, so
+                # the search never reports a hybrid that validates worse than the FMU plus the diagnosed effects
+                points = [start_resource_s] + points
+            for target_s in points:
                 trainer.train_until(target_s, progress)
                 valid_batch = valid_batch or validation_batch(spec, valid)
                 metrics = validate(model, valid, hyper.loss, weights, objective, statistics, valid_batch)

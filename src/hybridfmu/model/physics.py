@@ -1,0 +1,178 @@
+"""The physical layer of a hybrid model: the FMU plus the effects the diagnosis identified.
+
+A hybrid model (``model.physics_terms``) is a neural FMU whose FMU layer is :class:`PhysicsModel`: the
+calibrated FMU with the diagnosed model's parameters (recalibrated with the effects), its additive terms in
+the state equations (friction, periodic terms, limits, ...) and its changes of the logged inputs (dead
+zones, gains, offsets, time offsets), all fitted by the diagnosis (:mod:`hybridfmu.diagnosis.export`). The
+ANN then learns only what remains.
+
+:class:`PhysicsModel` has the batched interface of the FMU bridge (``derivatives``, ``jacobians``,
+``derivatives_and_jacobians``, ``event_indicators``), so ``hybridfmu.fmu.FmuRhs`` makes it differentiable and
+the solvers use it like an FMU. The additive terms' Jacobians come from central differences of their
+vectorised evaluation (all perturbed rows in one call); the FMU's own Jacobians from the FMU. The input changes
+act on whole logged input sequences (:meth:`PhysicsModel.inputs`) before the model sees them: the training
+data and every simulation's inputs pass through them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hybridfmu.diagnosis.export import DiagnosedModel, load_diagnosed
+
+#: Values of ``model.physics_terms`` that are no list of effect names.
+PHYSICS_TERMS_CHOICES = ("none", "from_diagnosis")
+
+
+class PhysicsModel:
+    """The FMU plus the diagnosed effects, with the FMU bridge's batched interface.
+
+    Args:
+        fmu: the calibrated FMU instance the derivatives come from (the diagnosed parameters are set on it).
+        helper: a second instance (same FMU and parameters) for effects that evaluate the model's derivatives.
+        diagnosed: the diagnosed model (its effects, parameters and problem).
+        relative_step: step of the additive terms' central differences, relative to 1 + |value|.
+
+    Raises:
+        ValueError: the diagnosed model's states or inputs differ from the FMU's.
+    """
+
+    def __init__(self, fmu: Any, helper: Any, diagnosed: DiagnosedModel, relative_step: float = 1e-6) -> None:
+        if list(fmu.state_names) != diagnosed.state_names or list(fmu.input_names) != diagnosed.input_names:
+            raise ValueError(f"diagnosed model: states {diagnosed.state_names} / inputs {diagnosed.input_names} "
+                             f"differ from the FMU's {list(fmu.state_names)} / {list(fmu.input_names)}")
+        self.fmu = fmu
+        self.helper = helper
+        self.diagnosed = diagnosed
+        self.corrected = diagnosed.corrected(helper)
+        self.relative_step = float(relative_step)
+        # the refit's parameters, then the parameter errors the effects name (they are not refitted ones)
+        self.parameters = {**diagnosed.parameters, **self.corrected.parameters}
+        for instance in (fmu, helper):
+            if self.parameters:
+                instance.set_parameters(self.parameters)
+        self.state_names = list(fmu.state_names)
+        self.input_names = list(fmu.input_names)
+        self.n_states = int(fmu.n_states)
+        self.n_inputs = int(fmu.n_inputs)
+        self.n_event_indicators = int(getattr(fmu, "n_event_indicators", 0))
+        self.model_name = f"{fmu.model_name} + {len(diagnosed.terms)} diagnosed effect(s)"
+
+    @property
+    def effects(self) -> list[str]:
+        return list(self.diagnosed.effects)
+
+    @property
+    def notes(self) -> list[str]:
+        """Effects the corrected model could not apply (e.g. a second change of one input), in words."""
+        return list(self.corrected.notes)
+
+    # ------------------------------------------------------------------ inputs
+    def inputs(self, u: np.ndarray, dt_s: float) -> np.ndarray:
+        """The logged inputs (T, n_u) of one maneuver as the model sees them (the diagnosed input changes);
+        ``dt_s`` the sampling interval (s)."""
+        u = np.asarray(u, dtype=float)
+        if not self.corrected.input_changes:
+            return np.array(u)
+        return self.corrected.inputs(u, float(dt_s))
+
+    # ------------------------------------------------------------------ derivatives
+    def derivatives(self, x: np.ndarray, u: np.ndarray, t_s: Any = 0.0) -> np.ndarray:
+        """(N, n_x), (N, n_u) -> (N, n_x): the FMU's derivatives plus the additive terms."""
+        f = np.asarray(self.fmu.derivatives(x, u, t_s), dtype=float)
+        if not self.corrected.has_correction:
+            return f
+        return f + self.corrected.additive_batch(np.reshape(x, f.shape), np.reshape(u, (f.shape[0], self.n_inputs)))
+
+    def _term_jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Central-difference Jacobians of the additive terms: (N, n_x, n_x), (N, n_x, n_u)."""
+        n, n_x, n_u = x.shape[0], self.n_states, self.n_inputs
+        z = np.concatenate([x, u], axis=1)  # (N, m)
+        m = n_x + n_u
+        step = self.relative_step * (1.0 + np.abs(z))  # (N, m)
+        perturbed = np.repeat(z[None], 2 * m, axis=0)  # (2m, N, m)
+        columns = np.arange(m)
+        perturbed[columns, :, columns] += step.T
+        perturbed[m + columns, :, columns] -= step.T
+        flat = perturbed.reshape(2 * m * n, m)
+        values = self.corrected.additive_batch(flat[:, :n_x], flat[:, n_x:]).reshape(2 * m, n, n_x)
+        jac = (values[:m] - values[m:]) / (2.0 * step.T[:, :, None])  # (m, N, n_x)
+        jac = np.transpose(jac, (1, 2, 0))  # (N, n_x, m)
+        return np.ascontiguousarray(jac[:, :, :n_x]), np.ascontiguousarray(jac[:, :, n_x:])
+
+    def jacobians(self, x: np.ndarray, u: np.ndarray, t_s: Any = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """(df/dx (N, n_x, n_x), df/du (N, n_x, n_u)) of :meth:`derivatives`."""
+        dfdx, dfdu = self.fmu.jacobians(x, u, t_s)
+        dfdx, dfdu = np.array(dfdx, dtype=float), np.array(dfdu, dtype=float)
+        if self.corrected.has_correction:
+            x2 = np.asarray(x, dtype=float).reshape(dfdx.shape[0], self.n_states)
+            u2 = np.asarray(u, dtype=float).reshape(dfdx.shape[0], self.n_inputs)
+            term_x, term_u = self._term_jacobians(x2, u2)
+            dfdx += term_x
+            dfdu += term_u
+        return dfdx, dfdu
+
+    def derivatives_and_jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        dfdx, dfdu = self.jacobians(x, u)
+        return self.derivatives(x, u), dfdx, dfdu
+
+    def event_indicators(self, x: np.ndarray, u: np.ndarray, t_s: Any = 0.0) -> np.ndarray:
+        return self.fmu.event_indicators(x, u, t_s)
+
+    def get_parameters(self, names: list[str] | None = None) -> dict[str, float]:
+        return self.fmu.get_parameters(names)
+
+    @property
+    def initial_states(self) -> np.ndarray:
+        """(n_x,) the FMU's states after initialisation (its start values)."""
+        return self.fmu.initial_states
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return list(self.fmu.parameter_names)
+
+    # ------------------------------------------------------------------ the training engines' kernels
+    def derivatives_kernel(self, n: int):
+        """``(x (n, n_x), u (n, n_u)) -> (n, n_x)`` (the bridge's kernel interface; fresh arrays per call)."""
+        return lambda x, u: self.derivatives(x, u)
+
+    def derivatives_and_jacobians_kernel(self, n: int):
+        """``(x (n, n_x), u (n, n_u)) -> (xdot, dfdx, dfdu)`` (the bridge's kernel interface, for the NumPy
+        engine of the training adjoint; fresh arrays per call)."""
+        return self.derivatives_and_jacobians
+
+
+#: Effect kinds a hybrid with a learned input delay leaves to the delay (the diagnosed time offsets of inputs).
+DELAY_KINDS = ("time_offset",)
+
+
+def physics_model(fmu_path: str | Path, fmu_parameters: dict[str, float] | None, diagnosed_path: str | Path,
+                  effects: list[str] | None = None, without_kinds: tuple[str, ...] = ()) -> PhysicsModel:
+    """The physical layer of a hybrid: the FMU at ``fmu_path`` with ``fmu_parameters`` (the calibrated ones)
+    plus the diagnosed model at ``diagnosed_path``, restricted to ``effects`` (None: all of them), less the
+    effects of the kinds ``without_kinds`` (e.g. :data:`DELAY_KINDS`)."""
+    from hybridfmu.fmu import load_fmu
+
+    diagnosed = load_diagnosed(diagnosed_path).selected(effects, without_kinds)
+    fmu = load_fmu(fmu_path, parameters=fmu_parameters or None)
+    helper = load_fmu(fmu_path, parameters=fmu_parameters or None)
+    return PhysicsModel(fmu, helper, diagnosed)
+
+
+def physics_effects(physics_terms: Any) -> list[str] | None:
+    """The effects a hybrid takes from ``model.physics_terms``: None for all (``from_diagnosis``), the names of
+    a list; ValueError for ``none`` (no physical layer) or anything else."""
+    if physics_terms == "from_diagnosis":
+        return None
+    if isinstance(physics_terms, (list, tuple)) and all(isinstance(n, str) for n in physics_terms):
+        return list(physics_terms)
+    raise ValueError(f"config.model.physics_terms: expected 'from_diagnosis' or a list of effect names for a "
+                     f"hybrid, got {physics_terms!r}")
+
+
+def uses_physics(model_config: dict[str, Any]) -> bool:
+    """Whether the case's ``model`` section asks for a hybrid (``physics_terms`` other than ``none``)."""
+    return (model_config or {}).get("physics_terms", "none") != "none"

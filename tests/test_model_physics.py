@@ -1,0 +1,211 @@
+"""The hybrid's physical layer: the diagnosed model saved and loaded, the FMU plus its effects with the bridge's
+interface (values, Jacobians, parameters, input changes), and a neural FMU trained around it."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+import torch
+
+from diagnosis_models import MassSpringDamper, msd_maneuvers, msd_problem
+from hybridfmu.diagnosis.corrected_model import CorrectedModel
+from hybridfmu.diagnosis.export import DiagnosedModel, load_diagnosed, save_diagnosed
+from hybridfmu.diagnosis.library import build_library
+from hybridfmu.diagnosis.prepare import prepare_maneuver
+from hybridfmu.diagnosis.problem import set_data_statistics
+from hybridfmu.diagnosis.selection import Term
+from hybridfmu.fmu import FmuRhs
+from hybridfmu.model import NeuralFmu, NeuralFmuSpec
+from hybridfmu.model.physics import DELAY_KINDS, PhysicsModel, physics_effects, uses_physics
+from hybridfmu.training.solver import rollout
+
+H = 0.01
+
+
+class BridgedSpring(MassSpringDamper):
+    """The mass-spring-damper with the FMU bridge's signatures (a time argument, a name, counts)."""
+
+    model_name = "BridgedSpring"
+    n_states, n_inputs = 2, 1
+    initial_states = np.zeros(2)
+
+    def derivatives(self, x, u=None, t_s=0.0):
+        return super().derivatives(x, u)
+
+    def jacobians(self, x, u=None, t_s=0.0):
+        return super().jacobians(x, u)
+
+
+@pytest.fixture(scope="module")
+def diagnosed():
+    """A diagnosed model of the mass-spring-damper with an additive term of every shape the library fits by row
+    (Coulomb with a Stribeck peak, friction scaled by |F|, periodic, viscous), a parameter error, an input gain
+    and a time offset."""
+    problem, model = msd_problem(equations=["x", "v"], periodic={"x": 1.0})
+    measured = msd_maneuvers(None, duration_s=5.0)
+    set_data_statistics(problem, [measured["train"].x], H)
+    prepared = prepare_maneuver(measured["train"], model, problem)
+    effects, _ = build_library(problem, prepared.inputs, model)
+    by_name = {e.name: e for e in effects[1]}
+    coulomb = by_name["coulomb(v)"]
+    setting = next(s for s in coulomb.grid() if s["stribeck_velocity"] > 0)
+    scaled = by_name["coulomb(v)*|F|"]
+    periodic = by_name["periodic(x)"]
+    periodic_setting = periodic.grid()[-1]
+    terms = [Term(coulomb, setting, np.array([0.3, 0.2])),
+             Term(scaled, {"asymmetric": 1.0, "smoothing": scaled.grid()[0]["smoothing"]}, np.array([0.05, 0.01])),
+             Term(periodic, periodic_setting,
+                  np.linspace(0.1, 0.4, len(periodic.coefficient_names(periodic_setting)))),
+             Term(by_name["viscous(v)"], {}, np.array([0.2])),
+             Term(by_name["parameter(m)"], {}, np.array([0.1])),
+             Term(by_name["input_gain(F)"], {}, np.array([0.05])),
+             Term(by_name["time_offset(F)"], {"shift_s": 2 * H}, np.array([1.0]))]
+    return DiagnosedModel(terms, {"k": 4.4}, problem, [t.effect.name for t in terms])
+
+
+def states_and_inputs(n=40, seed=3):
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.normal(0, 0.5, n), rng.normal(0, 2.0, n)]), rng.normal(0, 3.0, (n, 1))
+
+
+def test_vectorised_terms_equal_the_row_terms(diagnosed):
+    """The batch evaluation the training uses gives the per-row values of the diagnosis' simulation."""
+    corrected = CorrectedModel(diagnosed.terms, diagnosed.problem)
+    x, u = states_and_inputs()
+    np.testing.assert_allclose(corrected.additive_batch(x, u), corrected(x, u), rtol=1e-12, atol=1e-12)
+    assert np.abs(corrected.additive_batch(x, u)[:, 1]).max() > 0.1
+
+
+def test_physics_model_adds_the_effects_to_the_fmu(diagnosed):
+    fmu, helper = BridgedSpring(), BridgedSpring()
+    physics = PhysicsModel(fmu, helper, diagnosed)
+    # the refit's parameter and the parameter error of parameter(m) are set on both instances
+    assert fmu.values == pytest.approx({"m": 1.1, "k": 4.4, "c": 0.4})
+    assert helper.values == fmu.values
+    x, u = states_and_inputs()
+    terms = CorrectedModel(diagnosed.terms, diagnosed.problem)(x, u)
+    np.testing.assert_allclose(physics.derivatives(x, u), fmu.derivatives(x, u) + terms, rtol=1e-12)
+    # input changes act on whole sequences: the gain and the time offset by two samples
+    sequence = np.arange(10.0)[:, None]
+    seen = physics.inputs(sequence, H)
+    np.testing.assert_allclose(seen[:-2, 0], 1.05 * sequence[2:, 0])
+
+
+def test_physics_jacobians_match_central_differences(diagnosed):
+    physics = PhysicsModel(BridgedSpring(), BridgedSpring(), diagnosed)
+    x, u = states_and_inputs(n=12)
+    dfdx, dfdu = physics.jacobians(x, u)
+    for j in range(2):
+        step = np.zeros(2)
+        step[j] = 1e-6
+        numeric = (physics.derivatives(x + step, u) - physics.derivatives(x - step, u)) / 2e-6
+        np.testing.assert_allclose(dfdx[:, :, j], numeric, rtol=1e-5, atol=1e-6)
+    numeric = (physics.derivatives(x, u + 1e-6) - physics.derivatives(x, u - 1e-6)) / 2e-6
+    np.testing.assert_allclose(dfdu[:, :, 0], numeric, rtol=1e-5, atol=1e-6)
+    # the friction terms make the Jacobian differ from the FMU's
+    assert np.abs(dfdx - physics.fmu.jacobians(x, u)[0]).max() > 1e-2
+
+
+def test_selection_leaves_out_delay_kinds_and_names_unknown_effects(diagnosed):
+    kept = diagnosed.selected(None, DELAY_KINDS)
+    assert "time_offset(F)" not in kept.effects and len(kept.effects) == len(diagnosed.effects) - 1
+    assert diagnosed.selected(["viscous(v)"]).effects == ["viscous(v)"]
+    with pytest.raises(ValueError, match=r"config.model.physics_terms: \['friction\(z\)'\] are not effects"):
+        diagnosed.selected(["friction(z)"])
+    assert physics_effects("from_diagnosis") is None and physics_effects(["a"]) == ["a"]
+    with pytest.raises(ValueError, match="physics_terms"):
+        physics_effects("none")
+    assert uses_physics({"physics_terms": "from_diagnosis"}) and not uses_physics({})
+
+
+def test_physics_model_refuses_another_fmu(diagnosed):
+    class Other(BridgedSpring):
+        state_names = ["y", "w"]
+
+    with pytest.raises(ValueError, match=r"diagnosed model: states \['x', 'v'\].*differ from the FMU's \['y', 'w'\]"):
+        PhysicsModel(Other(), Other(), diagnosed)
+
+
+def test_saved_model_loads_back_and_bad_files_are_named(diagnosed, tmp_path):
+    path = save_diagnosed(diagnosed, tmp_path / "diagnosis" / "diagnosed_model.pkl")
+    loaded = load_diagnosed(path)
+    assert loaded.effects == diagnosed.effects and loaded.parameters == diagnosed.parameters
+    x, u = states_and_inputs()
+    np.testing.assert_allclose(CorrectedModel(loaded.terms, loaded.problem).additive_batch(x, u),
+                               CorrectedModel(diagnosed.terms, diagnosed.problem).additive_batch(x, u))
+    assert [p.name for p in path.parent.iterdir()] == ["diagnosed_model.pkl"]  # no temporary file left
+    with pytest.raises(FileNotFoundError, match="no diagnosed model; run the diagnosis"):
+        load_diagnosed(tmp_path / "missing.pkl")
+    garbage = tmp_path / "garbage.pkl"
+    garbage.write_bytes(b"not a pickle")
+    with pytest.raises(ValueError, match=f"{garbage}: not a diagnosed model"):
+        load_diagnosed(garbage)
+    other = tmp_path / "other.pkl"
+    other.write_bytes(pickle.dumps({"format_version": 99, "model": diagnosed}))
+    with pytest.raises(ValueError, match="field .format_version. is 99, expected 2"):
+        load_diagnosed(other)
+
+
+def test_hybrid_gradients_through_the_physical_layer_match_autograd(diagnosed):
+    """A neural FMU around the physical layer: the adjoint (its NumPy engine through the layer's kernels) gives
+    autograd's states and gradients; the untrained hybrid with a shut ANN is the FMU plus the effects."""
+    physics = PhysicsModel(BridgedSpring(), BridgedSpring(), diagnosed.selected(None, DELAY_KINDS))
+    spec = NeuralFmuSpec(state_names=["x", "v"], input_names=["F"], corrected_states=["v"], ann_states=["x", "v"],
+                         ann_inputs=["F"], ann_derivatives=["x", "v"], sample_period_s=H, width=6, depth=2,
+                         gate_opening=0.3, delay_min_s=-2 * H, delay_max_s=2 * H, delay_init_s=0.3 * H,
+                         ann_output_init="random", physics_effects=physics.effects)
+    stats = dict(x_mean=[0.0, 0.0], x_std=[0.5, 2.0], u_mean=[0.0], u_std=[3.0], xdot_mean=[0.0, 0.0],
+                 xdot_std=[2.0, 5.0])
+    torch.manual_seed(0)
+    model = NeuralFmu(FmuRhs(physics), spec, stats)
+    rng = np.random.default_rng(1)
+    u = torch.from_numpy(rng.normal(0, 3.0, (2, 50, 1))).requires_grad_(True)
+    x0 = torch.tensor([[0.2, -0.5], [-0.1, 1.0]], dtype=torch.float64)
+    results = {}
+    for mode in ("autograd", "adjoint"):
+        model.zero_grad()
+        u.grad = None
+        states = rollout(model, u, 5, x0, 30, gradients=mode)
+        (states[:, :, 0] * torch.linspace(0, 1, 31, dtype=torch.float64)).sum().backward()
+        results[mode] = (states.detach(), {n: p.grad.clone() for n, p in model.named_parameters()}, u.grad.clone())
+    ref, fast = results["autograd"], results["adjoint"]
+    assert torch.allclose(ref[0], fast[0], rtol=0, atol=1e-12)
+    for name, grad in ref[1].items():
+        assert grad.abs().sum() > 0, f"no gradient reaches {name}"
+        assert torch.allclose(fast[1][name], grad, rtol=1e-8, atol=1e-12 * grad.abs().max()), name
+    assert torch.allclose(fast[2], ref[2], rtol=1e-8, atol=1e-14)
+    # the ANN shut (g_A = 0, g_F = 1), inputs constant per row (the delay and the interpolation change nothing):
+    # the states are the physical layer's own RK4 simulation
+    held = torch.tensor([[[2.0]], [[-1.5]]], dtype=torch.float64).expand(2, 50, 1)
+    with torch.no_grad():
+        model.gates.g_A.zero_()
+        model.gates.g_F.fill_(1.0)
+        shut = rollout(model, held, 5, x0, 30)
+    x = x0.numpy().copy()
+    for _ in range(30):
+        uk = held[:, 0].numpy()
+        k1 = physics.derivatives(x, uk)
+        k2 = physics.derivatives(x + 0.5 * H * k1, uk)
+        k3 = physics.derivatives(x + 0.5 * H * k2, uk)
+        k4 = physics.derivatives(x + H * k3, uk)
+        x = x + H / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    np.testing.assert_allclose(shut[:, -1].numpy(), x, rtol=1e-9, atol=1e-12)
+
+
+def test_untrained_hybrid_is_its_physical_layer(diagnosed):
+    """A hybrid's ANN starts at a zero correction (zero output layer and no post-processing shift), while a
+    neural FMU's post-processing starts at the mean derivative."""
+    physics = PhysicsModel(BridgedSpring(), BridgedSpring(), diagnosed.selected(None, DELAY_KINDS))
+    stats = dict(x_mean=[0.0, 0.0], x_std=[0.5, 2.0], u_mean=[0.0], u_std=[3.0], xdot_mean=[0.3, -4.0],
+                 xdot_std=[2.0, 5.0])
+    common = dict(state_names=["x", "v"], input_names=["F"], corrected_states=["v"], ann_states=["x", "v"],
+                  ann_inputs=["F"], ann_derivatives=["x", "v"], sample_period_s=H, gate_opening=0.5)
+    x, u = states_and_inputs(n=6)
+    x_t, u_t = torch.from_numpy(x), torch.from_numpy(u)
+    hybrid = NeuralFmu(FmuRhs(physics), NeuralFmuSpec(**common, physics_effects=physics.effects), stats)
+    np.testing.assert_allclose(hybrid.derivative(x_t, u_t).detach().numpy(), physics.derivatives(x, u), rtol=1e-12)
+    neural = NeuralFmu(FmuRhs(physics), NeuralFmuSpec(**common), stats)
+    shifted = neural.derivative(x_t, u_t).detach().numpy() - physics.derivatives(x, u)
+    np.testing.assert_allclose(shifted[:, 1], 0.5 * -4.0, rtol=1e-12)
