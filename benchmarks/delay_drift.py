@@ -5,12 +5,15 @@ optimizer), so the model is the FMU with delayed inputs, starts the delay groups
 value for every group, or ``group=value`` pairs) and trains only the delays with Adam at the case's
 ``model.input_delay.step_s`` on random windows of the prepared training data, with the case's loss weights.
 With a model that lacks some physics the delays drift to absorb it: the figures show how far and where to.
+``--physics`` runs the same on the hybrid's physical layer (the FMU plus the effects of the diagnosed model,
+``results/<case>/diagnosis/diagnosed_model.pkl``, its time offsets left to the delays): whether the drift goes
+once the model carries the diagnosed physics.
 
 Needs a finished search's prepared data (``results/<case>/hpo/prepared``, rule ``hpo_prepare``). Prints one
 line per ``--every`` steps (delays in µs, the step's loss) and a JSON object with the trajectory.
 
     python benchmarks/delay_drift.py [--config config/config.yaml] [--start 30e-6] [--steps 150]
-        [--window-s 0.03] [--w-omega 0.5] [--seed 5]
+        [--window-s 0.03] [--w-omega 0.5] [--seed 5] [--physics]
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from hybridfmu.training.data import ManeuverArrays
 from hybridfmu.training.measured import load_calibrated_fmu, load_calibration
 from hybridfmu.training.optim import Adam
 from hybridfmu.training.trainer import Hyperparameters, Trainer, TrainerSettings
+from hybridfmu.training.trial import hybrid_physics, physics_inputs
 
 
 def parse_start(text: str) -> float | dict[str, float]:
@@ -49,6 +53,8 @@ def main() -> None:
     parser.add_argument("--w-omega", type=float, default=None, help="loss weight of one target (w_<state>)")
     parser.add_argument("--target", default="omega", help="the target --w-omega sets")
     parser.add_argument("--seed", type=int, default=5)
+    parser.add_argument("--physics", action="store_true",
+                        help="the FMU plus the diagnosed effects instead of the FMU (needs rule diagnose's output)")
     args = parser.parse_args()
 
     config = check_config_file(args.config)
@@ -56,15 +62,23 @@ def main() -> None:
     results = Path(config.get("results_dir", "results")) / config["case"]
     train = ManeuverArrays.load(results / "hpo" / "prepared" / "train.npz")
     statistics = read_json(results / "hpo" / "prepared" / "statistics.json")
-    fmu = load_calibrated_fmu(config["fmu"].get("path") or results / "fmu" / f"{config['fmu']['model_name']}.fmu",
-                              load_calibration(results / "calibration" / "calibration.json"))
+    fmu_path = config["fmu"].get("path") or results / "fmu" / f"{config['fmu']['model_name']}.fmu"
+    calibration = load_calibration(results / "calibration" / "calibration.json")
+    fmu = load_calibrated_fmu(fmu_path, calibration)
     model_config = config["model"]
+    physics = None
+    if args.physics:
+        physics = hybrid_physics({**model_config, "physics_terms": "from_diagnosis"}, fmu_path,
+                                 calibration.parameters, results / "diagnosis" / "diagnosed_model.pkl")
+        train = physics_inputs(train, physics)
+        print(f"physical layer: the FMU plus {', '.join(physics.effects)}", flush=True)
     step_s = model_config["input_delay"].get("step_s")
     if step_s is None:
         raise SystemExit(f"{args.config}: model.input_delay.step_s is not set; this benchmark trains the delays at it")
     start = parse_start(args.start)
-    spec = model_spec(model_config, fmu, train.sample_period_s, 8, 2, 0.0, delay_init_s=start)
-    model = build_neural_fmu(FmuRhs(fmu), spec, statistics, args.seed)
+    spec = model_spec(model_config, fmu, train.sample_period_s, 8, 2, 0.0, delay_init_s=start,
+                      physics_effects=None if physics is None else physics.effects)
+    model = build_neural_fmu(FmuRhs(fmu if physics is None else physics), spec, statistics, args.seed)
     hyper = Hyperparameters(lr=0.0, beta1=0.9, beta2=0.999, window_s=args.window_s, loss="MAE", width=8, depth=2,
                             gate_opening=0.0, batch_windows=4)
     overrides = {} if args.w_omega is None else {args.target: args.w_omega}
@@ -82,7 +96,8 @@ def main() -> None:
             print(f"step {step:4d}  " + "  ".join(f"{g} {v:8.2f} µs" for g, v in delays.items())
                   + f"  loss {result['loss']:.4g}  ({step / elapsed:.1f} steps/s, "
                   f"{(args.steps - step) * elapsed / step:.0f} s left)", flush=True)
-    print(json.dumps({"config": args.config, "start_s": start, "step_s": step_s, "window_s": args.window_s,
+    print(json.dumps({"config": args.config, "physics": None if physics is None else physics.effects,
+                      "start_s": start, "step_s": step_s, "window_s": args.window_s,
                       "weights": roles.weights_with(overrides), "trajectory": trajectory}))
 
 

@@ -81,3 +81,37 @@ def test_shape_mismatch_named():
                                "x.parquet")
     with pytest.raises(ValueError, match="no maneuver with role"):
         role_metrics("test", [], {}, {})
+
+
+def test_further_models_are_compared_with_the_fmu_and_tabled():
+    """FMU + effects and the hybrid beside the neural FMU: their errors, factors against the FMU, the report's
+    table of all models; a model only some maneuvers have is left out; an unknown model is refused."""
+    import pandas as pd
+
+    from hybridfmu.evaluation.report import models_table
+    from hybridfmu.evaluation.tracking import flat_metrics
+
+    first, second = _run("a"), _run("b")
+    for run, offset in ((first, 0.1), (second, 0.3)):
+        run.further = {"fmu_effects": run.data + offset, "hybrid": run.data + offset / 2}
+    metrics = role_metrics("test", [first, second], ZOOM, {})
+    assert metrics["fmu_effects"]["speed_mae"] == pytest.approx(0.2)
+    assert metrics["hybrid"]["angle_mse"] == pytest.approx((0.05 ** 2 + 0.15 ** 2) / 2)
+    assert metrics["improvement_hybrid"]["speed_mae"] == pytest.approx(1.0 / 0.1)
+    assert metrics["per_maneuver"]["a"]["improvement_fmu_effects"]["speed_mae"] == pytest.approx(10.0)
+    table = models_table({"test": metrics}, {"angle": "rad", "speed": "rad/s"})
+    assert table[0] == "| data | signal | measure | FMU | FMU + diagnosed effects | neural FMU | hybrid (FMU + effects + ANN) |"
+    assert "| test | speed | MAE | 1 rad/s | 0.2 rad/s (×5) | 0.5 rad/s (×2) | 0.1 rad/s (×10) |" in table
+    assert {"test/hybrid/speed_mae", "test/improvement_fmu_effects/angle_mae"} <= set(flat_metrics({"test": metrics}))
+    second.further = {"fmu_effects": second.data}
+    partial = role_metrics("test", [first, second], ZOOM, {})
+    assert "hybrid" not in partial and "fmu_effects" in partial
+    assert models_table({"test": role_metrics("test", [_run("c")], ZOOM, {})}) == []
+    frame = pd.DataFrame({"time_s": first.time_s, **{f"{kind}_{s}": getattr(first, kind)[:, k]
+                                                     for kind in ("data", "fmu", "neural_fmu")
+                                                     for k, s in enumerate(SIGNALS)},
+                          **{f"hybrid_{s}": first.further["hybrid"][:, k] for k, s in enumerate(SIGNALS)}})
+    loaded = ManeuverRun.from_frame(frame, "a", SIGNALS)
+    assert loaded.models == ["fmu", "neural_fmu", "hybrid"]
+    with pytest.raises(ValueError, match=r"unknown model\(s\) \['ann'\]"):
+        ManeuverRun("x", first.time_s, SIGNALS, first.data, first.fmu, first.neural_fmu, further={"ann": first.data})

@@ -28,7 +28,7 @@ from hybridfmu.diagnosis.selection import Term
 DIAGNOSED_MODEL = "diagnosed_model.pkl"
 
 #: Version of the saved layout; a file of another version is refused with a request to rerun the diagnosis.
-FORMAT_VERSION = 2
+FORMAT_VERSION = "diagnosed_model/2"
 
 
 @dataclass
@@ -135,6 +135,6 @@ def load_diagnosed(path: str | Path) -> DiagnosedModel:
     if not isinstance(content, dict) or content.get("format_version") != FORMAT_VERSION \
             or not isinstance(content.get("model"), DiagnosedModel):
         found = content.get("format_version") if isinstance(content, dict) else type(content).__name__
-        raise ValueError(f"{path}: field 'format_version' is {found!r}, expected {FORMAT_VERSION} with a "
+        raise ValueError(f"{path}: field 'format_version' is {found!r}, expected {FORMAT_VERSION!r} with a "
                          "DiagnosedModel; rerun the diagnosis (snakemake --forcerun diagnose)")
     return content["model"]

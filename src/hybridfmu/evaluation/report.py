@@ -71,18 +71,22 @@ def improvement_table(metrics_by_role: dict[str, dict], units: dict[str, str] | 
     factors = reference_factors(reference)
     lines = [f"| data | signal | measure | FMU | neural FMU | improvement (this run) | improvement ({name}) |",
              "|---|---|---|---|---|---|---|"]
+    for role, metrics, signal, text, key, unit in _measure_rows(metrics_by_role, units):
+        ref = factors.get((role, key), ("not reported", None))[0]
+        lines.append(f"| {role} | {signal} | {text} | {_number(metrics['fmu'][key])} {unit} | "
+                     f"{_number(metrics['neural_fmu'][key])} {unit} | ×{_number(metrics['improvement'][key])} "
+                     f"| {ref} |")
+    return lines
+
+
+def _measure_rows(metrics_by_role: dict[str, dict], units: dict[str, str] | None):
+    """(role, its metrics, signal, measure text, metric key, unit) of every measure the FMU's errors hold."""
     for role, metrics in metrics_by_role.items():
         for signal in _signals_of(metrics):
             for measure, (text, _) in _MEASURE_TEXT.items():
                 key = f"{signal}_{measure}"
-                if key not in metrics["fmu"]:
-                    continue
-                unit = _unit(units, signal, measure)
-                ref = factors.get((role, key), ("not reported", None))[0]
-                lines.append(f"| {role} | {signal} | {text} | {_number(metrics['fmu'][key])} {unit} | "
-                             f"{_number(metrics['neural_fmu'][key])} {unit} | ×{_number(metrics['improvement'][key])} "
-                             f"| {ref} |")
-    return lines
+                if key in metrics["fmu"]:
+                    yield role, metrics, signal, text, key, _unit(units, signal, measure)
 
 
 #: Column titles of the compared models.
@@ -101,21 +105,15 @@ def models_table(metrics_by_role: dict[str, dict], units: dict[str, str] | None 
         return []
     lines = ["| data | signal | measure | " + " | ".join(MODEL_TITLES[m] for m in models) + " |",
              "|---|---|---|" + "---|" * len(models)]
-    for role, metrics in metrics_by_role.items():
-        for signal in _signals_of(metrics):
-            for measure, (text, _) in _MEASURE_TEXT.items():
-                key = f"{signal}_{measure}"
-                if key not in metrics["fmu"]:
-                    continue
-                unit = _unit(units, signal, measure)
-                cells = []
-                for model in models:
-                    cell = f"{_number(metrics[model][key])} {unit}".rstrip()
-                    if model != "fmu":
-                        factor = metrics["improvement" if model == "neural_fmu" else f"improvement_{model}"][key]
-                        cell += f" (×{_number(factor)})"
-                    cells.append(cell)
-                lines.append(f"| {role} | {signal} | {text} | " + " | ".join(cells) + " |")
+    for role, metrics, signal, text, key, unit in _measure_rows(metrics_by_role, units):
+        cells = []
+        for model in models:
+            cell = f"{_number(metrics[model][key])} {unit}".rstrip()
+            if model != "fmu":
+                factor = metrics["improvement" if model == "neural_fmu" else f"improvement_{model}"][key]
+                cell += f" (×{_number(factor)})"
+            cells.append(cell)
+        lines.append(f"| {role} | {signal} | {text} | " + " | ".join(cells) + " |")
     return lines
 
 

@@ -87,37 +87,46 @@ class PhysicsModel:
             return f
         return f + self.corrected.additive_batch(np.reshape(x, f.shape), np.reshape(u, (f.shape[0], self.n_inputs)))
 
-    def _term_jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Central-difference Jacobians of the additive terms: (N, n_x, n_x), (N, n_x, n_u)."""
-        n, n_x, n_u = x.shape[0], self.n_states, self.n_inputs
+    def _terms_and_jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The additive terms (N, n_x) and their central-difference Jacobians (N, n_x, n_x), (N, n_x, n_u), from one
+        vectorised evaluation of all rows: the unperturbed ones and each variable perturbed up and down."""
+        n, n_x = x.shape[0], self.n_states
         z = np.concatenate([x, u], axis=1)  # (N, m)
-        m = n_x + n_u
+        m = z.shape[1]
         step = self.relative_step * (1.0 + np.abs(z))  # (N, m)
-        perturbed = np.repeat(z[None], 2 * m, axis=0)  # (2m, N, m)
+        rows = np.repeat(z[None], 2 * m + 1, axis=0)  # (2m + 1, N, m): unperturbed, up, down
         columns = np.arange(m)
-        perturbed[columns, :, columns] += step.T
-        perturbed[m + columns, :, columns] -= step.T
-        flat = perturbed.reshape(2 * m * n, m)
-        values = self.corrected.additive_batch(flat[:, :n_x], flat[:, n_x:]).reshape(2 * m, n, n_x)
-        jac = (values[:m] - values[m:]) / (2.0 * step.T[:, :, None])  # (m, N, n_x)
+        rows[1 + columns, :, columns] += step.T
+        rows[1 + m + columns, :, columns] -= step.T
+        flat = rows.reshape(-1, m)
+        values = self.corrected.additive_batch(flat[:, :n_x], flat[:, n_x:]).reshape(2 * m + 1, n, n_x)
+        jac = (values[1:m + 1] - values[m + 1:]) / (2.0 * step.T[:, :, None])  # (m, N, n_x)
         jac = np.transpose(jac, (1, 2, 0))  # (N, n_x, m)
-        return np.ascontiguousarray(jac[:, :, :n_x]), np.ascontiguousarray(jac[:, :, n_x:])
+        return values[0], np.ascontiguousarray(jac[:, :, :n_x]), np.ascontiguousarray(jac[:, :, n_x:])
+
+    def derivatives_and_jacobians(self, x: np.ndarray, u: np.ndarray,
+                                  t_s: Any = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(f (N, n_x), df/dx (N, n_x, n_x), df/du (N, n_x, n_u)) of :meth:`derivatives`, with one FMU call and one
+        evaluation of the terms (the training engine calls this once per solver stage)."""
+        both = getattr(self.fmu, "derivatives_and_jacobians", None)
+        if callable(both):
+            f, dfdx, dfdu = both(x, u, t_s)
+        else:
+            f = self.fmu.derivatives(x, u, t_s)
+            dfdx, dfdu = self.fmu.jacobians(x, u, t_s)
+        f, dfdx, dfdu = (np.array(a, dtype=float) for a in (f, dfdx, dfdu))
+        if self.corrected.has_correction:
+            terms, term_x, term_u = self._terms_and_jacobians(np.asarray(x, dtype=float).reshape(f.shape),
+                                                              np.asarray(u, dtype=float).reshape(f.shape[0], -1))
+            f += terms
+            dfdx += term_x
+            dfdu += term_u
+        return f, dfdx, dfdu
 
     def jacobians(self, x: np.ndarray, u: np.ndarray, t_s: Any = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """(df/dx (N, n_x, n_x), df/du (N, n_x, n_u)) of :meth:`derivatives`."""
-        dfdx, dfdu = self.fmu.jacobians(x, u, t_s)
-        dfdx, dfdu = np.array(dfdx, dtype=float), np.array(dfdu, dtype=float)
-        if self.corrected.has_correction:
-            x2 = np.asarray(x, dtype=float).reshape(dfdx.shape[0], self.n_states)
-            u2 = np.asarray(u, dtype=float).reshape(dfdx.shape[0], self.n_inputs)
-            term_x, term_u = self._term_jacobians(x2, u2)
-            dfdx += term_x
-            dfdu += term_u
+        _, dfdx, dfdu = self.derivatives_and_jacobians(x, u, t_s)
         return dfdx, dfdu
-
-    def derivatives_and_jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        dfdx, dfdu = self.jacobians(x, u)
-        return self.derivatives(x, u), dfdx, dfdu
 
     def event_indicators(self, x: np.ndarray, u: np.ndarray, t_s: Any = 0.0) -> np.ndarray:
         return self.fmu.event_indicators(x, u, t_s)
@@ -142,7 +151,7 @@ class PhysicsModel:
     def derivatives_and_jacobians_kernel(self, n: int):
         """``(x (n, n_x), u (n, n_u)) -> (xdot, dfdx, dfdu)`` (the bridge's kernel interface, for the NumPy
         engine of the training adjoint; fresh arrays per call)."""
-        return self.derivatives_and_jacobians
+        return lambda x, u: self.derivatives_and_jacobians(x, u)
 
 
 #: Effect kinds a hybrid with a learned input delay leaves to the delay (the diagnosed time offsets of inputs).
