@@ -32,7 +32,7 @@ from hybridfmu.training.data import ManeuverArrays
 from hybridfmu.training.measured import load_calibrated_fmu, load_calibration
 from hybridfmu.training.optim import Adam
 from hybridfmu.training.trainer import Hyperparameters, Trainer, TrainerSettings
-from hybridfmu.training.trial import hybrid_physics, physics_inputs
+from hybridfmu.training.trial import hybrid_arrays, hybrid_physics
 
 
 def parse_start(text: str) -> float | dict[str, float]:
@@ -70,7 +70,7 @@ def main() -> None:
     if args.physics:
         physics = hybrid_physics({**model_config, "physics_terms": "from_diagnosis"}, fmu_path,
                                  calibration.parameters, results / "diagnosis" / "diagnosed_model.pkl")
-        train = physics_inputs(train, physics)
+        train = hybrid_arrays(train, physics)
         print(f"physical layer: the FMU plus {', '.join(physics.effects)}", flush=True)
     step_s = model_config["input_delay"].get("step_s")
     if step_s is None:

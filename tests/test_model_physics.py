@@ -209,3 +209,29 @@ def test_untrained_hybrid_is_its_physical_layer(diagnosed):
     neural = NeuralFmu(FmuRhs(physics), NeuralFmuSpec(**common), stats)
     shifted = neural.derivative(x_t, u_t).detach().numpy() - physics.derivatives(x, u)
     np.testing.assert_allclose(shifted[:, 1], 0.5 * -4.0, rtol=1e-12)
+
+
+def test_hybrid_windows_start_unmeasured_states_from_the_physical_layer(diagnosed):
+    """A hybrid's training data: inputs through the diagnosed input changes, the unmeasured state along the
+    physical layer's own open loop (from the recalibrated initial value), the measured one untouched."""
+    from hybridfmu.diagnosis.corrected_model import CorrectedModel, rk4_simulate
+    from hybridfmu.training.data import ManeuverArrays
+    from hybridfmu.training.trial import hybrid_arrays
+
+    kept = diagnosed.selected(None, DELAY_KINDS)
+    kept.initial_states = {"train": {"v": 0.7}}
+    physics = PhysicsModel(BridgedSpring(), BridgedSpring(), kept)
+    n = 200
+    time_s = np.arange(n) * H
+    u = np.sin(2 * np.pi * 1.5 * time_s)[:, None] * 3.0
+    x_init = np.column_stack([np.linspace(0.0, 0.3, n), np.full(n, 99.0)])  # v: the calibrated FMU's (wrong)
+    arrays = ManeuverArrays(name="train", time_s=time_s, u=u, x_init=x_init, targets=x_init[:, :1].copy(),
+                            spans=np.array([[0, n]]), state_names=["x", "v"], input_names=["F"], target_states=["x"],
+                            target_signals=["position"], measured_states=["x"])
+    hybrid = hybrid_arrays(arrays, physics)
+    np.testing.assert_allclose(hybrid.u, physics.inputs(u, H))
+    np.testing.assert_array_equal(hybrid.x_init[:, 0], x_init[:, 0])
+    corrected = CorrectedModel(kept.terms, kept.problem, physics.helper)
+    expected = rk4_simulate(physics.fmu, time_s, corrected.inputs(u, H), np.array([0.0, 0.7]), corrected).states
+    np.testing.assert_allclose(hybrid.x_init[:, 1], expected[:, 1], rtol=1e-12)
+    assert hybrid.x_init[0, 1] == 0.7

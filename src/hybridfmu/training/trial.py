@@ -145,9 +145,25 @@ def hybrid_physics(model_config: dict[str, Any], fmu_path: str | Path, fmu_param
     return physics
 
 
-def physics_inputs(arrays: ManeuverArrays, physics: Any) -> ManeuverArrays:
-    """The maneuver with its inputs as the hybrid's physical layer sees them (the diagnosed input changes)."""
-    return dataclasses.replace(arrays, u=physics.inputs(arrays.u, arrays.sample_period_s))
+def hybrid_arrays(arrays: ManeuverArrays, physics: Any) -> ManeuverArrays:
+    """The maneuver as the hybrid's physical layer sees it: its inputs through the diagnosed input changes, and
+    the unmeasured states its windows start from taken along the physical layer's own open-loop simulation
+    (from the maneuver's first sample, unmeasured initial states recalibrated with the effects where the
+    diagnosis did so), not the calibrated FMU's."""
+    unmeasured = [i for i, name in enumerate(arrays.state_names) if name not in arrays.measured_states]
+    x_init = arrays.x_init
+    if unmeasured:
+        diagnosed = physics.diagnosed
+        x0 = diagnosed.initial_state(arrays.x_init[0], arrays.name)
+        states = diagnosed.simulate(physics.fmu, physics.helper, arrays.time_s, arrays.u, x0)
+        if not np.all(np.isfinite(states[:, unmeasured])):
+            raise FloatingPointError(f"maneuver {arrays.name}: the hybrid's physical layer diverged in its open-loop "
+                                     "simulation (the unmeasured states its windows start from)")
+        x_init = np.array(arrays.x_init, dtype=float)
+        x_init[:, unmeasured] = states[:, unmeasured]
+        LOG.info("maneuver %s: unmeasured state(s) %s from the physical layer's open loop", arrays.name,
+                 [arrays.state_names[i] for i in unmeasured])
+    return dataclasses.replace(arrays, u=physics.inputs(arrays.u, arrays.sample_period_s), x_init=x_init)
 
 
 def validation_points(start_s: float, target_s: float, every_s: float | None) -> list[float]:
@@ -217,7 +233,7 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
     fmu_model = load_calibrated_fmu(fmu_path, calibration)
     physics = hybrid_physics(model_config, fmu_path, calibration.parameters, diagnosed_path)
     if physics is not None:
-        train, valid = physics_inputs(train, physics), physics_inputs(valid, physics)
+        train, valid = hybrid_arrays(train, physics), hybrid_arrays(valid, physics)
     spec = model_spec(model_config, fmu_model, train.sample_period_s, hyper.width, hyper.depth, hyper.gate_opening,
                       delay_init_s=plan.get("initial_delays_s"),
                       physics_effects=None if physics is None else physics.effects)
