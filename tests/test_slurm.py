@@ -170,7 +170,8 @@ def test_the_tiny_case_runs_as_slurm_jobs(slurm_run):
         for log in logs:
             if log.stem in ids:  # "rule <name>:" or, for a checkpoint, "checkpoint <name>:"
                 assert re.search(rf"^(rule|checkpoint) {rule}:$", log.read_text(errors="replace"), re.MULTILINE), log
-    rungs = sorted(results.glob("hpo/b*/r*/c*/result.json"))
+    rungs = sorted(results.glob("*/b*/r*/c*/result.json"))  # the neural FMU's search and the hybrid's
+    assert {path.relative_to(results).parts[0] for path in rungs} == {"hpo", "hybrid"}
     assert len(jobs["train_rung"]) == len(rungs) > 0
     assert len(jobs["emulate_bench"]) == len(jobs["ingest"]) == len(config["maneuvers"])
 
@@ -185,16 +186,19 @@ def test_every_training_job_is_recorded_in_the_mlflow_server(slurm_run):
     assert experiment is not None, [e.name for e in client.search_experiments()]
     runs = client.search_runs([experiment.experiment_id], max_results=1000)
     searches = [run for run in runs if run.data.tags.get("hybridfmu.role") == "search"]
-    assert len(searches) == 1, [run.info.run_name for run in runs]
-    parent = searches[0]
+    assert len(searches) == 2, [run.info.run_name for run in runs]  # the neural FMU's and the hybrid's
+    parents = {run.info.run_id for run in searches}
     trials = {run.info.run_id: run for run in runs
-              if run.data.tags.get("mlflow.parentRunId") == parent.info.run_id and "hybridfmu.trial" in run.data.tags}
+              if run.data.tags.get("mlflow.parentRunId") in parents and "hybridfmu.trial" in run.data.tags}
 
-    rung_results = [json.loads(path.read_text()) for path in sorted(results.glob("hpo/b*/r*/c*/result.json"))]
+    result_paths = sorted(results.glob("*/b*/r*/c*/result.json"))
+    rung_results = [json.loads(path.read_text()) for path in result_paths]
+    configurations = {(path.relative_to(results).parts[0], r["trial_id"]) for path, r in zip(result_paths, rung_results)}
     assert len(rung_results) == len(train_jobs)
     # one run per configuration, one rung folder of artifacts per train_rung job
     assert {result["mlflow_run_id"] for result in rung_results} == set(trials)
-    assert {run.data.tags["hybridfmu.trial"] for run in trials.values()} == {r["trial_id"] for r in rung_results}
+    assert len({(run.data.tags["mlflow.parentRunId"], run.data.tags["hybridfmu.trial"]) for run in trials.values()}) \
+        == len(configurations) == len(trials)
     logged_rungs = sorted((run_id, artifact.path) for run_id in trials
                           for artifact in client.list_artifacts(run_id) if artifact.path.startswith("rung"))
     assert logged_rungs == sorted((r["mlflow_run_id"], f"rung{r['rung']}") for r in rung_results)
@@ -204,10 +208,11 @@ def test_every_training_job_is_recorded_in_the_mlflow_server(slurm_run):
         assert "best_val_objective" in run.data.metrics
         # written inside a Slurm job of this run: the tag names one of the train_rung jobs
         assert run.data.tags.get("hybridfmu.slurm_job_id") in train_jobs, run.data.tags
-    # the search's parent run outlives every job: no job took it for a dead job's run
-    assert parent.info.status == "FINISHED"
+    # each search's parent run outlives every job: no job took it for a dead job's run
+    for parent in searches:
+        assert parent.info.status == "FINISHED"
+        assert parent.data.tags.get("best_run_id") in trials
     assert not [run.info.run_name for run in runs if "hybridfmu.ended_reason" in run.data.tags]
-    assert parent.data.tags.get("best_run_id") in trials
 
 
 def test_runs_of_another_nodes_slurm_job_end_when_the_job_ends(cluster, tmp_path):
