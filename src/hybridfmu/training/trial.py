@@ -278,7 +278,7 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
             points = validation_points(start_resource_s, entry["resource_s"], training_config.get("validation_every_s"))
             if rung == 0 and spec.physics_effects is not None:
                 # a hybrid's untrained state is its physical layer (the ANN's output zero): a candidate too, so
-                # the search never reports a hybrid that validates worse than the FMU plus the diagnosed effects
+                # the search never reports a hybrid that validates worse than its physical layer
                 points = [start_resource_s] + points
             for target_s in points:
                 trainer.train_until(target_s, progress)
