@@ -110,7 +110,7 @@ def searches(tmp_path_factory):
     while time.monotonic() < deadline and running_train_jobs(hpo):
         time.sleep(0.2)
     left = running_train_jobs(hpo)
-    logs = {name: (killed / "results/tiny/logs/train_rung" / f"{name.replace('/', '_')}.log").read_text()
+    logs = {name: (killed / "results/tiny/logs/train_rung/hpo" / f"{name.replace('/', '_')}.log").read_text()
             for name in victims}
     snakemake(killed, configfile, "--unlock")  # the killed Snakemake could not release its directory lock
     resumed = snakemake(killed, configfile, BEST, "--rerun-incomplete")
