@@ -112,6 +112,7 @@ def test_every_stage_writes_its_outputs(tiny_run):
     assert {"test/improvement/angle_mae", "test/hybrid/angle_mae", "test/improvement_fmu_effects/angle_mae"} \
         <= set(logged.data.metrics)
     assert "## All models" in report and "hybrid (FMU + effects + ANN)" in report
+    assert "### The hybrid's delays and gates" in report and "Physical layer: the FMU plus " in report
     assert {a.path for a in client.list_artifacts(run["run_id"])} >= {"figures", "metrics", "report.md"}
 
 

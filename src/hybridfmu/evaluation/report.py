@@ -239,8 +239,9 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
     out += [f"- gates (ẋ = g_F·ẋ_FMU + g_A·ẋ_ANN): {_gates_text(gates)}", ""]
     hybrid = next((m["hybrid_learned"] for m in metrics_by_role.values() if m.get("hybrid_learned")), None)
     if hybrid:
-        out += ["### The hybrid's", "", f"Physical layer: the FMU plus {', '.join(hybrid.get('effects') or []) or 'no effects'} "
-                f"(trial {hybrid.get('trial_id')}).", ""]
+        effects = ", ".join(hybrid.get("effects") or []) or "no effects"
+        out += ["### The hybrid's delays and gates", "",
+                f"Physical layer: the FMU plus {effects} (trial {hybrid.get('trial_id')}).", ""]
         out += delay_lines(hybrid.get("dt_s"), true_dt_s, truth_source, None, delay_estimates_s)
         out += [f"- gates: {_gates_text(hybrid.get('gates'))}", ""]
     out += ["## Best hyperparameters", ""]
