@@ -10,6 +10,7 @@
 # (model.physics_terms, search "hybrid" in train.smk) trains its ANN on top of it.
 
 DIAGNOSIS = f"{RESULTS}/diagnosis"
+DIAGNOSED_MODEL = f"{DIAGNOSIS}/diagnosed_model.pkl"  # read by train.smk and evaluate.smk
 DIAGNOSIS_HAS_TEST = any(item["role"] == "test" for item in config["maneuvers"].values())
 DIAGNOSIS_FIGURES = ["equation_error", "regions", "candidates", "effects"] + (
     ["waterfall", "open_loop_test", "error_growth"] if DIAGNOSIS_HAS_TEST else [])
@@ -30,7 +31,7 @@ rule diagnose:
     output:
         json=f"{DIAGNOSIS}/diagnosis.json",
         report=f"{DIAGNOSIS}/report.md",
-        diagnosed=f"{DIAGNOSIS}/diagnosed_model.pkl",
+        diagnosed=DIAGNOSED_MODEL,
         figures=expand(f"{DIAGNOSIS}/{{figure}}.png", figure=DIAGNOSIS_FIGURES),
     params:
         maneuvers=MANEUVERS,

@@ -48,7 +48,7 @@ rule simulate_best:
         data=f"{RESULTS}/data/{{maneuver}}.parquet",
         baseline=f"{RESULTS}/baseline/{{maneuver}}.parquet",
         # the FMU plus the diagnosed effects, and the hybrid around it when the case trains one
-        diagnosed=f"{RESULTS}/diagnosis/diagnosed_model.pkl",
+        diagnosed=DIAGNOSED_MODEL,
         hybrid_best=[f"{RESULTS}/hybrid/best.json"] if HYBRID else [],
     output:
         trajectory=f"{RESULTS}/evaluation/trajectories/{{maneuver}}.parquet",

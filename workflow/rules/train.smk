@@ -21,7 +21,6 @@ SEARCH_MODELS = {"hpo": {**MODEL, "physics_terms": "none"}}
 if HYBRID:
     SEARCH_MODELS["hybrid"] = MODEL
 SEARCHES = list(SEARCH_MODELS)
-DIAGNOSED_MODEL = f"{RESULTS}/diagnosis/diagnosed_model.pkl"
 HPO_BRACKETS = {bracket.s: bracket for bracket in hyperband_brackets(HPO["R"], HPO["eta"])}
 TRAIN_MANEUVERS = {"train": role_maneuver(config, "train", TRAINING["train_maneuver"]),
                    "validation": role_maneuver(config, "validation", TRAINING["validation_maneuver"])}

@@ -66,8 +66,9 @@ def checked_states(states: np.ndarray, time_s: np.ndarray, n_states: int, maneuv
 
 def simulate_diagnosed(diagnosed_path: str | Path, fmu_path: str | Path, fmu_parameters: dict[str, float],
                        time_s: np.ndarray, u: np.ndarray, x0: np.ndarray, maneuver: str) -> np.ndarray:
-    """States (T, n_x) of the FMU plus the diagnosed effects open loop from ``x0`` (n_x,) with the logged
-    inputs ``u`` (T, n_u) (:meth:`hybridfmu.diagnosis.export.DiagnosedModel.simulate`)."""
+    """States (T, n_x) of the FMU plus the diagnosed effects open loop from ``x0`` (n_x,; its unmeasured states
+    recalibrated with the effects where the diagnosis did so) with the logged inputs ``u`` (T, n_u)
+    (:meth:`hybridfmu.diagnosis.export.DiagnosedModel.simulate`)."""
     from hybridfmu.diagnosis.export import load_diagnosed
     from hybridfmu.fmu import load_fmu
 
@@ -105,8 +106,7 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
     ``{"maneuver", "trial_id", "signals", "dt_s", "gates", "x0", "wall_time_s"}``, and ``hybrid``: the
     hybrid's ``{"trial_id", "dt_s", "gates", "effects"}``). Returns the latter.
     """
-    from hybridfmu.diagnosis.export import load_diagnosed
-    from hybridfmu.training.inference import load_trained_neural_fmu, simulate_neural_fmu
+    from hybridfmu.training.inference import load_trained_neural_fmu, physical_layer, simulate_neural_fmu
     from hybridfmu.training.measured import initial_state, load_calibration, read_measured
 
     best = read_json(best_path)
@@ -154,7 +154,7 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
                             "effects": list(hybrid.spec.physics_effects or [])}
         LOG.info("%s: hybrid (trial %s, delays %s) open loop ...", maneuver, hybrid_summary["trial_id"],
                  describe_delays(record["hybrid"]["dt_s"]))
-        x0_hybrid = load_diagnosed(diagnosed_path).initial_state(x0, maneuver)  # its physical layer's start
+        x0_hybrid = physical_layer(hybrid).diagnosed.initial_state(x0, maneuver)  # its physical layer's start
         further["hybrid"] = checked_states(
             np.asarray(simulate_neural_fmu(hybrid, time_s, measured.u, x0_hybrid), dtype=float), time_s,
             len(state_names), maneuver, "hybrid")

@@ -146,12 +146,12 @@ class PhysicsModel:
     # ------------------------------------------------------------------ the training engines' kernels
     def derivatives_kernel(self, n: int):
         """``(x (n, n_x), u (n, n_u)) -> (n, n_x)`` (the bridge's kernel interface; fresh arrays per call)."""
-        return lambda x, u: self.derivatives(x, u)
+        return self.derivatives
 
     def derivatives_and_jacobians_kernel(self, n: int):
         """``(x (n, n_x), u (n, n_u)) -> (xdot, dfdx, dfdu)`` (the bridge's kernel interface, for the NumPy
         engine of the training adjoint; fresh arrays per call)."""
-        return lambda x, u: self.derivatives_and_jacobians(x, u)
+        return self.derivatives_and_jacobians
 
 
 #: Effect kinds a hybrid with a learned input delay leaves to the delay (the diagnosed time offsets of inputs).
