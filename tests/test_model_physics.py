@@ -235,3 +235,110 @@ def test_hybrid_windows_start_unmeasured_states_from_the_physical_layer(diagnose
     expected = rk4_simulate(physics.fmu, time_s, corrected.inputs(u, H), np.array([0.0, 0.7]), corrected).states
     np.testing.assert_allclose(hybrid.x_init[:, 1], expected[:, 1], rtol=1e-12)
     assert hybrid.x_init[0, 1] == 0.7
+
+
+def test_coefficients_set_and_their_jacobian_match_differences(diagnosed):
+    """The additive terms' coefficients: read in order, set back, refused in the wrong count; df/dtheta equals
+    central differences of the derivatives (the terms are linear in them)."""
+    physics = PhysicsModel(BridgedSpring(), BridgedSpring(), diagnosed)
+    names, theta = physics.coefficient_names, physics.coefficients
+    effects = [n.rsplit("[", 1)[0] for n in names]
+    assert sorted(set(effects), key=effects.index) == ["coulomb(v)", "coulomb(v)*|F|", "periodic(x)", "viscous(v)"]
+    assert theta.size == len(names) and theta[:2].tolist() == [0.3, 0.2]
+    x, u = states_and_inputs(n=7)
+    jac = physics.coefficient_jacobian(x, u)
+    assert jac.shape == (7, 2, theta.size)
+    step = 1e-6
+    for c in range(theta.size):
+        up, down = theta.copy(), theta.copy()
+        up[c] += step
+        down[c] -= step
+        physics.set_coefficients(up)
+        f_up = physics.derivatives(x, u)
+        physics.set_coefficients(down)
+        f_down = physics.derivatives(x, u)
+        np.testing.assert_allclose(jac[:, :, c], (f_up - f_down) / (2 * step), rtol=1e-6, atol=1e-8)
+    physics.set_coefficients(theta)
+    _, _, _, jac_kernel = physics.coefficient_kernel(7)(x, u)
+    np.testing.assert_array_equal(jac_kernel, jac)
+    with pytest.raises(ValueError, match=f"expected {theta.size} finite coefficients"):
+        physics.set_coefficients(theta[:-1])
+    # the diagnosed model's own terms are not changed by a physical layer's coefficients
+    assert diagnosed.terms[0].coef.tolist() == [0.3, 0.2]
+
+
+def _trainable_hybrid(diagnosed, step=0.01):
+    physics = PhysicsModel(BridgedSpring(), BridgedSpring(), diagnosed.selected(None, DELAY_KINDS))
+    spec = NeuralFmuSpec(state_names=["x", "v"], input_names=["F"], corrected_states=["v"], ann_states=["x", "v"],
+                         ann_inputs=["F"], ann_derivatives=["x", "v"], sample_period_s=H, width=6, depth=2,
+                         gate_opening=0.3, delay_min_s=-2 * H, delay_max_s=2 * H, delay_init_s=0.3 * H,
+                         ann_output_init="random", physics_effects=physics.effects, physics_coefficient_step=step)
+    stats = dict(x_mean=[0.0, 0.0], x_std=[0.5, 2.0], u_mean=[0.0], u_std=[3.0], xdot_mean=[0.0, 0.0],
+                 xdot_std=[2.0, 5.0])
+    torch.manual_seed(0)
+    return physics, NeuralFmu(FmuRhs(physics), spec, stats)
+
+
+def test_trainable_coefficients_get_the_gradients_of_autograd(diagnosed):
+    """With ``physics_coefficient_step`` the hybrid's FMU layer trains the terms' coefficients: the NumPy engine
+    of the adjoint gives autograd's gradient for them (and for everything else); a changed coefficient changes
+    the physical layer's derivative as setting it on the layer does; the C and torch engines refuse them."""
+    physics, model = _trainable_hybrid(diagnosed)
+    change = model.fmu.coefficient_change
+    assert change is not None and change.shape == (physics.coefficients.size,)
+    with torch.no_grad():
+        change.copy_(torch.linspace(-0.2, 0.3, change.numel(), dtype=torch.float64))
+    rng = np.random.default_rng(1)
+    u = torch.from_numpy(rng.normal(0, 3.0, (2, 50, 1)))
+    x0 = torch.tensor([[0.2, -0.5], [-0.1, 1.0]], dtype=torch.float64)
+    results = {}
+    for mode in ("autograd", "adjoint", "torchdiffeq"):
+        model.zero_grad()
+        states = rollout(model, u, 5, x0, 30, gradients=mode)
+        (states[:, :, 0] * torch.linspace(0, 1, 31, dtype=torch.float64)).sum().backward()
+        results[mode] = (states.detach(), {n: p.grad.clone() for n, p in model.named_parameters()})
+    ref, fast = results["autograd"], results["adjoint"]
+    assert torch.allclose(ref[0], fast[0], rtol=0, atol=1e-12)
+    # every coefficient but the Stribeck peak's (its regressor vanishes away from v = 0) has a gradient
+    assert int((ref[1]["fmu.coefficient_change"] != 0).sum()) >= change.numel() - 1
+    for name, grad in ref[1].items():
+        assert torch.allclose(fast[1][name], grad, rtol=1e-8, atol=1e-12 * grad.abs().max()), name
+    # torchdiffeq's RK4 (the 3/8 rule) through the FMU layer: the same gradient to the solvers' difference
+    assert torch.allclose(results["torchdiffeq"][1]["fmu.coefficient_change"], ref[1]["fmu.coefficient_change"],
+                          rtol=0, atol=0.05 * ref[1]["fmu.coefficient_change"].abs().max())
+    # the coefficients in the model are the start scaled by the change
+    theta = (model.fmu.coefficient_start * (1 + change.detach())).numpy()
+    np.testing.assert_allclose(physics.coefficients, theta, rtol=1e-14)
+    learned = model.physics_coefficients()
+    assert list(learned) == physics.coefficient_names
+    assert learned[physics.coefficient_names[0]] == {"diagnosed": 0.3, "trained": pytest.approx(0.3 * 0.8)}
+    for engine in ("adjoint_c", "adjoint_torch"):
+        with pytest.raises(ValueError, match="coefficients train only with the NumPy engine"):
+            rollout(model, u, 5, x0, 30, gradients=engine)
+
+
+def test_coefficients_have_their_own_adam_group_and_survive_a_checkpoint(diagnosed):
+    """The trainer steps the coefficients' relative changes at ``physics_coefficient_step``; a state dict holds
+    them, and a rebuilt hybrid loads them and applies them to its own physical layer."""
+    from hybridfmu.training.trainer import parameter_groups
+
+    physics, model = _trainable_hybrid(diagnosed, step=0.004)
+    groups = parameter_groups(model)
+    assert [g.get("lr") for g in groups[1:]] == [0.004]
+    assert groups[1]["params"][0] is model.fmu.coefficient_change
+    assert all(p is not model.fmu.coefficient_change for p in groups[0]["params"])
+    with torch.no_grad():
+        model.fmu.coefficient_change.fill_(0.5)
+    state = model.state_dict()
+    other_physics, other = _trainable_hybrid(diagnosed)
+    other.load_state_dict(state)
+    x, u = states_and_inputs(n=5)
+    x_t, u_t = torch.from_numpy(x), torch.from_numpy(u)
+    np.testing.assert_allclose(other.derivative(x_t, u_t).detach().numpy(), model.derivative(x_t, u_t).detach().numpy(),
+                               rtol=1e-13)
+    np.testing.assert_allclose(other_physics.coefficients, physics.coefficients, rtol=1e-14)
+    assert np.all(physics.coefficients != np.concatenate([t.coef for t in diagnosed.terms[:4]]))
+    # a neural FMU (no physical layer) refuses a coefficient step
+    with pytest.raises(ValueError, match="only a hybrid"):
+        NeuralFmuSpec(state_names=["x", "v"], input_names=["F"], corrected_states=["v"], ann_states=["x"],
+                      ann_inputs=[], ann_derivatives=[], sample_period_s=H, physics_coefficient_step=0.01)

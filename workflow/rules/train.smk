@@ -17,7 +17,8 @@ TRAINING = section_settings(config.get("training"), "training")
 MODEL = section_settings(config.get("model"), "model")
 PREPARED_DIR = f"{RESULTS}/hpo/prepared"
 # search -> its model section: the neural FMU without a physical layer, the hybrid with the configured one
-SEARCH_MODELS = {"hpo": {**MODEL, "physics_terms": "none"}}
+# (the neural FMU has no effect coefficients: their step is no parameter of its search)
+SEARCH_MODELS = {"hpo": {**{k: v for k, v in MODEL.items() if k != "physics_coefficient_step"}, "physics_terms": "none"}}
 if HYBRID:
     SEARCH_MODELS["hybrid"] = MODEL
 SEARCHES = list(SEARCH_MODELS)

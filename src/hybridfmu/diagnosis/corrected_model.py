@@ -118,8 +118,11 @@ class CorrectedModel:
         self.n_x, self.n_u = problem.n_x, problem.n_u
         self.helper = helper
         self.rows: list[tuple[int, Callable]] = []
-        #: the row terms' (equation, effect, coefficients, setting), for :meth:`additive_batch`
+        #: the row terms' (equation, effect, coefficients, setting), for :meth:`additive_batch`; the members of
+        #: one joint effect share one coefficient array (a hybrid trains them in place, ``model.physics``)
         self.row_terms: list[tuple[int, Any, np.ndarray, dict[str, float]]] = []
+        #: (effect name, coefficient array) of each term with row terms, in rank order (the arrays of row_terms)
+        self.row_coefficients: list[tuple[str, np.ndarray]] = []
         self.batches: list[tuple[int, Callable]] = []
         self.parameters: dict[str, float] = {}
         #: input column -> [(effect kind, change)] in rank order (see ``Effect.input_change``)
@@ -147,11 +150,14 @@ class CorrectedModel:
                 for c in columns:
                     self.input_changes.setdefault(c, []).append((effect.kind, change))
                 continue
+            coefficients = np.array(coef, dtype=float)  # one array per term, shared by a joint effect's members
             for member in getattr(effect, "members", [effect]):  # a joint effect in each of its equations
                 row = member.row_function(coef, setting)
                 if row is not None:
                     self.rows.append((member.equation, row))
-                    self.row_terms.append((member.equation, member, np.asarray(coef, dtype=float), dict(setting)))
+                    self.row_terms.append((member.equation, member, coefficients, dict(setting)))
+                    if not any(array is coefficients for _, array in self.row_coefficients):
+                        self.row_coefficients.append((effect.name, coefficients))
                     continue
                 batch = member.batch_function(coef, setting, helper)
                 if batch is None:
@@ -197,6 +203,25 @@ class CorrectedModel:
                 out[:, equation] += np.asarray(effect.regressors(inputs, setting), dtype=float) @ coef
         for equation, batch in self.batches:
             out[:, equation] += batch(x, u)
+        return out
+
+    def coefficient_regressors(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """d(additive terms)/d(row coefficients): (N, n_x), (N, n_u) -> (N, n_x, n_c), the coefficients in the
+        order of :attr:`row_coefficients` (each term's array in turn). The row terms are linear in their
+        coefficients, so this is their regressors, placed in the rows of their equations."""
+        x = np.asarray(x, dtype=float).reshape(-1, self.n_x)
+        u = np.asarray(u, dtype=float).reshape(-1, self.n_u)
+        starts, n_c = {}, 0
+        for _, array in self.row_coefficients:
+            starts[id(array)] = n_c
+            n_c += array.size
+        out = np.zeros((x.shape[0], self.n_x, n_c))
+        if self.row_terms:
+            inputs = EffectInputs(x, u, model=self.helper)
+            for equation, effect, coef, setting in self.row_terms:
+                start = starts[id(coef)]
+                regressors = np.asarray(effect.regressors(inputs, setting), dtype=float).reshape(x.shape[0], -1)
+                out[:, equation, start:start + coef.size] += regressors
         return out
 
     def correction(self) -> Callable | None:

@@ -25,6 +25,7 @@ from hybridfmu.evaluation.comparison import ManeuverRun, role_metrics
 from hybridfmu.evaluation.tracking import log_evaluation_run, resolve_tracking
 from hybridfmu.io import read_json, write_json_atomic, write_parquet_atomic
 from hybridfmu.model.delay import describe_delays
+from hybridfmu.tracking.mlflow_store import mlflow_key
 
 LOG = logging.getLogger(__name__)
 
@@ -45,8 +46,13 @@ def read_baseline(path: str | Path, state_names: list[str], time_s: np.ndarray) 
 
 
 def learned_quantities(model: Any) -> dict[str, Any]:
-    """The learned input delays ``dt_s`` ({group: s}) and the gates ``{state: {"g_F", "g_A"}}`` of a neural FMU."""
-    return {"dt_s": model.delay_s(), "gates": model.gate_values()}
+    """The learned input delays ``dt_s`` ({group: s}) and the gates ``{state: {"g_F", "g_A"}}`` of a neural FMU;
+    for a hybrid whose effect coefficients trained, also ``coefficients`` ({name: {"diagnosed", "trained"}})."""
+    learned = {"dt_s": model.delay_s(), "gates": model.gate_values()}
+    coefficients = model.physics_coefficients()
+    if coefficients:
+        learned["coefficients"] = coefficients
+    return learned
 
 
 def checked_states(states: np.ndarray, time_s: np.ndarray, n_states: int, maneuver: str, label: str) -> np.ndarray:
@@ -231,6 +237,8 @@ def run_evaluation(best_path: str | Path, trajectory_paths: list[str], learned_p
               **{f"hybrid.dt_s.{group}": value for group, value in (hybrid.get("dt_s") or {}).items()},
               **({"hybrid.trial_id": hybrid["trial_id"], "hybrid.effects": ", ".join(hybrid.get("effects") or [])}
                  if hybrid else {}),
+              **{f"hybrid.coefficient.{mlflow_key(name)}": values["trained"]
+                 for name, values in (hybrid.get("coefficients") or {}).items()},
               "best_trial_id": summary["trial_id"],
               **{f"hp.{k}": v for k, v in summary["hyperparameters"].items()},
               **{f"gate.{state}.{gate}": value for state, gates in (extra["gates"] or {}).items()

@@ -244,6 +244,7 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
                 f"Physical layer: the FMU plus {effects} (trial {hybrid.get('trial_id')}).", ""]
         out += delay_lines(hybrid.get("dt_s"), true_dt_s, truth_source, None, delay_estimates_s)
         out += [f"- gates: {_gates_text(hybrid.get('gates'))}", ""]
+        out += coefficient_lines(hybrid.get("coefficients"))
     out += ["## Best hyperparameters", ""]
     if best_summary:
         out += [", ".join(f"{k}: {_number(v, 4) if isinstance(v, float) else v}" for k, v in best_summary.items()), ""]
@@ -256,6 +257,21 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
     for figure in figures:
         out += [f"![{figure.caption}]({figure.path})", "", f"*{figure.caption}*", ""]
     return "\n".join(out)
+
+
+def coefficient_lines(coefficients: dict[str, dict[str, float]] | None) -> list[str]:
+    """Markdown table of a hybrid's trained effect coefficients beside the diagnosis' values (none when they
+    were fixed)."""
+    if not coefficients:
+        return []
+    out = ["The effects' coefficients, trained with the ANN from the diagnosis' values "
+           "(`model.physics_coefficient_step`):", "", "| coefficient | diagnosed | trained | change |",
+           "|---|---|---|---|"]
+    for name, values in coefficients.items():
+        diagnosed, trained = float(values["diagnosed"]), float(values["trained"])
+        change = f"{(trained - diagnosed) / abs(diagnosed) * 100:+.1f} %" if diagnosed else "–"
+        out.append(f"| `{name}` | {_number(diagnosed, 4)} | {_number(trained, 4)} | {change} |")
+    return out + [""]
 
 
 def figure_caption(name: str, maneuver_roles: dict[str, str], time_offset: dict[str, Any] | None,

@@ -14,22 +14,63 @@ class FmuLayer(nn.Module):
     """Wraps a differentiable right-hand side ``rhs(x (N, n_x), u (N, n_u)) -> (N, n_x)``.
 
     Typically ``hybridfmu.fmu.FmuRhs(model)``; any callable with that signature works (e.g. a small
-    pure-torch right-hand side in the tests). The layer has no parameters of its own.
+    pure-torch right-hand side in the tests). The layer has no parameters of its own, except with
+    ``train_coefficients``: the model behind ``rhs`` is a hybrid's physical layer
+    (``hybridfmu.model.physics.PhysicsModel``) whose additive terms are linear in their coefficients, and the
+    layer trains them as ``coefficients = start + scale * coefficient_change`` (``start``: the diagnosed values,
+    ``scale``: their magnitudes, 1 for a zero; ``coefficient_change`` (n_c,) starts at zero, so an Adam step of
+    size s changes a coefficient by about s of itself).
     """
 
-    def __init__(self, rhs: Rhs, n_states: int, n_inputs: int) -> None:
+    def __init__(self, rhs: Rhs, n_states: int, n_inputs: int, train_coefficients: bool = False) -> None:
         super().__init__()
         if not callable(rhs):
             raise TypeError(f"FmuLayer: rhs must be callable, got {type(rhs).__name__}")
         self.rhs = rhs
         self.n_states = int(n_states)
         self.n_inputs = int(n_inputs)
+        self.coefficient_change: nn.Parameter | None = None
+        if train_coefficients:
+            model = getattr(rhs, "model", None)
+            if not callable(getattr(model, "set_coefficients", None)):
+                raise ValueError(f"FmuLayer: trainable coefficients need a hybrid's physical layer behind rhs, got "
+                                 f"{type(model).__name__}")
+            start = torch.as_tensor(model.coefficients, dtype=torch.float64)
+            self.register_buffer("coefficient_start", start)
+            self.register_buffer("coefficient_scale", torch.where(start != 0, start.abs(), torch.ones_like(start)))
+            self.coefficient_change = nn.Parameter(torch.zeros_like(start))
+
+    @property
+    def physics(self):
+        """The model behind ``rhs`` (None for a plain callable)."""
+        return getattr(self.rhs, "model", None)
+
+    def coefficients(self) -> torch.Tensor | None:
+        """(n_c,) the physical layer's trainable coefficients (differentiable), or None when they are fixed."""
+        if self.coefficient_change is None:
+            return None
+        return self.coefficient_start + self.coefficient_scale * self.coefficient_change
+
+    def apply_coefficients(self) -> torch.Tensor | None:
+        """Set the current coefficients on the physical layer (every evaluation path calls this before it
+        integrates); returns them (differentiable), or None when they are fixed."""
+        theta = self.coefficients()
+        if theta is not None:
+            self.physics.set_coefficients(theta.detach().to(torch.float64).numpy())
+        return theta
 
     def forward(self, x: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """x (N, n_x), u (N, n_u) -> xdot_F (N, n_x)."""
+        theta = self.apply_coefficients()
         xdot = self.rhs(x, u)
         if xdot.shape != x.shape:
             raise ValueError(f"FmuLayer: rhs returned shape {tuple(xdot.shape)}, expected {tuple(x.shape)}")
+        if theta is not None and theta.requires_grad and torch.is_grad_enabled():
+            # the terms are linear in the coefficients: adding R (theta - theta) changes no value and gives
+            # the coefficients their gradient R^T g (R = df/dtheta, detached)
+            sensitivity = torch.from_numpy(self.physics.coefficient_jacobian(
+                x.detach().to(torch.float64).contiguous().numpy(), u.detach().to(torch.float64).contiguous().numpy()))
+            xdot = xdot + torch.einsum("nik,k->ni", sensitivity.to(xdot.dtype), theta - theta.detach())
         return xdot
 
 
@@ -100,6 +141,15 @@ def value_function(rhs: Rhs) -> Rhs:
         return lambda x, u: torch.from_numpy(model.derivatives(
             x.to(torch.float64).contiguous().numpy(), u.to(torch.float64).contiguous().numpy()))
     return rhs
+
+
+def coefficient_kernel(rhs: Rhs, n: int):
+    """The physical layer's ``coefficient_kernel(n)`` behind ``rhs`` (an :class:`FmuLayer` whose coefficients
+    train): ``(x, u) -> (xdot, dfdx, dfdu, df/dtheta (n, n_x, n_c))``; None otherwise."""
+    if not isinstance(rhs, FmuLayer) or rhs.coefficient_change is None:
+        return None
+    kernel = getattr(rhs.physics, "coefficient_kernel", None)
+    return kernel(n) if callable(kernel) else None
 
 
 def jacobian_kernel(rhs: Rhs, n: int):

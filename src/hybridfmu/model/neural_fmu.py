@@ -41,7 +41,7 @@ class NeuralFmu(nn.Module):
         self.delay = InputDelay(spec.sample_period_s, spec.delay_min_s, spec.delay_max_s, spec.delay_init_s,
                                 spec.delay_scale_s, spec.sample_position,
                                 groups=list(spec.delay_group_columns().items()), n_inputs=n_u)
-        self.fmu = FmuLayer(rhs, n_x, n_u)
+        self.fmu = FmuLayer(rhs, n_x, n_u, train_coefficients=_trains_coefficients(rhs, spec))
         self.register_buffer("idx_states", torch.tensor(spec.state_index(spec.ann_states), dtype=torch.long))
         self.register_buffer("idx_inputs", torch.tensor(spec.input_index(spec.ann_inputs), dtype=torch.long))
         self.register_buffer("idx_derivs", torch.tensor(spec.state_index(spec.ann_derivatives), dtype=torch.long))
@@ -128,6 +128,16 @@ class NeuralFmu(nn.Module):
         """Learned time offset of every input {input: dt (s)}, FMU order."""
         return dict(zip(self.spec.input_names, self.delay.input_delays_s().detach().tolist()))
 
+    def physics_coefficients(self) -> dict[str, dict[str, float]]:
+        """A hybrid's trained coefficients of its physical layer's additive terms
+        {"<effect>[i]": {"diagnosed": ..., "trained": ...}}; {} when they are fixed."""
+        theta = self.fmu.coefficients()
+        if theta is None:
+            return {}
+        names = self.fmu.physics.coefficient_names
+        return {name: {"diagnosed": float(start), "trained": float(value)}
+                for name, start, value in zip(names, self.fmu.coefficient_start.tolist(), theta.detach().tolist())}
+
     def gate_values(self) -> dict[str, dict[str, float]]:
         """{corrected state: {"g_F": ..., "g_A": ...}}."""
         g_fmu, g_ann = self.gates.g_F.detach(), self.gates.g_A.detach()
@@ -159,6 +169,15 @@ class FusedDerivative:
         for weight_t, bias in self.hidden:
             h = torch.tanh(torch.addmm(bias, h, weight_t))
         return torch.addmm(torch.addcmul(self.b_out, xdot_F, self.g_fmu), h, self.w_out)
+
+
+def _trains_coefficients(rhs: Rhs, spec: NeuralFmuSpec) -> bool:
+    """Whether the FMU layer trains its physical layer's coefficients: a hybrid with a coefficient step whose
+    physical layer has additive terms (one with input changes or parameters only has none to train)."""
+    if spec.physics_coefficient_step is None:
+        return False
+    coefficients = getattr(getattr(rhs, "model", None), "coefficients", None)
+    return coefficients is not None and len(coefficients) > 0
 
 
 def _check_statistics(statistics: dict[str, Any], n_x: int, n_u: int) -> None:

@@ -70,6 +70,48 @@ class PhysicsModel:
         """Effects the corrected model could not apply (e.g. a second change of one input), in words."""
         return list(self.corrected.notes)
 
+    # ------------------------------------------------------------------ trainable coefficients
+    @property
+    def coefficient_names(self) -> list[str]:
+        """Names of the additive terms' coefficients, ``"<effect>[i]"`` (the order of :attr:`coefficients`)."""
+        return [f"{name}[{i}]" for name, array in self.corrected.row_coefficients for i in range(array.size)]
+
+    @property
+    def coefficients(self) -> np.ndarray:
+        """(n_c,) the additive terms' coefficients as the model uses them now (a copy); the diagnosis' fitted
+        values until :meth:`set_coefficients`. The terms are linear in them, so a hybrid can train them."""
+        arrays = [array for _, array in self.corrected.row_coefficients]
+        return np.concatenate(arrays) if arrays else np.zeros(0)
+
+    def set_coefficients(self, values: np.ndarray) -> None:
+        """Use ``values`` (n_c,) as the additive terms' coefficients (in the order of :attr:`coefficients`).
+
+        Raises:
+            ValueError: a different count, or non-finite values.
+        """
+        values = np.asarray(values, dtype=float).reshape(-1)
+        arrays = [array for _, array in self.corrected.row_coefficients]
+        n_c = sum(array.size for array in arrays)
+        if values.size != n_c or not np.isfinite(values).all():
+            raise ValueError(f"physical layer: expected {n_c} finite coefficients ({self.coefficient_names}), "
+                             f"got {values.tolist()}")
+        start = 0
+        for array in arrays:
+            array[:] = values[start:start + array.size]
+            start += array.size
+
+    def coefficient_jacobian(self, x: np.ndarray, u: np.ndarray, t_s: Any = 0.0) -> np.ndarray:
+        """df/d(coefficients): (N, n_x), (N, n_u) -> (N, n_x, n_c) (the terms' regressors; independent of the
+        coefficients' values)."""
+        x = np.asarray(x, dtype=float).reshape(-1, self.n_states)
+        return self.corrected.coefficient_regressors(x, np.asarray(u, dtype=float).reshape(x.shape[0], -1))
+
+    def derivatives_jacobians_and_coefficient_jacobian(self, x: np.ndarray, u: np.ndarray, t_s: Any = 0.0):
+        """(f, df/dx, df/du, df/d(coefficients)) at (x (N, n_x), u (N, n_u)): :meth:`derivatives_and_jacobians`
+        and :meth:`coefficient_jacobian` (the training engine's call when the coefficients train)."""
+        f, dfdx, dfdu = self.derivatives_and_jacobians(x, u, t_s)
+        return f, dfdx, dfdu, self.coefficient_jacobian(x, u, t_s)
+
     # ------------------------------------------------------------------ inputs
     def inputs(self, u: np.ndarray, dt_s: float) -> np.ndarray:
         """The logged inputs (T, n_u) of one maneuver as the model sees them (the diagnosed input changes);
@@ -152,6 +194,11 @@ class PhysicsModel:
         """``(x (n, n_x), u (n, n_u)) -> (xdot, dfdx, dfdu)`` (the bridge's kernel interface, for the NumPy
         engine of the training adjoint; fresh arrays per call)."""
         return self.derivatives_and_jacobians
+
+    def coefficient_kernel(self, n: int):
+        """``(x (n, n_x), u (n, n_u)) -> (xdot, dfdx, dfdu, df/d(coefficients) (n, n_x, n_c))``, for the NumPy
+        engine of the training adjoint when the coefficients train (fresh arrays per call)."""
+        return self.derivatives_jacobians_and_coefficient_jacobian
 
 
 #: Effect kinds a hybrid with a learned input delay leaves to the delay (the diagnosed time offsets of inputs).

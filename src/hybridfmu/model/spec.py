@@ -44,6 +44,8 @@ class NeuralFmuSpec:
         physics_effects: None for the paper's neural FMU (the FMU under the ANN); for a hybrid, the diagnosed
             effects its physical layer adds to the FMU (:mod:`hybridfmu.model.physics`; [] for the diagnosed
             model's parameters alone).
+        physics_coefficient_step: a hybrid's additive terms' coefficients train with this Adam step (relative:
+            about this fraction of a coefficient per step at most; ``FmuLayer``); None keeps the diagnosed values.
     """
 
     state_names: list[str]
@@ -67,6 +69,7 @@ class NeuralFmuSpec:
     solver: str = "rk4"
     end_stop: EndStop | None = None
     physics_effects: list[str] | None = None
+    physics_coefficient_step: float | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -101,6 +104,12 @@ class NeuralFmuSpec:
                                  f"{sorted(self.delay_init_s)}")
         if self.delay_step_s is not None and not self.delay_step_s > 0:
             raise ValueError(f"model.input_delay.step_s: expected > 0, got {self.delay_step_s}")
+        if self.physics_coefficient_step is not None:
+            if self.physics_effects is None:
+                raise ValueError("model.physics_coefficient_step: only a hybrid (physics_terms) has coefficients "
+                                 "to train")
+            if not self.physics_coefficient_step > 0:
+                raise ValueError(f"model.physics_coefficient_step: expected > 0, got {self.physics_coefficient_step}")
         if self.end_stop is not None:
             for name in (self.end_stop.state, self.end_stop.rate_state):
                 if name not in self.state_names:

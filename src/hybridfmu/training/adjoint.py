@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from hybridfmu.fmu.neural import NeuralWeights
-from hybridfmu.model.fmu_layer import (jacobian_function, jacobian_kernel, neural_recorder_function,
+from hybridfmu.model.fmu_layer import (coefficient_kernel, jacobian_function, jacobian_kernel, neural_recorder_function,
                                        neural_rollout_function, numpy_function, numpy_kernel, value_function)
 from hybridfmu.model.neural_fmu import FusedDerivative
 from hybridfmu.training.numpy_adjoint import NumpyRollout, NumpyWeights
@@ -331,16 +331,19 @@ class _ArrayRollout(torch.autograd.Function):
     fused derivative's weights as arrays, ``hidden`` a list of (weight_t, bias)) returns an object whose
     ``forward(x0, u_grid, u_half, z_grid, z_half)`` integrates and records, and whose ``backward(grad_states)``
     returns (g_x0, g_u_grid, g_u_half, g_z_grid, g_z_half, then the gradients of w_xd_t, w_out, b_out, g_fmu
-    and of weight_t and bias per hidden layer)."""
+    and of weight_t and bias per hidden layer). ``coefficients``: the right-hand side's trainable coefficients
+    (n_c,) (empty when they are fixed; the object's ``coefficient_gradient`` is their gradient)."""
 
     @staticmethod
-    def forward(ctx, make, x0, u_grid, u_half, z_grid, z_half, w_xd_t, w_out, b_out, g_fmu, *hidden_flat):
+    def forward(ctx, make, x0, u_grid, u_half, z_grid, z_half, coefficients, w_xd_t, w_out, b_out, g_fmu,
+                *hidden_flat):
         as_np = lambda t: t.detach().numpy()  # noqa: E731
         hidden = [(as_np(w), as_np(b)) for w, b in zip(hidden_flat[0::2], hidden_flat[1::2])]
         rollout = make(as_np(w_xd_t), hidden, as_np(w_out), as_np(b_out), as_np(g_fmu))
         states = rollout.forward(as_np(x0), as_np(u_grid), as_np(u_half), as_np(z_grid), as_np(z_half))
         ctx.rollout = rollout
         ctx.has_half = u_half.numel() > 0
+        ctx.has_coefficients = coefficients.numel() > 0
         return torch.from_numpy(states)
 
     @staticmethod
@@ -351,8 +354,9 @@ class _ArrayRollout(torch.autograd.Function):
         as_tensor = lambda a: None if a is None else torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
         if not ctx.has_half:
             g_u_half = g_z_half = None
+        g_coefficients = getattr(rollout, "coefficient_gradient", None) if ctx.has_coefficients else None
         return (None, as_tensor(g_x0), as_tensor(g_u_grid), as_tensor(g_u_half), as_tensor(g_z_grid),
-                as_tensor(g_z_half), *(as_tensor(g) for g in weight_grads))
+                as_tensor(g_z_half), as_tensor(g_coefficients), *(as_tensor(g) for g in weight_grads))
 
 
 #: Engines of the reverse sweep, fastest first: "c" (forward pass and sweep in C, for an FMU behind the
@@ -368,35 +372,50 @@ def rollout_adjoint(stage: FusedDerivative, h: float, method: str, clamp, x0, u_
 
     ``engine``: one of :data:`ENGINES`, or "auto" (the fastest the right-hand side allows). All give the same
     values and gradients to rounding. ``row_steps`` (B,), gradient-free rollouts only: the steps each row needs
-    (its states after them are not meaningful).
+    (its states after them are not meaningful). A hybrid whose physical layer's coefficients train
+    (``FmuLayer.coefficient_change``) gets their gradients from the NumPy engine.
 
     Raises:
-        ValueError: an unknown engine, or one the right-hand side does not offer.
+        ValueError: an unknown engine, or one the right-hand side does not offer (the C and torch engines do not
+            train a physical layer's coefficients).
     """
     if engine not in ("auto",) + ENGINES:
         raise ValueError(f"rollout_adjoint: engine must be 'auto' or one of {ENGINES}, got {engine!r}")
+    coefficients = stage.rhs.apply_coefficients() if hasattr(stage.rhs, "apply_coefficients") else None
     solver = SolverEngine(stage, h, method, clamp)
     hidden_flat = [t for pair in stage.hidden for t in pair]
     tensors = (x0, u_grid, u_half, z_grid, z_half, stage.w_xd_t, stage.w_out, stage.b_out, stage.g_fmu, *hidden_flat)
-    if not torch.is_grad_enabled() or not any(t.requires_grad for t in tensors):
+    train_coefficients = coefficients is not None and coefficients.requires_grad and torch.is_grad_enabled()
+    if not torch.is_grad_enabled() or not (train_coefficients or any(t.requires_grad for t in tensors)):
         wts = _Weights(stage.w_xd_t, stage.w_out, stage.b_out, stage.g_fmu, list(stage.hidden))
         with torch.no_grad():
             return solver.run(wts, x0, u_grid, u_half, z_grid, z_half, None, row_steps)
     float64 = all(t.dtype == torch.float64 for t in tensors)
+    if train_coefficients:
+        kernel = coefficient_kernel(stage.rhs, x0.shape[0]) if float64 else None
+        if engine not in ("auto", "numpy") or kernel is None:
+            raise ValueError(f"rollout_adjoint: the physical layer's coefficients train only with the NumPy engine "
+                             f"in float64 (engine {engine!r}, float64 {float64})")
+
+        def make_hybrid(w_xd_t, hidden, w_out, b_out, g_fmu):
+            weights = NumpyWeights(w_xd_t, w_out, b_out, g_fmu, hidden)
+            return NumpyRollout(kernel, weights, solver.h, solver.method, solver.clamp, coefficients=True)
+        return _ArrayRollout.apply(make_hybrid, *tensors[:5], coefficients, *tensors[5:])
+    no_coefficients = x0.new_zeros(0)
     if engine in ("auto", "c"):
         recorder = neural_recorder_function(stage.rhs) if float64 else None
         if recorder is not None:
             def make_c(w_xd_t, hidden, w_out, b_out, g_fmu):
                 weights = NeuralWeights.from_arrays(w_xd_t, hidden, w_out, b_out, g_fmu)
                 return recorder(weights, solver.h, solver.method, solver.clamp)
-            return _ArrayRollout.apply(make_c, *tensors)
+            return _ArrayRollout.apply(make_c, *tensors[:5], no_coefficients, *tensors[5:])
     if engine in ("auto", "numpy"):
         kernel = jacobian_kernel(stage.rhs, x0.shape[0]) if float64 else None
         if kernel is not None:
             def make_numpy(w_xd_t, hidden, w_out, b_out, g_fmu):
                 weights = NumpyWeights(w_xd_t, w_out, b_out, g_fmu, hidden)
                 return NumpyRollout(kernel, weights, solver.h, solver.method, solver.clamp)
-            return _ArrayRollout.apply(make_numpy, *tensors)
+            return _ArrayRollout.apply(make_numpy, *tensors[:5], no_coefficients, *tensors[5:])
     if engine != "auto" and engine != "torch":
         raise ValueError(f"rollout_adjoint: engine {engine!r} needs an FMU-backed right-hand side in float64 "
                          "(the bridge's neural_recorder or derivatives_and_jacobians_kernel)")

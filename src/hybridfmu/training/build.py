@@ -28,7 +28,8 @@ def model_spec(model_config: dict[str, Any], fmu_model: Any, sample_period_s: fl
     ``delay_init_s``: the delays' start (s, one value or ``{group: value}``) when ``input_delay.init_s`` is
     ``time_offset`` (the search's plan holds the time-offset stage's estimates, ``initial_delays_s``);
     a number in the config is used as it is. ``physics_effects``: the effects of a hybrid's physical layer
-    (``PhysicsModel.effects``), None for the paper's neural FMU."""
+    (``PhysicsModel.effects``), None for the paper's neural FMU; a hybrid's coefficients train with
+    ``model.physics_coefficient_step`` (null: fixed)."""
     states, inputs = list(fmu_model.state_names), list(fmu_model.input_names)
     delay = model_config["input_delay"]
     init_s = delay["init_s"]
@@ -68,7 +69,9 @@ def model_spec(model_config: dict[str, Any], fmu_model: Any, sample_period_s: fl
         ann_output_init=model_config["ann_output_init"],
         delay_scale_s=float(delay["scale_s"]), sample_position=delay["sample_position"],
         solver=model_config["solver"], end_stop=end_stop,
-        physics_effects=None if physics_effects is None else list(physics_effects))
+        physics_effects=None if physics_effects is None else list(physics_effects),
+        physics_coefficient_step=(None if physics_effects is None or model_config.get("physics_coefficient_step") is None
+                                  else float(model_config["physics_coefficient_step"])))
 
 
 def build_neural_fmu(rhs: Any, spec: NeuralFmuSpec, statistics: dict[str, Any] | None, seed: int) -> NeuralFmu:

@@ -125,6 +125,8 @@ def plan_search(*, case: str, seed: int, hpo_config: dict[str, Any], training_co
         if initial_delays is not None:
             params["initial_delays_s"] = json.dumps(initial_delays, sort_keys=True)
         params["physics_terms"] = json.dumps(model_config.get("physics_terms", "none"))
+        if model_config.get("physics_terms", "none") != "none":
+            params["physics_coefficient_step"] = json.dumps(model_config.get("physics_coefficient_step"))
         plan["tracking"] = start_search(tracking_uri, experiment or case, identifier, case, params)
     write_json_atomic(plan_path, plan)
     LOG.info("search %s: %d brackets, %d configurations, one unit = %.4g s of data", identifier,

@@ -33,17 +33,23 @@ class NumpyRollout:
     """One recorded rollout (``forward``) and its reverse sweep (``backward``).
 
     Args:
-        kernel: the bridge's ``derivatives_and_jacobians_kernel(B)``.
+        kernel: the bridge's ``derivatives_and_jacobians_kernel(B)``; with ``coefficients``, a kernel that also
+            returns df/dtheta (B, n_x, n_c) (a hybrid's physical layer's ``coefficient_kernel(B)``).
         weights: the fused derivative's weights (:class:`NumpyWeights`).
         h: step size (s). method: "rk4" or "euler".
         clamp: optional end stop (position index, rate index, lower, upper).
+        coefficients: whether the right-hand side's coefficients train (then ``backward`` also sets
+            :attr:`coefficient_gradient`, (n_c,)).
     """
 
     def __init__(self, kernel, weights: NumpyWeights, h: float, method: str,
-                 clamp: tuple[int, int, float, float] | None) -> None:
+                 clamp: tuple[int, int, float, float] | None, coefficients: bool = False) -> None:
         self.kernel, self.w, self.h, self.clamp = kernel, weights, float(h), clamp
         self.stages = 4 if method == "rk4" else 1
         self.masks: dict[int, np.ndarray] = {}
+        self.coefficients = bool(coefficients)
+        self.sensitivity: np.ndarray | None = None
+        self.coefficient_gradient: np.ndarray | None = None
 
     # ------------------------------------------------------------------ forward
     def _allocate(self, n_steps: int, batch: int, n_x: int, n_u: int) -> None:
@@ -51,12 +57,19 @@ class NumpyRollout:
         widths = [self.w.w_xd_t.shape[1]] + [weight_t.shape[1] for weight_t, _ in self.w.hidden]
         self.xf = np.empty((n_records, batch, 2 * n_x))
         self.jac = np.empty((n_records, batch, n_x, n_x + n_u))
+        self.sensitivity = None
         self.act = [np.empty((n_records, batch, width)) for width in widths]
         self.n_x, self.n_u = n_x, n_u
 
     def _stage(self, j: int, x: np.ndarray, u: np.ndarray, z: np.ndarray) -> np.ndarray:
         n_x, w = self.n_x, self.w
-        xdot, dfdx, dfdu = self.kernel(x, u)
+        if self.coefficients:
+            xdot, dfdx, dfdu, dfdc = self.kernel(x, u)
+            if self.sensitivity is None:
+                self.sensitivity = np.empty((self.xf.shape[0],) + dfdc.shape)
+            self.sensitivity[j] = dfdc
+        else:
+            xdot, dfdx, dfdu = self.kernel(x, u)
         xf = self.xf[j]
         xf[:, :n_x] = x
         xf[:, n_x:] = xdot
@@ -152,6 +165,8 @@ class NumpyRollout:
         g_xf = g_a @ self.w_xd
         g_fmu_out = gy * self.w.g_fmu
         g_fmu_out += g_xf[:, n_x:]
+        if self.coefficients:
+            self.g_fmu[j] = g_fmu_out
         g_xu = np.matmul(g_fmu_out[:, None, :], self.jac[j])[:, 0, :]
         self.gu[j] = g_xu[:, n_x:]
         g_x = g_xf[:, :n_x]
@@ -172,6 +187,7 @@ class NumpyRollout:
         self.gy = np.empty((n_records, batch, self.n_x))
         self.gu = np.empty((n_records, batch, self.n_u))
         self.ga = [np.empty_like(a) for a in self.act]
+        self.g_fmu = np.empty((n_records, batch, self.n_x)) if self.coefficients else None
         lam = grad_states[n_steps].copy()
         back = self._stage_backward
         for k in range(n_steps - 1, -1, -1):
@@ -192,6 +208,8 @@ class NumpyRollout:
             else:
                 lam += back(k, lam * h)
             lam += grad_states[k]
+        if self.coefficients:  # sum over stages and rows of g_F^T df/dtheta
+            self.coefficient_gradient = np.einsum("jbi,jbic->c", self.g_fmu, self.sensitivity)
         return (lam, *self._input_gradients(n_steps), *self._weight_gradients())
 
     def _input_gradients(self, n_steps: int):

@@ -78,14 +78,21 @@ class TrainerSettings:
 
 
 def parameter_groups(model: NeuralFmu) -> list[dict[str, Any]]:
-    """Adam's parameter groups: the network at the configuration's learning rate and, when ``model.spec.delay_step_s`` is set, the input
-    delays at their own rate step_s / scale_s (so a delay moves about step_s per step at most, whatever lr)."""
+    """Adam's parameter groups: the network at the configuration's learning rate; when
+    ``model.spec.delay_step_s`` is set, the input delays at their own rate step_s / scale_s (so a delay moves
+    about step_s per step at most, whatever lr); when a hybrid's coefficients train, their relative changes
+    at ``model.spec.physics_coefficient_step``."""
     spec = model.spec
-    delay_raw = model.delay.raw
-    if spec.delay_step_s is None or not model.delay.trainable:
+    own: list[dict[str, Any]] = []
+    if spec.delay_step_s is not None and model.delay.trainable:
+        own.append({"params": [model.delay.raw], "lr": spec.delay_step_s / spec.delay_scale_s})
+    if model.fmu.coefficient_change is not None:
+        own.append({"params": [model.fmu.coefficient_change], "lr": float(spec.physics_coefficient_step)})
+    if not own:
         return [{"params": list(model.parameters())}]
-    network = [p for p in model.parameters() if p is not delay_raw]
-    return [{"params": network}, {"params": [delay_raw], "lr": spec.delay_step_s / spec.delay_scale_s}]
+    separate = {id(p) for group in own for p in group["params"]}
+    network = [p for p in model.parameters() if id(p) not in separate]
+    return [{"params": network}, *own]
 
 
 class TrialDiverged(RuntimeError):
