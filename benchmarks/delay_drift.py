@@ -7,13 +7,14 @@ value for every group, or ``group=value`` pairs) and trains only the delays with
 With a model that lacks some physics the delays drift to absorb it: the figures show how far and where to.
 ``--physics`` runs the same on the hybrid's physical layer (the FMU plus the effects of the diagnosed model,
 ``results/<case>/diagnosis/diagnosed_model.pkl``, its time offsets left to the delays): whether the drift goes
-once the model carries the diagnosed physics.
+once the model carries the diagnosed physics; with ``--coefficients`` the effects' additive coefficients train
+beside the delays (at the case's ``model.physics_coefficient_step``).
 
 Needs a finished search's prepared data (``results/<case>/hpo/prepared``, rule ``hpo_prepare``). Prints one
 line per ``--every`` steps (delays in µs, the step's loss) and a JSON object with the trajectory.
 
     python benchmarks/delay_drift.py [--config config/config.yaml] [--start 30e-6] [--steps 150]
-        [--window-s 0.03] [--w-omega 0.5] [--seed 5] [--physics]
+        [--window-s 0.03] [--w-omega 0.5] [--seed 5] [--physics [--coefficients]]
 """
 
 from __future__ import annotations
@@ -55,6 +56,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=5)
     parser.add_argument("--physics", action="store_true",
                         help="the FMU plus the diagnosed effects instead of the FMU (needs rule diagnose's output)")
+    parser.add_argument("--coefficients", action="store_true",
+                        help="with --physics: also train the effects' coefficients (model.physics_coefficient_step)")
     args = parser.parse_args()
 
     config = check_config_file(args.config)
@@ -83,8 +86,15 @@ def main() -> None:
                             gate_opening=0.0, batch_windows=4)
     overrides = {} if args.w_omega is None else {args.target: args.w_omega}
     trainer = Trainer(model, train, hyper, statistics, TrainerSettings(), args.seed, roles.weights_with(overrides))
-    trainer.optimizer = Adam([{"params": [model.delay.raw], "lr": step_s / spec.delay_scale_s}], lr=0.0,
-                             betas=(0.9, 0.999))
+    groups = [{"params": [model.delay.raw], "lr": step_s / spec.delay_scale_s}]
+    if args.coefficients:
+        if model.fmu.coefficient_change is None:
+            raise SystemExit(f"{args.config}: --coefficients needs --physics, model.physics_coefficient_step and a "
+                             "physical layer with additive terms")
+        groups.append({"params": [model.fmu.coefficient_change], "lr": spec.physics_coefficient_step})
+    elif model.fmu.coefficient_change is not None:
+        model.fmu.coefficient_change.requires_grad_(False)
+    trainer.optimizer = Adam(groups, lr=0.0, betas=(0.9, 0.999))
     trajectory = [{"step": 0, "delays_us": {g: v * 1e6 for g, v in model.delay_s().items()}}]
     started = time.perf_counter()
     for step in range(1, args.steps + 1):
@@ -94,8 +104,11 @@ def main() -> None:
             trajectory.append({"step": step, "delays_us": delays, "loss": result["loss"]})
             elapsed = time.perf_counter() - started
             print(f"step {step:4d}  " + "  ".join(f"{g} {v:8.2f} µs" for g, v in delays.items())
-                  + f"  loss {result['loss']:.4g}  ({step / elapsed:.1f} steps/s, "
+                  + f"  loss {result['loss']:.4g}  skipped {trainer.skipped_steps}  ({step / elapsed:.1f} steps/s, "
                   f"{(args.steps - step) * elapsed / step:.0f} s left)", flush=True)
+    if args.coefficients:
+        for name, values in model.physics_coefficients().items():
+            print(f"  {name:40s} {values['diagnosed']:12.5g} -> {values['trained']:12.5g}", flush=True)
     print(json.dumps({"config": args.config, "physics": None if physics is None else physics.effects,
                       "start_s": start, "step_s": step_s, "window_s": args.window_s,
                       "weights": roles.weights_with(overrides), "trajectory": trajectory}))

@@ -115,3 +115,17 @@ def test_further_models_are_compared_with_the_fmu_and_tabled():
     assert loaded.models == ["fmu", "neural_fmu", "hybrid"]
     with pytest.raises(ValueError, match=r"unknown model\(s\) \['ann'\]"):
         ManeuverRun("x", first.time_s, SIGNALS, first.data, first.fmu, first.neural_fmu, further={"ann": first.data})
+
+
+def test_trained_coefficients_are_tabled_with_their_change():
+    """The report lists a hybrid's trained effect coefficients beside the diagnosed ones (relative change; none
+    for a zero start; a '|' of an effect name escaped so the table keeps its columns); none when they were
+    fixed."""
+    from hybridfmu.evaluation.report import coefficient_lines
+
+    lines = coefficient_lines({"coulomb(w)*|tau|[0]": {"diagnosed": 400.0, "trained": 410.0},
+                               "periodic(x)[1]": {"diagnosed": 0.0, "trained": 0.25}})
+    assert "| `coulomb(w)*\\|tau\\|[0]` | 400 | 410 | +2.5 % |" in lines
+    assert "| `periodic(x)[1]` | 0 | 0.25 | – |" in lines
+    assert all(line.count("|") - line.count("\\|") in (0, 5) for line in lines)
+    assert coefficient_lines({}) == [] and coefficient_lines(None) == []

@@ -89,6 +89,9 @@ def test_every_stage_writes_its_outputs(tiny_run):
         assert metrics["improvement_hybrid"]["angle_mae"] == pytest.approx(
             metrics["fmu"]["angle_mae"] / metrics["hybrid"]["angle_mae"])
         assert metrics["hybrid_learned"]["effects"] and metrics["hybrid_learned"]["dt_s"]
+        # the tiny case's physical layer has additive terms, and they trained (physics_coefficient_step)
+        coefficients = metrics["hybrid_learned"]["coefficients"]
+        assert coefficients and any(c["trained"] != c["diagnosed"] for c in coefficients.values())
         assert metrics["fmu"]["angle_mae"] > 0 and metrics["neural_fmu"]["angle_mae"] > 0
         assert metrics["improvement"]["angle_mae"] == pytest.approx(
             metrics["fmu"]["angle_mae"] / metrics["neural_fmu"]["angle_mae"])
@@ -113,6 +116,8 @@ def test_every_stage_writes_its_outputs(tiny_run):
         <= set(logged.data.metrics)
     assert "## All models" in report and "hybrid (FMU + effects + ANN)" in report
     assert "### The hybrid's delays and gates" in report and "Physical layer: the FMU plus " in report
+    assert "| coefficient | diagnosed | trained | change |" in report
+    assert any(key.startswith("hybrid.coefficient.") for key in logged.data.params)
     assert {a.path for a in client.list_artifacts(run["run_id"])} >= {"figures", "metrics", "report.md"}
 
 
