@@ -162,3 +162,33 @@ def test_the_simulation_term_uses_the_helpers_kernel_once_per_batch_size():
     np.testing.assert_allclose(first, helper.derivatives(x, changed)[:, 0] - helper.derivatives(x, u)[:, 0],
                                rtol=1e-12)
     np.testing.assert_array_equal(first, second)
+
+
+def test_a_joint_dead_time_term_evaluates_the_helper_once_for_both_equations():
+    """The dead time acts on both current equations with one coefficient: the corrected model evaluates both
+    members from one helper call per batch (not one each) and gets the members' own values."""
+    from hybridfmu.diagnosis.corrected_model import CorrectedModel
+    from hybridfmu.diagnosis.joint import JointEffect
+    from hybridfmu.diagnosis.selection import Term
+
+    options = {**OPTIONS, "current_scales_a": [2.0]}
+    members = [effects_motor.plugin_effects(Stub(), eq, options, None)[0] for eq in (0, 1)]
+    coef, setting = np.array([0.04]), {"current_scale_a": 2.0}
+
+    class Problem:
+        n_x, n_u, settings = 4, 5, {}
+
+    helper = CountingHelper()
+    corrected = CorrectedModel([Term(JointEffect(members), setting, coef)], Problem(), helper)
+    rng = np.random.default_rng(2)
+    x = rng.normal(size=(6, 4)) * [5.0, 5.0, 3.0, 20.0]
+    u = np.column_stack([rng.uniform(0.2, 0.8, (6, 3)), np.full(6, 12.0), rng.normal(size=6)])
+    values = corrected.additive_batch(x, u)
+    assert helper.calls == 1 and helper.rows == 12
+    separate = CountingHelper()
+    for member in members:
+        np.testing.assert_array_equal(values[:, member.equation],
+                                      member.batch_function(coef, setting, separate)(x, u))
+    assert separate.calls == 2
+    assert np.all(values[:, 2:] == 0.0)
+    np.testing.assert_allclose(corrected(x[:1], u[:1]), values[:1], rtol=1e-12, atol=1e-12)

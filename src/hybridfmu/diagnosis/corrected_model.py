@@ -112,9 +112,12 @@ class CorrectedModel:
         problem: the problem (state and input counts; ``diagnosis.effects.lag_derivative_window_s``, the
             window of the input rate of fitted input lags).
         helper: a second model instance for terms with a ``batch_function`` (may be None otherwise).
+        joint_batches: evaluate a joint effect whose members offer ``joint_batch_function`` (e.g. the inverter
+            dead time in both current equations) once for all its equations; False evaluates each member on its
+            own (same values; ``benchmarks/physics_layer.py`` times both).
     """
 
-    def __init__(self, terms: list[Term], problem: Problem, helper: Any = None) -> None:
+    def __init__(self, terms: list[Term], problem: Problem, helper: Any = None, joint_batches: bool = True) -> None:
         self.n_x, self.n_u = problem.n_x, problem.n_u
         self.helper = helper
         self.rows: list[tuple[int, Callable]] = []
@@ -123,7 +126,9 @@ class CorrectedModel:
         self.row_terms: list[tuple[int, Any, np.ndarray, dict[str, float]]] = []
         #: (effect name, coefficient array) of each term with row terms, in rank order (the arrays of row_terms)
         self.row_coefficients: list[tuple[str, np.ndarray]] = []
-        self.batches: list[tuple[int, Callable]] = []
+        #: (equation, or a joint effect's equations, batch function returning (N,) or (N, k)) of the terms the
+        #: model evaluates (:meth:`additive_batch`)
+        self.batches: list[tuple[int | list[int], Callable]] = []
         self.parameters: dict[str, float] = {}
         #: input column -> [(effect kind, change)] in rank order (see ``Effect.input_change``)
         self.input_changes: dict[int, list[tuple[str, dict[str, Any]]]] = {}
@@ -151,7 +156,16 @@ class CorrectedModel:
                     self.input_changes.setdefault(c, []).append((effect.kind, change))
                 continue
             coefficients = np.array(coef, dtype=float)  # one array per term, shared by a joint effect's members
-            for member in getattr(effect, "members", [effect]):  # a joint effect in each of its equations
+            members = list(getattr(effect, "members", [effect]))
+            joint = getattr(members[0], "joint_batch_function", None)
+            if joint_batches and len(members) > 1 and callable(joint) and all(m.row_function(coef, setting) is None for m in members):
+                # a joint effect whose members evaluate the model alike: all its equations from one evaluation
+                batch = joint(members, coef, setting, helper)
+                if batch is None:
+                    raise ValueError(f"{effect.name}: the effect needs a helper model instance")
+                self.batches.append(([m.equation for m in members], batch))
+                continue
+            for member in members:  # a joint effect in each of its equations
                 row = member.row_function(coef, setting)
                 if row is not None:
                     self.rows.append((member.equation, row))

@@ -110,10 +110,20 @@ class InverterDeadtime(Effect):
         Both evaluations go to the helper as one batch of 2N rows (the helper's fast fixed-size kernel when it
         has one); a single row (one RK stage of a simulation) computes its duty change with plain floats.
         """
+        joint = self.joint_batch_function([self], coef, setting, helper)
+        return None if joint is None else (lambda x, u: joint(x, u)[:, 0])
+
+    @staticmethod
+    def joint_batch_function(members: list["InverterDeadtime"], coef, setting, helper):
+        """:meth:`batch_function` of all ``members`` (the effect in each equation it acts on) at once:
+        x (N, n_x), u (N, n_u) -> (N, len(members)), the members' equations in order, from one evaluation of
+        the helper (the members of one term share the duty change and the model's response to it)."""
         if helper is None:
             return None
-        size, scale, row = float(coef[0]), float(setting["current_scale_a"]), self.equation
-        duties = self.duties
+        first = members[0]
+        size, scale = float(coef[0]), float(setting["current_scale_a"])
+        rows = [member.equation for member in members]
+        duties = first.duties
         kernels: dict[int, Any] = {}
         make_kernel = getattr(helper, "derivatives_kernel", None)
 
@@ -132,12 +142,12 @@ class InverterDeadtime(Effect):
             stacked_x = np.concatenate([x, x])
             stacked_u = np.concatenate([u, u])
             if n == 1:
-                for j, change in zip(duties, self._duty_change_row(x[0], scale)):
+                for j, change in zip(duties, first._duty_change_row(x[0], scale)):
                     stacked_u[0, j] += size * change
             else:
-                stacked_u[:n] += size * self.duty_change(x, u, scale)
+                stacked_u[:n] += size * first.duty_change(x, u, scale)
             f = evaluate(stacked_x, stacked_u)
-            return f[:n, row] - f[n:, row]
+            return f[:n, rows] - f[n:, rows]
         return term
 
     def physical(self, coef, cov, setting, setting_se):

@@ -1,0 +1,94 @@
+"""Cost of a hybrid's physical layer: derivative evaluations per second, the FMU alone against the FMU plus the
+diagnosed effects, side by side in one run.
+
+Loads a finished case's calibrated FMU and diagnosed model (``results/<case>/diagnosis/diagnosed_model.pkl``,
+rule ``diagnose``), takes B random rows (states and inputs) of the prepared training data (``hpo/prepared``), and times per call (median of ``--repeats`` runs of ``--calls`` calls each):
+
+- ``fmu``: the FMU's batched derivatives (the bridge's kernel);
+- ``terms``: the effects' additive terms alone (``CorrectedModel.additive_batch``), and ``terms_per_member``:
+  the same with a joint effect's members evaluated one by one (``joint_batches=False``);
+- ``physics``: the physical layer's derivatives (FMU + terms, one solver stage of a validation rollout);
+- ``physics_jacobians``: derivatives and Jacobians (one stage of a training rollout), and
+  ``physics_coefficients``: the same with the coefficients' Jacobian (a stage when the coefficients train).
+
+Prints one line per row and a JSON object with the microseconds per call and the ratios to ``fmu``.
+
+    python benchmarks/physics_layer.py [--config config/config.yaml] [--batch 4] [--calls 2000] [--repeats 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hybridfmu.config import check_config_file
+from hybridfmu.diagnosis.corrected_model import CorrectedModel
+from hybridfmu.model.physics import DELAY_KINDS, physics_model
+from hybridfmu.training.data import ManeuverArrays
+from hybridfmu.training.measured import load_calibration
+
+
+def time_per_call_us(function, calls: int, repeats: int) -> float:
+    """Median over ``repeats`` of the mean wall time per call (µs) of ``calls`` calls of ``function()``."""
+    runs = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        for _ in range(calls):
+            function()
+        runs.append((time.perf_counter() - started) / calls * 1e6)
+    return statistics.median(runs)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--config", default="config/config.yaml")
+    parser.add_argument("--batch", type=int, default=4, help="rows per call (windows or segments side by side)")
+    parser.add_argument("--calls", type=int, default=2000)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+
+    config = check_config_file(args.config)
+    results = Path(config.get("results_dir", "results")) / config["case"]
+    fmu_path = config["fmu"].get("path") or results / "fmu" / f"{config['fmu']['model_name']}.fmu"
+    calibration = load_calibration(results / "calibration" / "calibration.json")
+    physics = physics_model(fmu_path, calibration.parameters, results / "diagnosis" / "diagnosed_model.pkl",
+                            None, DELAY_KINDS)
+    train = ManeuverArrays.load(results / "hpo" / "prepared" / "train.npz")
+    rng = np.random.default_rng(args.seed)
+    rows = rng.integers(0, train.u.shape[0], args.batch)
+    u = np.ascontiguousarray(train.u[rows], dtype=float)
+    x = np.ascontiguousarray(train.x_init[rows], dtype=float)
+    per_member = CorrectedModel(physics.diagnosed.terms, physics.diagnosed.problem, physics.helper,
+                                joint_batches=False)
+    np.testing.assert_allclose(per_member.additive_batch(x, u), physics.corrected.additive_batch(x, u),
+                               rtol=1e-12, atol=1e-12)
+    fmu_kernel = physics.fmu.derivatives_kernel(args.batch) if hasattr(physics.fmu, "derivatives_kernel") \
+        else physics.fmu.derivatives
+    rows_timed = {
+        "fmu": lambda: fmu_kernel(x, u),
+        "terms": lambda: physics.corrected.additive_batch(x, u),
+        "terms_per_member": lambda: per_member.additive_batch(x, u),
+        "physics": lambda: physics.derivatives(x, u),
+        "physics_jacobians": lambda: physics.derivatives_and_jacobians(x, u),
+        "physics_coefficients": lambda: physics.derivatives_jacobians_and_coefficient_jacobian(x, u),
+    }
+    print(f"case {config['case']}: the FMU plus {', '.join(physics.effects)}; B = {args.batch}, "
+          f"{args.calls} calls x {args.repeats}", flush=True)
+    timings = {}
+    for name, function in rows_timed.items():
+        timings[name] = time_per_call_us(function, args.calls, args.repeats)
+        print(f"{name:22s} {timings[name]:9.1f} µs/call  {1e6 / timings[name]:10.0f} calls/s  "
+              f"x{timings[name] / timings['fmu']:.1f} the FMU's time", flush=True)
+    print(json.dumps({"config": args.config, "batch": args.batch, "us_per_call": timings,
+                      "ratio_to_fmu": {k: v / timings["fmu"] for k, v in timings.items()},
+                      "joint_over_per_member": timings["terms"] / timings["terms_per_member"]}))
+
+
+if __name__ == "__main__":
+    main()
