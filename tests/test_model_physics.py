@@ -342,3 +342,32 @@ def test_coefficients_have_their_own_adam_group_and_survive_a_checkpoint(diagnos
     with pytest.raises(ValueError, match="only a hybrid"):
         NeuralFmuSpec(state_names=["x", "v"], input_names=["F"], corrected_states=["v"], ann_states=["x"],
                       ann_inputs=[], ann_derivatives=[], sample_period_s=H, physics_coefficient_step=0.01)
+
+
+def test_the_hybrids_time_offset_is_estimated_on_its_physical_layer(diagnosed):
+    """The time-offset stage on the physical layer (rule hybrid_time_offset): data made by the FMU plus the
+    effects with the input logged 0.4 samples late give that delay back; a delay of zero is not identified."""
+    from types import SimpleNamespace
+
+    from hybridfmu.evaluation.hybrid_offset import physics_group_estimates
+    from hybridfmu.evaluation.offset import shift_inputs
+
+    physics = PhysicsModel(BridgedSpring(), BridgedSpring(), diagnosed.selected(None, DELAY_KINDS))
+    rng = np.random.default_rng(4)
+    n = 3000
+    time_s = np.arange(n) * H
+    u = np.repeat(rng.normal(0.0, 3.0, n // 20), 20)[:, None]  # steps every 20 samples
+    roles = SimpleNamespace(unmeasured_states=[], measured_states=["x", "v"], state_names=["x", "v"],
+                            input_names=["F"])
+    options = {"groups": {"window_samples": 4, "windows": 40}}
+    delay_config = {"groups": {}, "min_s": -3 * H, "max_s": 3 * H}
+    for true_delay_s in (0.4 * H, 0.0):
+        # the logged input lags: the model sees it as u_logged(t + true_delay)
+        x = physics.diagnosed.simulate(physics.fmu, physics.helper, time_s, shift_inputs(u, true_delay_s, H),
+                                       np.array([0.1, 0.0]))
+        measured = SimpleNamespace(time_s=time_s, u=u, x=x)
+        (estimate,) = physics_group_estimates(physics, measured, roles, x[0], "m", options, delay_config).values()
+        if true_delay_s:
+            assert estimate["identified"] and estimate["delay_s"] == pytest.approx(true_delay_s, abs=0.02 * H)
+        else:
+            assert not estimate["identified"] and estimate["delay_s"] == 0.0

@@ -31,6 +31,11 @@ MANEUVERS = list(config["maneuvers"])
 # a hybrid (model.physics_terms): a second search (train.smk) and a fourth model in the evaluation
 from hybridfmu.model.physics import uses_physics
 HYBRID = uses_physics(config.get("model") or {})
+# a hybrid whose delays start at the time-offset stage's estimates gets its own, on its physical layer (rule
+# hybrid_time_offset in train.smk; the report and the summary show them beside its delays)
+from hybridfmu.data.settings import section_settings as _section_settings
+HYBRID_TIME_OFFSET = ([f"{RESULTS}/hybrid/time_offset.json"] if HYBRID and _section_settings(
+    config.get("model"), "model")["input_delay"]["init_s"] == "time_offset" else [])
 ALL_TARGETS = []
 
 

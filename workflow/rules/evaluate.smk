@@ -126,6 +126,7 @@ rule report:
         best=f"{RESULTS}/hpo/best.json",
         run=f"{RESULTS}/evaluation/mlflow_run.json",
         time_offset_summary=f"{RESULTS}/evaluation/time_offset.json",
+        hybrid_time_offset=HYBRID_TIME_OFFSET,
         figures=list(evaluation_figures().values()),
         truth=truth_files(),
     output:

@@ -9,6 +9,7 @@ if "test" in EVAL_ROLES:
             diagnosis=f"{DIAGNOSIS}/diagnosis.json",
             best=f"{RESULTS}/hpo/best.json",
             time_offset=f"{RESULTS}/evaluation/time_offset.json",
+            hybrid_time_offset=HYBRID_TIME_OFFSET,
             truth=truth_files(),
         output:
             summary=f"{RESULTS}/summary.md",

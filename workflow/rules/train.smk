@@ -32,6 +32,16 @@ def search_diagnosed_model(wildcards):
     return [DIAGNOSED_MODEL] if wildcards.search == "hybrid" else []
 
 
+def search_time_offset(wildcards):
+    """Where a search's delays start when model.input_delay.init_s is time_offset: the time-offset stage's
+    estimates with the FMU (the neural FMU), or with the hybrid's physical layer (rule hybrid_time_offset)."""
+    if MODEL["input_delay"]["init_s"] != "time_offset":
+        return []
+    if wildcards.search == "hybrid":
+        return HYBRID_TIME_OFFSET
+    return [f"{RESULTS}/evaluation/time_offset.json"]
+
+
 def previous_rung_checkpoint(wildcards):
     """The checkpoint a rung resumes (none for rung 0)."""
     rung = int(wildcards.rung)
@@ -89,8 +99,7 @@ rule hpo_plan:
         validation=f"{PREPARED_DIR}/validation.npz",
         statistics=f"{PREPARED_DIR}/statistics.json",
         # the delays start at the time-offset stage's estimates when model.input_delay.init_s is time_offset
-        time_offset=[f"{RESULTS}/evaluation/time_offset.json"]
-        if MODEL["input_delay"]["init_s"] == "time_offset" else [],
+        time_offset=search_time_offset,
     output:
         plan=f"{RESULTS}/{{search}}/plan.json",
     params:
@@ -111,6 +120,30 @@ rule hpo_plan:
         f"{RESULTS}/benchmarks/hpo_plan/{{search}}.tsv"
     script:
         "../scripts/train_plan.py"
+
+
+if HYBRID_TIME_OFFSET:
+
+    rule hybrid_time_offset:
+        """The time-offset stage's group estimates on the hybrid's physical layer: its delays' start."""
+        input:
+            fmu=fmu_path(),
+            calibration=CALIBRATION_JSON,
+            diagnosed=DIAGNOSED_MODEL,
+            data=f"{RESULTS}/data/{time_offset_maneuver()}.parquet",
+        output:
+            summary=HYBRID_TIME_OFFSET[0],
+        params:
+            maneuver=time_offset_maneuver(),
+            options=config.get("evaluation", {}).get("time_offset", {}),
+            model=SEARCH_MODELS["hybrid"],
+            case=case_sections(),
+        log:
+            f"{RESULTS}/logs/hybrid_time_offset/hybrid_time_offset.log",
+        benchmark:
+            f"{RESULTS}/benchmarks/hybrid_time_offset/hybrid_time_offset.tsv"
+        script:
+            "../scripts/hybrid_time_offset.py"
 
 
 rule train_rung:

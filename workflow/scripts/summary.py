@@ -9,4 +9,5 @@ roles = case_roles(snakemake.params.case_sections)
 write_case_summary(snakemake.output.summary, snakemake.params.case, snakemake.input.test_metrics,
                    snakemake.input.get("diagnosis"), {name: s.unit for name, s in roles.signals.items()},
                    best_path=snakemake.input.best, time_offset_path=snakemake.input.time_offset,
-                   truth_paths=list(snakemake.input.truth), roles=roles)
+                   truth_paths=list(snakemake.input.truth), roles=roles,
+                   hybrid_time_offset_path=next(iter(snakemake.input.hybrid_time_offset), None))

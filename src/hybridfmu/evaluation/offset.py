@@ -199,10 +199,40 @@ def run_time_offset(fmu_path: str | Path, calibration_path: str | Path | None, d
 def _group_estimates(model: Any, measured: Any, roles: Any, calibration: Any, maneuver: str,
                      maneuvers: dict[str, Any] | None, options: dict[str, Any], delay_config: dict[str, Any] | None,
                      max_lag_s: float, fine_s: float, step_s: float) -> dict[str, Any]:
-    """Each input group's delay over many short windows (``group_offset``): {group: {inputs, delay_s, ...}}."""
+    """Each input group's delay over many short windows (``group_offset``) of the calibrated FMU ``model``:
+    {group: {inputs, delay_s, ...}}; unmeasured states from the FMU's open loop from the calibrated start."""
     from hybridfmu.evaluation.baseline import simulate_fmu_open_loop
-    from hybridfmu.evaluation.group_offset import estimate_group_delays
     from hybridfmu.training.measured import initial_state
+
+    def simulate(time_s: np.ndarray, u: np.ndarray, x0: np.ndarray, label: str) -> np.ndarray:
+        return simulate_fmu_open_loop(model, time_s, u, x0, label=label)[0]
+
+    x = measured.x.copy()
+    if roles.unmeasured_states:  # unmeasured states from the FMU's open loop from the calibrated start
+        x0 = initial_state(model, measured.x[0], roles, calibration, maneuver, maneuvers)
+        x = np.where(np.isfinite(x), x, simulate(measured.time_s, measured.u, x0, f"{maneuver} baseline"))
+    return group_estimates(simulate, measured, x, roles, maneuver, options, delay_config, max_lag_s, fine_s, step_s)
+
+
+def group_estimates(simulate: Any, measured: Any, x: np.ndarray, roles: Any, maneuver: str,
+                    options: dict[str, Any], delay_config: dict[str, Any] | None, max_lag_s: float, fine_s: float,
+                    step_s: float) -> dict[str, Any]:
+    """Each input group's delay over many short windows (``group_offset``) of any model.
+
+    Args:
+        simulate: ``(time_s (W,), u (W, n_u), x0 (n_x,), label) -> states (W, n_x)``, the model's open loop with
+            the inputs held between samples.
+        measured: the maneuver (``training.measured.read_measured``); x: (T, n_x) its states with the
+            unmeasured ones filled in (the windows start from them).
+        options: config ``evaluation.time_offset``; delay_config: config ``model.input_delay``.
+        max_lag_s: range without ``delay_config``; fine_s: grid step of the candidates; step_s: sampling period.
+
+    Returns:
+        {group: {inputs, delay_s, windows, window_samples, lead_samples, gains, identified, improvement,
+        not_identified_because, cost_without_delay, cost_with_delay}} (``delay_s`` fixed, ``note``, when the
+        delay's range is empty).
+    """
+    from hybridfmu.evaluation.group_offset import estimate_group_delays
 
     settings = dict(options.get("groups") or {})
     window_samples = int(settings.get("window_samples", 4))
@@ -222,11 +252,6 @@ def _group_estimates(model: Any, measured: Any, roles: Any, calibration: Any, ma
     # candidates strictly inside the delay's bounds (a learned delay starts inside them)
     candidates = np.arange(np.ceil(low_s / fine_s + 1e-9), np.floor(high_s / fine_s - 1e-9) + 1) * fine_s
     candidates = candidates[(candidates > low_s) & (candidates < high_s)]
-    x = measured.x.copy()
-    if roles.unmeasured_states:  # unmeasured states from the FMU's open loop from the calibrated start
-        x0 = initial_state(model, measured.x[0], roles, calibration, maneuver, maneuvers)
-        baseline = simulate_fmu_open_loop(model, measured.time_s, measured.u, x0, label=f"{maneuver} baseline")[0]
-        x = np.where(np.isfinite(x), x, baseline)
     measured_index = [list(roles.state_names).index(name) for name in roles.measured_states]
     spread = normalising_scales(measured.x[:, measured_index])
     margin = int(np.ceil(max(abs(low_s), abs(high_s)) / step_s)) + 2
@@ -234,8 +259,8 @@ def _group_estimates(model: Any, measured: Any, roles: Any, calibration: Any, ma
     def simulate_window(start: int, delays_s: np.ndarray) -> np.ndarray:
         lo, hi = start - margin, start + window_samples + 1 + margin
         shifted = shift_inputs(measured.u[lo:hi], delays_s, step_s)[margin:margin + window_samples + 1]
-        states = simulate_fmu_open_loop(model, measured.time_s[start:start + window_samples + 1], shifted,
-                                        x[start].copy(), label=f"{maneuver} time-offset window at sample {start}")[0]
+        states = simulate(measured.time_s[start:start + window_samples + 1], shifted, x[start].copy(),
+                          f"{maneuver} time-offset window at sample {start}")
         first = measured.x[start, measured_index]
         data = measured.x[start + 1:start + window_samples + 1][:, measured_index]
         return (states[1:, measured_index] - first) / spread, (data - first) / spread

@@ -201,7 +201,8 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
                   best_summary: dict[str, Any], dt_s: float | None, gates: Any, true_dt_s: float | None,
                   truth_source: str | None, figures: list[ReportFigure], mlflow_run: dict[str, Any] | None,
                   units: dict[str, str] | None = None, reference: dict[str, Any] | None = None,
-                  delay_estimates_s: dict[str, float] | None = None) -> str:
+                  delay_estimates_s: dict[str, float] | None = None,
+                  hybrid_delay_estimates_s: dict[str, float] | None = None) -> str:
     """The report as Markdown text.
 
     Args:
@@ -212,6 +213,8 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
         dt_s: learned input delays ({group: s}) or None; gates: the learned gates.
         true_dt_s, truth_source: the true offset of each delay group ({group: s}) and where it comes from, or None.
         delay_estimates_s: the time-offset stage's estimate of each group ({group: s}).
+        hybrid_delay_estimates_s: the same on the hybrid's physical layer (rule ``hybrid_time_offset``), beside
+            the hybrid's delays; None: ``delay_estimates_s``.
         figures: the figures, paths relative to the report.
         mlflow_run: ``{"tracking_uri", "experiment", "run_id"}`` of the evaluation run, or None.
         units: target signal -> unit (``Signal.unit``) for the tables.
@@ -242,7 +245,8 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
         effects = ", ".join(hybrid.get("effects") or []) or "no effects"
         out += ["### The hybrid's delays and gates", "",
                 f"Physical layer: the FMU plus {effects} (trial {hybrid.get('trial_id')}).", ""]
-        out += delay_lines(hybrid.get("dt_s"), true_dt_s, truth_source, None, delay_estimates_s)
+        out += delay_lines(hybrid.get("dt_s"), true_dt_s, truth_source, None,
+                           hybrid_delay_estimates_s if hybrid_delay_estimates_s is not None else delay_estimates_s)
         out += [f"- gates: {_gates_text(hybrid.get('gates'))}", ""]
         out += coefficient_lines(hybrid.get("coefficients"))
     out += ["## Best hyperparameters", ""]
@@ -373,10 +377,20 @@ def learned_delay_facts(best: dict[str, Any], time_offset: dict[str, Any], truth
     return true_dt_s, truth_source, estimates_s
 
 
+def hybrid_estimates(path: str | Path | None) -> dict[str, float] | None:
+    """{group: s} of the time-offset estimates on the hybrid's physical layer (rule ``hybrid_time_offset``), or
+    None without the file."""
+    if not path:
+        return None
+    from hybridfmu.io import read_json
+
+    return {group: entry["delay_s"] for group, entry in (read_json(path).get("groups") or {}).items()}
+
+
 def write_report(report_path: str | Path, case: str, metrics_paths: list[str], best_path: str | Path,
                  run_path: str | Path, time_offset_summary_path: str | Path, figure_paths: dict[str, str],
                  truth_paths: list[str], roles: Any, reference: dict[str, Any] | None = None,
-                 log_to_mlflow: bool = True) -> Path:
+                 log_to_mlflow: bool = True, hybrid_time_offset_path: str | Path | None = None) -> Path:
     """Write ``report.md`` (figures linked relative to it) and add it and the figures to the evaluation's
     MLflow run.
 
@@ -387,6 +401,8 @@ def write_report(report_path: str | Path, case: str, metrics_paths: list[str], b
         truth_paths: ground-truth JSON files (may be empty: no "true" delay then).
         roles: :class:`hybridfmu.case.CaseRoles` (labels and units of the target signals).
         reference: config ``evaluation.reference`` (factors and figures to compare with), or None.
+        hybrid_time_offset_path: the time-offset estimates on the hybrid's physical layer (rule
+            ``hybrid_time_offset``, where the hybrid's delays start), or None.
     """
     import os
 
@@ -411,7 +427,8 @@ def write_report(report_path: str | Path, case: str, metrics_paths: list[str], b
     best_facts = {key: summary[key] for key in ("trial_id", "bracket", "rung", "objective", "resource_s",
                                                 "mlflow_run_id") if summary.get(key) is not None}
     text = render_report(case, metrics_by_role, summary["hyperparameters"], best_facts, first.get("dt_s"),
-                         first.get("gates"), true_dt_s, truth_source, figures, run, units, reference, estimates_s)
+                         first.get("gates"), true_dt_s, truth_source, figures, run, units, reference, estimates_s,
+                         hybrid_estimates(hybrid_time_offset_path))
     changes = ", ".join(
         f"{signal} MSE {_number(time_offset['mse_without_delay'][signal])} → "
         f"{_number(time_offset['mse_with_delay'][signal])} {squared_unit(units.get(signal, ''))}"

@@ -72,11 +72,12 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
 def write_case_summary(out_path: str | Path, case: str, test_metrics_path: str | Path,
                        diagnosis_path: str | Path | None, units: dict[str, str], best_path: str | Path | None = None,
                        time_offset_path: str | Path | None = None, truth_paths: list[str] | None = None,
-                       roles: Any = None) -> Path:
+                       roles: Any = None, hybrid_time_offset_path: str | Path | None = None) -> Path:
     """Render :func:`case_summary` from the run's files and write it atomically; with ``best_path``,
     ``time_offset_path`` and ``roles`` the learned input delays follow (beside the time-offset stage's
-    estimates and the ground truth of ``truth_paths`` when there is one)."""
-    from hybridfmu.evaluation.report import delay_lines, learned_delay_facts
+    estimates, the hybrid's beside those on its physical layer (``hybrid_time_offset_path``) when it has them,
+    and the ground truth of ``truth_paths`` when there is one)."""
+    from hybridfmu.evaluation.report import delay_lines, hybrid_estimates, learned_delay_facts
 
     diagnosis = read_json(diagnosis_path) if diagnosis_path else None
     test_metrics = read_json(test_metrics_path)
@@ -89,9 +90,10 @@ def write_case_summary(out_path: str | Path, case: str, test_metrics_path: str |
                         estimates_s)) + "\n"
         hybrid = test_metrics.get("hybrid_learned") or {}
         if hybrid.get("dt_s"):
+            own = hybrid_estimates(hybrid_time_offset_path)
             text += "\nLearned input delays of the hybrid:\n\n" + "\n".join(
                 delay_lines(hybrid["dt_s"], true_dt_s, Path(source).name if source else None, None,
-                            estimates_s)) + "\n"
+                            own if own is not None else estimates_s)) + "\n"
     with atomic_path(out_path) as tmp:
         Path(tmp).write_text(text)
     return Path(out_path)

@@ -1,0 +1,19 @@
+"""Rule hybrid_time_offset: each input group's time offset with the hybrid's physical layer (its delays' start)."""
+
+from hybridfmu.case import case_roles
+from hybridfmu.evaluation.hybrid_offset import run_hybrid_time_offset
+from hybridfmu.progress import setup_rule_logging
+
+setup_rule_logging(snakemake.log[0])
+run_hybrid_time_offset(
+    fmu_path=snakemake.input.fmu,
+    calibration_path=snakemake.input.calibration,
+    diagnosed_path=snakemake.input.diagnosed,
+    data_path=snakemake.input.data,
+    summary_path=snakemake.output.summary,
+    options=snakemake.params.options,
+    roles=case_roles(snakemake.params.case),
+    maneuvers=snakemake.params.case["maneuvers"],
+    maneuver=snakemake.params.maneuver,
+    model_config=snakemake.params.model,
+)
