@@ -54,23 +54,23 @@ class FmuLayer(nn.Module):
     def apply_coefficients(self) -> torch.Tensor | None:
         """Set the current coefficients on the physical layer (every evaluation path calls this before it
         integrates); returns them (differentiable), or None when they are fixed."""
-        theta = self.coefficients()
-        if theta is not None:
-            self.physics.set_coefficients(theta.detach().to(torch.float64).numpy())
-        return theta
+        values = self.coefficients()
+        if values is not None:
+            self.physics.set_coefficients(values.detach().to(torch.float64).numpy())
+        return values
 
     def forward(self, x: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """x (N, n_x), u (N, n_u) -> xdot_F (N, n_x)."""
-        theta = self.apply_coefficients()
+        values = self.apply_coefficients()
         xdot = self.rhs(x, u)
         if xdot.shape != x.shape:
             raise ValueError(f"FmuLayer: rhs returned shape {tuple(xdot.shape)}, expected {tuple(x.shape)}")
-        if theta is not None and theta.requires_grad and torch.is_grad_enabled():
-            # the terms are linear in the coefficients: adding R (theta - theta) changes no value and gives
-            # the coefficients their gradient R^T g (R = df/dtheta, detached)
+        if values is not None and values.requires_grad and torch.is_grad_enabled():
+            # the terms are linear in the coefficients: adding R (values - values) changes no value and gives
+            # the coefficients their gradient R^T g (R = df/dc, detached)
             sensitivity = torch.from_numpy(self.physics.coefficient_jacobian(
                 x.detach().to(torch.float64).contiguous().numpy(), u.detach().to(torch.float64).contiguous().numpy()))
-            xdot = xdot + torch.einsum("nik,k->ni", sensitivity.to(xdot.dtype), theta - theta.detach())
+            xdot = xdot + torch.einsum("nik,k->ni", sensitivity.to(xdot.dtype), values - values.detach())
         return xdot
 
 
@@ -145,7 +145,7 @@ def value_function(rhs: Rhs) -> Rhs:
 
 def coefficient_kernel(rhs: Rhs, n: int):
     """The physical layer's ``coefficient_kernel(n)`` behind ``rhs`` (an :class:`FmuLayer` whose coefficients
-    train): ``(x, u) -> (xdot, dfdx, dfdu, df/dtheta (n, n_x, n_c))``; None otherwise."""
+    train): ``(x, u) -> (xdot, dfdx, dfdu, df/dc (n, n_x, n_c))``; None otherwise."""
     if not isinstance(rhs, FmuLayer) or rhs.coefficient_change is None:
         return None
     kernel = getattr(rhs.physics, "coefficient_kernel", None)

@@ -131,12 +131,12 @@ class NeuralFmu(nn.Module):
     def physics_coefficients(self) -> dict[str, dict[str, float]]:
         """A hybrid's trained coefficients of its physical layer's additive terms
         {"<effect>[i]": {"diagnosed": ..., "trained": ...}}; {} when they are fixed."""
-        theta = self.fmu.coefficients()
-        if theta is None:
+        values = self.fmu.coefficients()
+        if values is None:
             return {}
         names = self.fmu.physics.coefficient_names
         return {name: {"diagnosed": float(start), "trained": float(value)}
-                for name, start, value in zip(names, self.fmu.coefficient_start.tolist(), theta.detach().tolist())}
+                for name, start, value in zip(names, self.fmu.coefficient_start.tolist(), values.detach().tolist())}
 
     def gate_values(self) -> dict[str, dict[str, float]]:
         """{corrected state: {"g_F": ..., "g_A": ...}}."""

@@ -34,7 +34,7 @@ class NumpyRollout:
 
     Args:
         kernel: the bridge's ``derivatives_and_jacobians_kernel(B)``; with ``coefficients``, a kernel that also
-            returns df/dtheta (B, n_x, n_c) (a hybrid's physical layer's ``coefficient_kernel(B)``).
+            returns df/dc (B, n_x, n_c) (a hybrid's physical layer's ``coefficient_kernel(B)``).
         weights: the fused derivative's weights (:class:`NumpyWeights`).
         h: step size (s). method: "rk4" or "euler".
         clamp: optional end stop (position index, rate index, lower, upper).
@@ -208,7 +208,7 @@ class NumpyRollout:
             else:
                 lam += back(k, lam * h)
             lam += grad_states[k]
-        if self.coefficients:  # sum over stages and rows of g_F^T df/dtheta
+        if self.coefficients:  # sum over stages and rows of g_F^T df/dc
             self.coefficient_gradient = np.einsum("jbi,jbic->c", self.g_fmu, self.sensitivity)
         return (lam, *self._input_gradients(n_steps), *self._weight_gradients())
 
