@@ -12,9 +12,9 @@ DIAGNOSIS = {"which": {"found_effects": ["saturation_above(x2)"]},
 
 def test_summary_quotes_each_model_with_its_factor_against_the_fmu():
     text = case_summary("tanks", TEST_METRICS, DIAGNOSIS, {"level": "V"})
-    assert "| level | FMU | 0.76 V | 0.58 V | ×1 |" in text
-    assert "| level | neural FMU | 0.38 V | 0.3 V | ×2 |" in text
-    assert "| level | FMU + diagnosed effects (saturation_above(x2)) | 0.19 V | 0.1 V | ×4 |" in text
+    assert "| level | FMU | 0.76 V | 0.58 V | ×1 | ×1 |" in text
+    assert "| level | neural FMU | 0.38 V | 0.3 V | ×1.93 | ×4 |" in text
+    assert "| level | FMU + diagnosed effects (saturation_above(x2)) | 0.19 V | 0.1 V | ×5.8 | ×16 |" in text
 
 
 def test_summary_says_when_the_effects_were_recalibrated_with_the_fmu():
@@ -89,3 +89,37 @@ def test_summary_quotes_the_learned_delays_beside_the_truth(tmp_path):
     # without the run's files the summary has no delay table
     plain = write_case_summary(tmp_path / "plain.md", "ipb", paths["metrics"], None, {"level": "V"})
     assert "learned" not in plain.read_text().lower()
+
+
+def test_check_names_a_block_edited_by_hand_and_changes_nothing(tmp_path, capsys):
+    """``--check``: a README that quotes its run as written passes; one number typed over fails, naming the
+    block, its file and the changed line; the README itself is never written."""
+    from hybridfmu.evaluation.summary import check_readme, main
+
+    readme = tmp_path / "README.md"
+    case_dir = tmp_path / "results" / "tanks"
+    case_dir.mkdir(parents=True)
+    (case_dir / "summary.md").write_text("| level | FMU | 0.76 V |\n| level | hybrid | 0.38 V |\n")
+    (tmp_path / "wall.md").write_text("| abc | 9.5 min |\n")
+    readme.write_text("a\n<!-- measured:tanks -->\nold\n<!-- /measured:tanks -->\n"
+                      "<!-- measured:wall -->\nold\n<!-- /measured:wall -->\nb\n")
+    args = [str(readme), str(case_dir), "--block", f"wall={tmp_path / 'wall.md'}"]
+    assert main(args[:1] + args[1:] + ["--check"]) == 1
+    assert "'tanks' differs" in capsys.readouterr().out
+    assert main(args) == 0
+    written = readme.read_text()
+    assert check_readme(readme, [case_dir], {"wall": tmp_path / "wall.md"}) == []
+    assert main(args + ["--check"]) == 0
+    assert "2 of 2 block(s)" in capsys.readouterr().out
+    readme.write_text(written.replace("0.38 V", "0.30 V"))
+    differences = check_readme(readme, [case_dir], {"wall": tmp_path / "wall.md"})
+    assert len(differences) == 1 and "block 'tanks'" in differences[0] and str(case_dir / "summary.md") in differences[0]
+    assert "-| level | hybrid | 0.30 V |" in differences[0] and "+| level | hybrid | 0.38 V |" in differences[0]
+    before = readme.read_text()
+    assert main(args + ["--check"]) == 1
+    assert readme.read_text() == before
+    other_case = tmp_path / "results" / "ipb"
+    other_case.mkdir()
+    (other_case / "summary.md").write_text("x\n")
+    with pytest.raises(ValueError, match="measured:ipb"):
+        check_readme(readme, [other_case])

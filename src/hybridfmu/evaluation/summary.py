@@ -6,11 +6,14 @@ improvement factors. ``python -m hybridfmu.evaluation.summary README.md results/
 each case's ``summary.md`` into the README between the markers
 ``<!-- measured:<case> -->`` and ``<!-- /measured:<case> -->``, and ``--block NAME=FILE`` the Markdown a
 benchmark script wrote into the block NAME, so no measured number in the README is typed by hand.
+``--check`` changes nothing: it compares each of those blocks with its file and exits 1 naming every block
+that differs (with a diff), so a README edited by hand or left behind a newer run is caught.
 """
 
 from __future__ import annotations
 
 import argparse
+import difflib
 import math
 import re
 from pathlib import Path
@@ -31,6 +34,10 @@ def _factor(reference: Any, candidate: Any) -> str:
     return f"×{float(reference) / float(candidate):.3g}"
 
 
+def _square(value: Any) -> float | None:
+    return None if value is None else float(value) ** 2
+
+
 def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, Any] | None,
                  units: dict[str, str]) -> str:
     """Markdown lines quoting one run's test figures.
@@ -45,13 +52,14 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
 
     Returns:
         A table: one row per target signal and model with RMSE and MAE on the whole test record, and
-        the factor by which each model's RMSE is below the FMU's.
+        the factors by which each model's MAE and MSE are below the FMU's (the paper's two measures; the
+        MSE factor is the square of the RMSE factor).
     """
     far = (diagnosis or {}).get("how_far") or {}
     effects = (", ".join((diagnosis or {}).get("which", {}).get("found_effects", [])) or "none").replace("|", "\\|")
     lines = [f"Case `{case}`, test maneuver(s) {', '.join(test_metrics.get('maneuvers', [])) or ''}, "
              f"open loop over the whole record ({_number(test_metrics.get('duration_s'))} s):", "",
-             "| signal | model | RMSE | MAE | RMSE vs FMU |", "|---|---|---|---|---|"]
+             "| signal | model | RMSE | MAE | MAE vs FMU | MSE vs FMU |", "|---|---|---|---|---|---|"]
     for signal in test_metrics["signals"]:
         unit = f" {units.get(signal, '')}".rstrip()
         fmu = test_metrics["fmu"]
@@ -65,7 +73,8 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
         for label, values in rows:
             rmse, mae = values.get(f"{signal}_rmse"), values.get(f"{signal}_mae")
             lines.append(f"| {signal} | {label} | {_number(rmse)}{unit} | {_number(mae)}{unit} | "
-                         f"{_factor(fmu.get(f'{signal}_rmse'), rmse)} |")
+                         f"{_factor(fmu.get(f'{signal}_mae'), mae)} | "
+                         f"{_factor(_square(fmu.get(f'{signal}_rmse')), _square(rmse))} |")
     return "\n".join(lines) + "\n"
 
 
@@ -112,6 +121,39 @@ def replace_block(document: str, case: str, block: str) -> str:
     return pattern.sub(lambda _: f"{start}\n{block.rstrip()}\n{end}", document, count=1)
 
 
+def block_text(document: str, name: str) -> str:
+    """The text between the markers of block ``name`` (without the markers and their line breaks).
+
+    Raises:
+        ValueError: the document has no (or an unterminated) block ``name``.
+    """
+    start, end = f"<!-- measured:{name} -->", f"<!-- /measured:{name} -->"
+    found = re.search(re.escape(start) + r"\n?(.*?)\n?" + re.escape(end), document, re.DOTALL)
+    if not found:
+        raise ValueError(f"no block {start} ... {end} in the document; add both markers where the figures go")
+    return found.group(1)
+
+
+def _sources(case_dirs: list[str | Path], blocks: dict[str, str | Path] | None) -> dict[str, Path]:
+    """Block name -> the file whose text belongs in it: each case's ``summary.md``, then ``blocks``.
+
+    Raises:
+        FileNotFoundError: a case has no ``summary.md`` (run its workflow first) or a block's file is missing;
+            names the file.
+    """
+    sources: dict[str, Path] = {}
+    for case_dir in case_dirs:
+        summary = Path(case_dir) / "summary.md"
+        if not summary.is_file():
+            raise FileNotFoundError(f"{summary}: no summary of case {Path(case_dir).name}; run its workflow first")
+        sources[Path(case_dir).name] = summary
+    for name, path in (blocks or {}).items():
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"{path}: no such file for the README's block {name!r}; run its benchmark first")
+        sources[name] = Path(path)
+    return sources
+
+
 def update_readme(readme_path: str | Path, case_dirs: list[str | Path],
                   blocks: dict[str, str | Path] | None = None) -> Path:
     """Copy ``<case_dir>/summary.md`` of each case into the README's block of that case, and each file of
@@ -119,24 +161,39 @@ def update_readme(readme_path: str | Path, case_dirs: list[str | Path],
 
     Raises:
         FileNotFoundError: a case has no ``summary.md`` (run its workflow first) or a block's file is missing;
-            names the file.
+            names the file. The README is left as it was.
     """
     readme_path = Path(readme_path)
     document = readme_path.read_text()
-    for case_dir in case_dirs:
-        case_dir = Path(case_dir)
-        summary = case_dir / "summary.md"
-        if not summary.is_file():
-            raise FileNotFoundError(f"{summary}: no summary of case {case_dir.name}; run its workflow first")
-        document = replace_block(document, case_dir.name, summary.read_text())
-    for name, path in (blocks or {}).items():
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: no such file for the README's block {name!r}; run its benchmark first")
+    for name, path in _sources(case_dirs, blocks).items():
         document = replace_block(document, name, path.read_text())
     with atomic_path(readme_path) as tmp:
         Path(tmp).write_text(document)
     return readme_path
+
+
+def check_readme(readme_path: str | Path, case_dirs: list[str | Path],
+                 blocks: dict[str, str | Path] | None = None) -> list[str]:
+    """Compare the README's blocks with the files :func:`update_readme` would copy into them.
+
+    Returns:
+        One message per block that differs (its name, its file and a unified diff from the README's text to the
+        file's); empty when the README quotes every file as written.
+
+    Raises:
+        FileNotFoundError: as :func:`update_readme`.
+        ValueError: the README lacks a block's markers.
+    """
+    readme_path = Path(readme_path)
+    document = readme_path.read_text()
+    differences = []
+    for name, path in _sources(case_dirs, blocks).items():
+        quoted, written = block_text(document, name).rstrip(), path.read_text().rstrip()
+        if quoted != written:
+            diff = "\n".join(difflib.unified_diff(quoted.splitlines(), written.splitlines(),
+                                                   f"{readme_path} (block {name})", str(path), lineterm=""))
+            differences.append(f"{readme_path}: block {name!r} differs from {path}:\n{diff}")
+    return differences
 
 
 def _block(text: str) -> tuple[str, str]:
@@ -152,9 +209,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("case_dirs", nargs="*", help="results/<case> folders with a summary.md")
     parser.add_argument("--block", type=_block, action="append", default=[], metavar="NAME=FILE",
                         help="a Markdown file written by a benchmark script, for the README's block NAME")
+    parser.add_argument("--check", action="store_true",
+                        help="change nothing; exit 1 naming each block that differs from its file")
     args = parser.parse_args(argv)
     if not args.case_dirs and not args.block:
         parser.error("nothing to copy: give results/<case> folders and/or --block NAME=FILE")
+    if args.check:
+        differences = check_readme(args.readme, args.case_dirs, dict(args.block))
+        for message in differences:
+            print(message)
+        names = list(_sources(args.case_dirs, dict(args.block)))
+        print(f"{args.readme}: {len(names) - len(differences)} of {len(names)} block(s) quote their file as written")
+        return 1 if differences else 0
     update_readme(args.readme, args.case_dirs, dict(args.block))
     return 0
 
