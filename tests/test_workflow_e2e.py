@@ -56,7 +56,9 @@ def planned_rules(output: str) -> set[str]:
 def tiny_run(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("tiny_case")
     start = time.perf_counter()
-    snakemake(workdir, TINY)
+    # a guard against a hung run, not a time limit: the whole tiny workflow with both searches takes minutes, more
+    # on a loaded machine
+    snakemake(workdir, TINY, timeout_s=1800)
     elapsed_s = time.perf_counter() - start
     config = yaml.safe_load(TINY.read_text())
     return workdir, workdir / config.get("results_dir", "results") / config["case"], config, elapsed_s
