@@ -108,16 +108,20 @@ def write_case_summary(out_path: str | Path, case: str, test_metrics_path: str |
     return Path(out_path)
 
 
+def _markers(name: str) -> tuple[str, str]:
+    """The opening and closing marker of the README block ``name``."""
+    return f"<!-- measured:{name} -->", f"<!-- /measured:{name} -->"
+
+
 def replace_block(document: str, case: str, block: str) -> str:
     """``document`` with the text between the case's markers replaced by ``block``.
 
     Raises:
         ValueError: the document has no (or an unterminated) block for ``case``.
     """
-    start, end = f"<!-- measured:{case} -->", f"<!-- /measured:{case} -->"
+    block_text(document, case)  # raises when the markers are missing
+    start, end = _markers(case)
     pattern = re.compile(re.escape(start) + r".*?" + re.escape(end), re.DOTALL)
-    if not pattern.search(document):
-        raise ValueError(f"no block {start} ... {end} in the document; add both markers where the figures go")
     return pattern.sub(lambda _: f"{start}\n{block.rstrip()}\n{end}", document, count=1)
 
 
@@ -127,7 +131,7 @@ def block_text(document: str, name: str) -> str:
     Raises:
         ValueError: the document has no (or an unterminated) block ``name``.
     """
-    start, end = f"<!-- measured:{name} -->", f"<!-- /measured:{name} -->"
+    start, end = _markers(name)
     found = re.search(re.escape(start) + r"\n?(.*?)\n?" + re.escape(end), document, re.DOTALL)
     if not found:
         raise ValueError(f"no block {start} ... {end} in the document; add both markers where the figures go")
