@@ -93,6 +93,35 @@ def test_physics_model_adds_the_effects_to_the_fmu(diagnosed):
     np.testing.assert_allclose(seen[:-2, 0], 1.05 * sequence[2:, 0])
 
 
+class KernelSpring(BridgedSpring):
+    """The bridged spring with the bridge's low-overhead kernel: one buffer, overwritten by every call."""
+
+    def derivatives_kernel(self, n):
+        buffer = np.empty((n, 2))
+
+        def kernel(x, u):
+            buffer[:] = self.derivatives(x, u)
+            return buffer
+
+        return kernel
+
+
+@pytest.mark.parametrize("fmu_class", [BridgedSpring, KernelSpring])
+def test_physics_kernel_gives_the_derivatives_in_fresh_arrays(diagnosed, fmu_class):
+    """The gradient-free rollouts' kernel: the FMU's kernel (or its derivatives) plus the terms, the values of
+    ``derivatives`` to the bit, and a result that the next call does not overwrite."""
+    physics = PhysicsModel(fmu_class(), fmu_class(), diagnosed)
+    x, u = states_and_inputs(n=6)
+    kernel = physics.derivatives_kernel(6)
+    first = kernel(x, u)
+    np.testing.assert_array_equal(first, physics.derivatives(x, u))
+    kept = first.copy()
+    second = kernel(x + 1.0, u)
+    np.testing.assert_array_equal(first, kept)
+    np.testing.assert_array_equal(second, physics.derivatives(x + 1.0, u))
+    assert not np.array_equal(first, second)
+
+
 def test_physics_jacobians_match_central_differences(diagnosed):
     physics = PhysicsModel(BridgedSpring(), BridgedSpring(), diagnosed)
     x, u = states_and_inputs(n=12)

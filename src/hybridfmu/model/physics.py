@@ -187,8 +187,22 @@ class PhysicsModel:
 
     # ------------------------------------------------------------------ the training engines' kernels
     def derivatives_kernel(self, n: int):
-        """``(x (n, n_x), u (n, n_u)) -> (n, n_x)`` (the bridge's kernel interface; fresh arrays per call)."""
-        return self.derivatives
+        """``(x (n, n_x), u (n, n_u)) -> (n, n_x)`` (the bridge's kernel interface; fresh arrays per call): the
+        FMU's own low-overhead kernel (when it has one) plus the additive terms. Same values as
+        :meth:`derivatives`; the gradient-free rollouts (validation, evaluation) call it once per solver stage."""
+        fmu_kernel = getattr(self.fmu, "derivatives_kernel", None)
+        if not callable(fmu_kernel):
+            return self.derivatives
+        fmu_derivatives = fmu_kernel(n)
+        if not self.corrected.has_correction:
+            return lambda x, u: np.array(fmu_derivatives(x, u))
+        additive = self.corrected.additive_batch
+
+        def kernel(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+            f = fmu_derivatives(x, u)  # the kernel's buffer: the sum below is a fresh array
+            return f + additive(x, u)
+
+        return kernel
 
     def derivatives_and_jacobians_kernel(self, n: int):
         """``(x (n, n_x), u (n, n_u)) -> (xdot, dfdx, dfdu)`` (the bridge's kernel interface, for the NumPy
