@@ -18,7 +18,8 @@ from hybridfmu.diagnosis.problem import set_data_statistics
 from hybridfmu.diagnosis.selection import Term
 from hybridfmu.fmu import FmuRhs
 from hybridfmu.model import NeuralFmu, NeuralFmuSpec
-from hybridfmu.model.physics import DELAY_KINDS, PhysicsModel, physics_effects, uses_physics
+from hybridfmu.model.physics import DELAY_KINDS, PhysicsModel, physics_effects
+from hybridfmu.model.settings import uses_physics
 from hybridfmu.training.solver import rollout
 
 H = 0.01

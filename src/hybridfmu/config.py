@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -10,6 +11,8 @@ import yaml
 
 #: The schema every case config is validated against (sections are $ref'd files beside it).
 SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
+#: libyaml's loader where PyYAML was built with it (several times faster), else the pure-Python one
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 class ConfigError(ValueError):
@@ -19,37 +22,75 @@ class ConfigError(ValueError):
 def validate_case_config(config: dict[str, Any], schema_path: str | Path = SCHEMA_PATH) -> dict[str, Any]:
     """Validate ``config`` in place (defaults from the schema are filled in) and return it.
 
+    The schema is JSON Schema 2020-12 in YAML; ``$ref`` to a file resolves relative to the referring file.
+    Schema files are read once per process (the workflow validates the config and several sections each
+    time Snakemake starts, in every job).
+
     Raises:
         ConfigError: naming the offending field (e.g. ``config.training.batch_windows``)
             and what the schema expects there.
     """
     import jsonschema
-    from snakemake.exceptions import WorkflowError
-    from snakemake.utils import validate
 
-    schema_path = Path(schema_path).resolve()
+    validator = _default_filling_validator(str(Path(schema_path).resolve()))
     try:
-        validate(config, str(schema_path))
-    except WorkflowError as err:
-        cause = err.args[0] if err.args else err
-        detail = _describe_validation_error(err)
-        raise ConfigError(f"invalid case config: {detail or cause}") from None
-    except jsonschema.ValidationError as err:  # pragma: no cover - depends on snakemake version
+        validator.validate(config)
+    except jsonschema.ValidationError as err:
         raise ConfigError(f"invalid case config: {_format_error(err)}") from None
-    fill_defaults(config, bundled_schema(schema_path))
+    fill_defaults(config, _bundled_schema(str(Path(schema_path).resolve())))  # fill_defaults copies defaults
     return config
+
+
+@functools.lru_cache(maxsize=None)
+def _schema_file(path: str) -> dict[str, Any]:
+    """The parsed schema file at the absolute ``path`` (read once; callers must not change it)."""
+    with open(path, encoding="utf-8") as handle:
+        return yaml.load(handle, Loader=_YAML_LOADER)
+
+
+@functools.lru_cache(maxsize=None)
+def _default_filling_validator(path: str) -> Any:
+    """A Draft 2020-12 validator of the schema at the absolute ``path`` that, like Snakemake's config
+    validation, sets each absent property that has a ``default`` before validating it (a copy of the default,
+    so no two configs share one)."""
+    from urllib.parse import urlparse
+    from urllib.request import url2pathname
+
+    from jsonschema import Draft202012Validator, validators
+    from referencing import Registry, Resource
+    from referencing.jsonschema import DRAFT202012
+
+    def retrieve(uri: str) -> Resource:
+        return Resource.from_contents(_schema_file(url2pathname(urlparse(uri).path)),
+                                      default_specification=DRAFT202012)
+
+    # $id: relative $refs resolve against the schema file itself
+    schema = {**_schema_file(path), "$id": Path(path).as_uri()}
+    validate_properties = Draft202012Validator.VALIDATORS["properties"]
+
+    def set_defaults(validator: Any, properties: dict[str, Any], instance: Any, subschema: dict[str, Any]):
+        if isinstance(instance, dict):
+            for name, property_schema in properties.items():
+                if isinstance(property_schema, dict) and "default" in property_schema and name not in instance:
+                    instance[name] = copy.deepcopy(property_schema["default"])
+        yield from validate_properties(validator, properties, instance, subschema)
+
+    filling = validators.extend(Draft202012Validator, {"properties": set_defaults})
+    return filling(schema, registry=Registry(retrieve=retrieve))
 
 
 def bundled_schema(schema_path: str | Path) -> dict[str, Any]:
     """The schema at ``schema_path`` with every ``$ref`` to a local file replaced by that file's content.
 
     Section schemas are separate files referenced from the top-level schema; bundling them
-    lets defaults inside the sections be filled in (see :func:`fill_defaults`).
+    lets defaults inside the sections be filled in (see :func:`fill_defaults`). A fresh copy each call.
     """
-    schema_path = Path(schema_path).resolve()
-    with schema_path.open() as handle:
-        schema = yaml.safe_load(handle)
-    return _inline_refs(schema, schema_path.parent)
+    return copy.deepcopy(_bundled_schema(str(Path(schema_path).resolve())))
+
+
+@functools.lru_cache(maxsize=None)
+def _bundled_schema(path: str) -> dict[str, Any]:
+    return _inline_refs(_schema_file(path), Path(path).parent)
 
 
 def _inline_refs(node: Any, base_dir: Path) -> Any:
@@ -57,8 +98,7 @@ def _inline_refs(node: Any, base_dir: Path) -> Any:
         ref = node.get("$ref")
         if isinstance(ref, str) and not ref.startswith("#") and "://" not in ref:
             target = (base_dir / ref).resolve()
-            with target.open() as handle:
-                inlined = _inline_refs(yaml.safe_load(handle), target.parent)
+            inlined = _inline_refs(_schema_file(str(target)), target.parent)
             rest = {key: _inline_refs(value, base_dir) for key, value in node.items() if key != "$ref"}
             return {**inlined, **rest}
         return {key: _inline_refs(value, base_dir) for key, value in node.items()}
@@ -90,25 +130,6 @@ def fill_defaults(instance: Any, schema: dict[str, Any]) -> Any:
     return instance
 
 
-def _describe_validation_error(err: BaseException) -> str:
-    """Find the jsonschema error inside a Snakemake WorkflowError and format it."""
-    import jsonschema
-
-    seen: list[BaseException] = [err]
-    while seen:
-        current = seen.pop()
-        if isinstance(current, jsonschema.ValidationError):
-            return _format_error(current)
-        for attr in ("__cause__", "__context__"):
-            nested = getattr(current, attr, None)
-            if nested is not None:
-                seen.append(nested)
-        for arg in getattr(current, "args", ()):
-            if isinstance(arg, BaseException):
-                seen.append(arg)
-    return ""
-
-
 def _format_error(err: Any) -> str:
     path = ".".join(str(p) for p in err.absolute_path)
     where = f"config.{path}" if path else "config (top level)"
@@ -133,7 +154,7 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError as err:
         raise ConfigError(f"{path}: not a text file ({err}); expected a UTF-8 YAML case config") from None
-    loader = yaml.SafeLoader(text)
+    loader = yaml.SafeLoader(text)  # the pure-Python parser: its messages name the problem precisely
     try:
         node = loader.get_single_node()
         if node is not None:

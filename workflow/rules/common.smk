@@ -29,7 +29,7 @@ CASE = config["case"]
 RESULTS = f"{config.get('results_dir', 'results')}/{CASE}"
 MANEUVERS = list(config["maneuvers"])
 # a hybrid (model.physics_terms): a second search (train.smk) and a fourth model in the evaluation
-from hybridfmu.model.physics import uses_physics
+from hybridfmu.model.settings import uses_physics
 HYBRID = uses_physics(config.get("model") or {})
 # a hybrid whose delays start at the time-offset stage's estimates gets its own, on its physical layer (rule
 # hybrid_time_offset in train.smk; the report and the summary show them beside its delays)

@@ -1,13 +1,27 @@
-"""Neural-FMU layers (paper Fig. 7): input delay, FMU, pre/post-processing, tanh MLP, gates."""
+"""Neural-FMU layers (paper Fig. 7): input delay, FMU, pre/post-processing, tanh MLP, gates.
 
-from .delay import InputDelay, SAMPLE_POSITIONS
-from .fmu_layer import FmuLayer
-from .gates import Gates
-from .mlp import TanhMLP
-from .neural_fmu import STATISTICS_KEYS, FusedDerivative, NeuralFmu
-from .shift_scale import ScaleShift, ShiftScale
-from .spec import EndStop, NeuralFmuSpec
+The layers are imported on first use (PEP 562): reading a config setting of this package (e.g.
+:mod:`hybridfmu.model.settings`) as the workflow starts does not load PyTorch.
+"""
 
-__all__ = ["InputDelay", "SAMPLE_POSITIONS", "FmuLayer", "Gates", "TanhMLP",
-           "STATISTICS_KEYS", "FusedDerivative", "NeuralFmu", "ScaleShift", "ShiftScale", "EndStop",
-           "NeuralFmuSpec"]
+import importlib
+
+_LAYERS = {
+    "InputDelay": "delay", "SAMPLE_POSITIONS": "delay", "FmuLayer": "fmu_layer", "Gates": "gates",
+    "TanhMLP": "mlp", "STATISTICS_KEYS": "neural_fmu", "FusedDerivative": "neural_fmu", "NeuralFmu": "neural_fmu",
+    "ScaleShift": "shift_scale", "ShiftScale": "shift_scale", "EndStop": "spec", "NeuralFmuSpec": "spec",
+}
+
+__all__ = list(_LAYERS)
+
+
+def __getattr__(name: str):
+    if name not in _LAYERS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{_LAYERS[name]}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAYERS))

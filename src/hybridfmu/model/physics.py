@@ -241,8 +241,3 @@ def physics_effects(physics_terms: Any) -> list[str] | None:
         return list(physics_terms)
     raise ValueError(f"config.model.physics_terms: expected 'from_diagnosis' or a list of effect names for a "
                      f"hybrid, got {physics_terms!r}")
-
-
-def uses_physics(model_config: dict[str, Any]) -> bool:
-    """Whether the case's ``model`` section asks for a hybrid (``physics_terms`` other than ``none``)."""
-    return (model_config or {}).get("physics_terms", "none") != "none"

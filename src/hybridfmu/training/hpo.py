@@ -25,19 +25,6 @@ TRIAL_SUMMARY_KEYS = ("trial_id", "bracket", "rung", "config", "hash", "status",
                       "mlflow_run_id", "wall_time_s")
 
 
-def role_maneuver(config: dict[str, Any], role: str, chosen: str = "") -> str:
-    """The maneuver used for ``role`` (train / validation): ``chosen`` if set, else the first of that role."""
-    maneuvers = config["maneuvers"]
-    if chosen:
-        if chosen not in maneuvers:
-            raise ValueError(f"config.training: maneuver {chosen!r} is not in config.maneuvers {list(maneuvers)}")
-        return chosen
-    for name, item in maneuvers.items():
-        if item["role"] == role:
-            return name
-    raise ValueError(f"config.maneuvers: no maneuver with role {role!r} (training needs one)")
-
-
 def prepare_training_data(*, fmu_path: str | Path, calibration_path: str | Path | None, roles: Any,
                           maneuvers: dict[str, str], maneuvers_config: dict[str, Any] | None,
                           data_paths: dict[str, str], segments_paths: dict[str, str],

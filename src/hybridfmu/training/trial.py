@@ -128,7 +128,8 @@ def hybrid_physics(model_config: dict[str, Any], fmu_path: str | Path, fmu_param
     Raises:
         ValueError: a hybrid without the diagnosed model's path.
     """
-    from hybridfmu.model.physics import DELAY_KINDS, physics_effects, physics_model, uses_physics
+    from hybridfmu.model.physics import DELAY_KINDS, physics_effects, physics_model
+    from hybridfmu.model.settings import uses_physics
 
     if not uses_physics(model_config):
         return None
