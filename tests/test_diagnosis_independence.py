@@ -41,7 +41,7 @@ DIMENSIONLESS_KEYS = ("quantile", "relative", "order", "harmonic", "degree", "sa
 DIMENSIONLESS_SECTIONS = ("selection",)
 #: Bench constants that are the FMU's own (nominal) parameters, not the bench's truth.
 MODEL_OWN = ("NOMINAL_PARAMETERS",)
-#: Bench modules outside the real world's physics (scoring of the withheld-effect suite lives in diagnosis).
+#: Bench modules outside the real world's physics.
 SKIPPED_BENCH_MODULES = ("hybridfmu.bench.mdf_writer",)
 
 
@@ -132,8 +132,6 @@ def diagnosis_values() -> list[tuple[str, float]]:
     """Every physical number of the diagnosis' defaults and of the case configs' diagnosis sections."""
     out: list[tuple[str, float]] = []
     for module in _modules(diagnosis_package):
-        if module.__name__.split(".")[-1].startswith("withheld"):
-            continue  # the suite's scoring side, which may read the bench's truth
         out += [(p, v) for p, v in _module_constants(module) if not is_dimensionless(p)]
         out += [(p, v) for p, v in _inline_defaults(Path(module.__file__)) if not is_dimensionless(p)]
     schema = ROOT / "workflow" / "schemas" / "diagnosis.schema.yaml"
@@ -201,8 +199,6 @@ def test_physical_settings_are_compared(path):
 def test_no_diagnosis_module_imports_the_bench():
     offenders = []
     for file in sorted((ROOT / "src" / "hybridfmu" / "diagnosis").glob("*.py")):
-        if file.stem.startswith("withheld"):
-            continue
         for node in ast.walk(ast.parse(file.read_text())):
             names = []
             if isinstance(node, ast.Import):

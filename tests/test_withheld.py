@@ -16,8 +16,8 @@ import pytest
 import yaml
 
 from hybridfmu.config import read_config_file, validate_case_config
-from hybridfmu.diagnosis import withheld
-from hybridfmu.diagnosis.withheld_report import SUMMARY_COLUMNS, summarise
+from hybridfmu.withheld import suite as withheld
+from hybridfmu.withheld.report import SUMMARY_COLUMNS, summarise
 
 ROOT = Path(__file__).resolve().parents[1]
 DURATION_S = 3.0

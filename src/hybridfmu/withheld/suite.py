@@ -17,8 +17,8 @@ of ``withheld.seeds`` a case config is generated from the main case. Its bench h
 
 Each case is emulated (its maneuvers truncated to ``duration_s``), ingested, segmented and diagnosed by the
 ordinary stage functions (no calibration, no neural FMU). The diagnosis sees the logs, the FMU and the case
-config without its ``bench`` section; only the scoring (:mod:`hybridfmu.diagnosis.withheld_scoring`) reads
-the bench's ground truth and the draws, and :mod:`hybridfmu.diagnosis.withheld_report` aggregates the scores
+config without its ``bench`` section; only the scoring (:mod:`hybridfmu.withheld.scoring`) reads
+the bench's ground truth and the draws, and :mod:`hybridfmu.withheld.report` aggregates the scores
 into ``summary.csv``, ``summary.md``, the detection-limit and confusion figures.
 
 Case ids (Snakemake wildcard ``wcase``): ``s<seed>__single_<effect>__size<k>`` (stratum k = 1 .. sizes_per_effect,
@@ -41,7 +41,7 @@ import yaml
 
 from hybridfmu.io import write_json_atomic, write_text_atomic
 
-LOGGER = logging.getLogger("hybridfmu.diagnosis.withheld")
+LOGGER = logging.getLogger("hybridfmu.withheld.suite")
 
 #: How each bench parameter of a withheld effect is drawn, relative to the main case's value of it (the
 #: "reference": ``bench.effects.<effect>.<parameter>`` of the main case, else the bench catalog's default):
