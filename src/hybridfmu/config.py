@@ -32,12 +32,12 @@ def validate_case_config(config: dict[str, Any], schema_path: str | Path = SCHEM
     """
     import jsonschema
 
-    validator = _default_filling_validator(str(Path(schema_path).resolve()))
+    path = str(Path(schema_path).resolve())
     try:
-        validator.validate(config)
+        _default_filling_validator(path).validate(config)
     except jsonschema.ValidationError as err:
         raise ConfigError(f"invalid case config: {_format_error(err)}") from None
-    fill_defaults(config, _bundled_schema(str(Path(schema_path).resolve())))  # fill_defaults copies defaults
+    fill_defaults(config, _bundled_schema(path))  # fill_defaults copies the defaults it sets
     return config
 
 
@@ -79,17 +79,14 @@ def _default_filling_validator(path: str) -> Any:
     return filling(schema, registry=Registry(retrieve=retrieve))
 
 
-def bundled_schema(schema_path: str | Path) -> dict[str, Any]:
-    """The schema at ``schema_path`` with every ``$ref`` to a local file replaced by that file's content.
-
-    Section schemas are separate files referenced from the top-level schema; bundling them
-    lets defaults inside the sections be filled in (see :func:`fill_defaults`). A fresh copy each call.
-    """
-    return copy.deepcopy(_bundled_schema(str(Path(schema_path).resolve())))
-
-
 @functools.lru_cache(maxsize=None)
 def _bundled_schema(path: str) -> dict[str, Any]:
+    """The schema at the absolute ``path`` with every ``$ref`` to a local file replaced by that file's content
+    (built once; callers must not change it).
+
+    Section schemas are separate files referenced from the top-level schema; bundling them
+    lets defaults inside the sections be filled in (see :func:`fill_defaults`).
+    """
     return _inline_refs(_schema_file(path), Path(path).parent)
 
 

@@ -3,7 +3,7 @@
 An ingested frame (:func:`hybridfmu.data.ingest.ingest_log`) holds ``time_s`` and one column per
 signal, each in its model unit: the unit of the FMU variable it feeds. These helpers stack the
 columns in the order the FMU (and the loss) wants them. No signal is computed here: derived
-signals (e.g. rotor-frame currents) are transforms applied at ingest.
+signals (e.g. a force from a measured pressure) are transforms applied at ingest.
 
 API::
 

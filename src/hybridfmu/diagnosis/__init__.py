@@ -8,7 +8,8 @@ with units and labels) and any Model-Exchange FMU. Modules: ``problem`` (the cas
 ``regions`` (residual over operating regions and time), ``corrected_model`` (chosen effects added to the
 model, open-loop re-simulation), ``neural`` (comparison with the trained neural FMU), ``report``
 (diagnosis.json, report.md, MLflow), ``figures``, ``run`` (``analyse``, ``run_diagnosis``). The
-withheld-effect check, which drives the emulated bench and scores against its truth, is a package of its own
-(:mod:`hybridfmu.withheld`): no module here imports the bench. Case plugins with machine knowledge live in modules named after the
-machine (``effects_motor``) and are loaded only when a case config lists them in ``diagnosis.plugins``.
+withheld-effect check, which drives the emulated bench and scores against its truth, is a package of its
+own (:mod:`hybridfmu.withheld`): no module here imports the bench. Case plugins with machine knowledge
+live in modules named after the machine (``effects_motor``) and are loaded only when a case config lists
+them in ``diagnosis.plugins``.
 """

@@ -112,8 +112,8 @@ class CorrectedModel:
         problem: the problem (state and input counts; ``diagnosis.effects.lag_derivative_window_s``, the
             window of the input rate of fitted input lags).
         helper: a second model instance for terms with a ``batch_function`` (may be None otherwise).
-        joint_batches: evaluate a joint effect whose members offer ``joint_batch_function`` (e.g. the inverter
-            dead time in both current equations) once for all its equations; False evaluates each member on its
+        joint_batches: evaluate a joint effect whose members offer ``joint_batch_function`` (e.g. one
+            actuator dead time acting in several equations) once for all its equations; False evaluates each member on its
             own (same values; ``benchmarks/physics_layer.py`` times both).
     """
 

@@ -6,7 +6,7 @@ FMU plus the diagnosed effects (:mod:`hybridfmu.model.physics`), so its start is
 that model: the same short windows after each group's input changes, the same candidates and refinement
 (:func:`hybridfmu.evaluation.offset.group_estimates`), simulated with the FMU plus the effects (their input
 changes included) instead of the FMU alone. An effect the FMU lacks no longer has to be absorbed by the
-estimate (e.g. a dead time of the inverter, which also delays the current's response to a duty change).
+estimate (e.g. an actuator's dead time, which also delays a state's response to an input change).
 """
 
 from __future__ import annotations

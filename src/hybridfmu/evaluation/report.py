@@ -274,7 +274,7 @@ def coefficient_lines(coefficients: dict[str, dict[str, float]] | None) -> list[
     for name, values in coefficients.items():
         diagnosed, trained = float(values["diagnosed"]), float(values["trained"])
         change = f"{(trained - diagnosed) / abs(diagnosed) * 100:+.1f} %" if diagnosed else "–"
-        cell = name.replace("|", "\\|")  # an effect name such as coulomb(omega)*|tau_load| inside a table cell
+        cell = name.replace("|", "\\|")  # an effect name such as coulomb(v)*|F| inside a table cell
         out.append(f"| `{cell}` | {_number(diagnosed, 4)} | {_number(trained, 4)} | {change} |")
     return out + [""]
 
