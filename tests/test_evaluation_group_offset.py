@@ -113,3 +113,42 @@ def test_windows_start_where_the_group_changes_and_do_not_overlap():
     assert starts == [118, 48]
     assert change_windows(u, [0], 4, 10, margin=5, lead_samples=0) == [120, 50]
     assert change_windows(np.zeros((50, 1)), [0], 4, 10, margin=5) == []
+
+
+def test_the_bootstrap_standard_error_follows_the_noise():
+    """The estimate's standard error grows with the measurement noise, and the truth lies within a few of it;
+    the bootstrap draws only from the seed (same seed, same error)."""
+    true = np.array([1.3e-3, -0.4e-3, 0.0])
+    errors = {}
+    for noise in (2e-3, 2e-2):
+        u, x = measured(true, noise=noise)
+        estimate = estimate_group_delays(estimator(u, x), u, GROUPS, 5, 30, CANDIDATES, margin=8, lead_samples=3,
+                                         bootstrap_samples=100, seed=5)
+        error_s = estimate.standard_errors_s["first"]
+        assert error_s > 0
+        assert abs(estimate.delays_s["first"] - 1.3e-3) < 4 * error_s + 1e-6
+        assert estimate.bootstrap_on_edge["first"] < 0.05
+        assert "idle" not in estimate.standard_errors_s  # not identified: no error to report
+        errors[noise] = error_s
+    assert errors[2e-2] > 3 * errors[2e-3]
+    again = estimate_group_delays(estimator(u, x), u, GROUPS, 5, 30, CANDIDATES, margin=8, lead_samples=3,
+                                  bootstrap_samples=100, seed=5)
+    assert again.standard_errors_s["first"] == errors[2e-2]
+    none = estimate_group_delays(estimator(u, x), u, GROUPS, 5, 30, CANDIDATES, margin=8, lead_samples=3,
+                                 bootstrap_samples=0)
+    assert none.standard_errors_s == {}
+
+
+def test_the_window_sums_give_the_gain_fit_cost_and_the_parabola_its_minimum():
+    from hybridfmu.evaluation.group_offset import (gain_fit_cost, parabola_minimum, residual_energy,
+                                                   window_statistics)
+
+    rng = np.random.default_rng(0)
+    simulated, data = rng.normal(size=(6, 2)), rng.normal(size=(6, 2))
+    simulated[:, 1] = 0.0  # a state the model never moves keeps the gain 1
+    assert residual_energy(window_statistics(simulated, data)) / simulated.size == pytest.approx(
+        gain_fit_cost(simulated, data)[0], rel=1e-12)
+    grid = np.linspace(-1.0, 1.0, 11)
+    minima, on_edge = parabola_minimum(np.stack([(grid - 0.13) ** 2, (grid + 3.0) ** 2]), grid)
+    assert minima[0] == pytest.approx(0.13, abs=1e-12) and not on_edge[0]
+    assert minima[1] == -1.0 and on_edge[1]

@@ -114,3 +114,19 @@ def test_write_report_from_files(tmp_path):
     plain = tmp_path / "plain.truth.json"
     plain.write_text(json.dumps({"time_offset": {"input_delay_s": 3e-5}}))
     assert true_input_delay([str(plain)], {"all": ["d_a", "u_dc"]}, channels)[0] == {"all": 3e-5}
+
+
+def test_delay_table_shows_the_estimates_error_and_the_band_the_delay_learned_within():
+    from hybridfmu.evaluation.report import delay_lines
+
+    estimates = {"duties": {"delay_s": 2.845e-5, "standard_error_s": 6.1e-7, "identified": True},
+                 "load": {"delay_s": 0.0, "standard_error_s": None, "identified": False}}
+    lines = delay_lines({"duties": 2.7e-5, "load": 2e-6}, {"duties": 3e-5, "load": 0.0}, "truth.json", None,
+                        estimates, {"duties": [2.66e-5, 3.03e-5]})
+    assert lines[0] == "| input group | learned Δt | time-offset estimate | learned within | true offset | learned − true |"
+    assert "| duties | 27.00 µs | 28.45 µs ± 0.61 µs | 26.60 µs … 30.30 µs | 30.00 µs | -3.00 µs |" in lines
+    assert "| load | 2.00 µs | 0.00 µs | the config's range | 0.00 µs | +2.00 µs |" in lines
+    # without bounds there is no such column; a plain number is an estimate without its error
+    plain = delay_lines({"duties": 2.7e-5}, None, None, None, {"duties": 2.845e-5})
+    assert plain[:3] == ["| input group | learned Δt | time-offset estimate |", "|---|---|---|",
+                         "| duties | 27.00 µs | 28.45 µs |"]

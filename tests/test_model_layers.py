@@ -78,6 +78,26 @@ def test_delay_shifts_by_whole_samples_and_interpolates():
     assert torch.allclose(edge.flatten(), torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), atol=1e-9)
 
 
+def test_a_group_with_its_own_bounds_stays_within_them():
+    """bounds_s narrows one group's range; the other keeps [min_s, max_s]; bad bounds are named."""
+    delay = InputDelay(H, -5e-4, 5e-4, init_s={"a": 2e-5, "b": 0.0}, groups=[("a", [0]), ("b", [1])],
+                       bounds_s={"a": (1.5e-5, 3e-5)})
+    assert delay.delays_s().tolist() == pytest.approx([2e-5, 0.0], abs=1e-15)
+    with torch.no_grad():
+        delay.raw.fill_(1e6)
+    assert delay.delays_s().tolist() == pytest.approx([3e-5, 5e-4], rel=1e-9)
+    with torch.no_grad():
+        delay.raw.fill_(-1e6)
+    assert delay.delays_s().tolist() == pytest.approx([1.5e-5, -5e-4], rel=1e-9)
+    assert set(delay.state_dict()) == {"raw", "group_of_input", "group_masks"}  # checkpoints keep their layout
+    with pytest.raises(ValueError, match=r"group 'a' must satisfy min_s <= low < high <= max_s"):
+        InputDelay(H, -5e-4, 5e-4, init_s=0.0, groups=[("a", [0])], bounds_s={"a": (1e-5, 6e-4)})
+    with pytest.raises(ValueError, match=r"bounds of group 'a' to hold its init_s"):
+        InputDelay(H, -5e-4, 5e-4, init_s=0.0, groups=[("a", [0])], bounds_s={"a": (1e-5, 2e-5)})
+    with pytest.raises(ValueError, match=r"unknown group\(s\) \['c'\]"):
+        InputDelay(H, -5e-4, 5e-4, init_s=0.0, groups=[("a", [0])], bounds_s={"c": (-1e-5, 2e-5)})
+
+
 def test_delay_is_bounded_and_gradient_is_right():
     delay = InputDelay(H, -2e-4, 3e-4, init_s=0.0, scale_s=1e-4)
     with torch.no_grad():

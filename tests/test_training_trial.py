@@ -477,3 +477,46 @@ def test_delays_start_at_the_time_offset_estimates(case, tmp_path):
     offset.write_text(json.dumps({"groups": {"inputs": {"delay_s": 0.0}}}))
     with pytest.raises(ValueError, match=r"time_offset\.json: field 'groups' estimates \['inputs'\]"):
         initial_delays_from_time_offset(model, offset)
+
+
+def test_delays_learn_within_standard_errors_of_the_time_offset_estimates(case, tmp_path):
+    """within_standard_errors: k bounds each identified group's delay to its estimate +- k standard errors
+    (within [min_s, max_s]); a group the stage did not identify keeps the whole range."""
+    from hybridfmu.fmu import FmuRhs
+    from hybridfmu.model import NeuralFmu
+    from hybridfmu.training.build import model_spec
+    from hybridfmu.training.hpo import delay_bounds_from_time_offset
+
+    delay = dict(case["model"]["input_delay"], init_s="time_offset", within_standard_errors=3.0, min_s=-3e-4,
+                 max_s=3e-4, groups={"duties": ["d_a", "d_b", "d_c"], "rest": ["u_dc", "tau_load"]})
+    model = dict(case["model"], input_delay=delay)
+    offset = tmp_path / "time_offset.json"
+    offset.write_text(json.dumps({"groups": {
+        "duties": {"delay_s": 2.5e-5, "identified": True, "standard_error_s": 1e-6},
+        "rest": {"delay_s": 0.0, "identified": False, "standard_error_s": None}}}))
+    bounds = delay_bounds_from_time_offset(model, offset)
+    assert bounds == {"duties": pytest.approx([2.2e-5, 2.8e-5], abs=1e-15)}
+    plan = plan_search(case="synthetic", seed=11, hpo_config=case["hpo"], training_config=case["training"],
+                       model_config=model, plan_path=tmp_path / "plan.json", tracking_uri=None, experiment=None,
+                       roles=ROLES, time_offset_path=offset)
+    assert plan["delay_bounds_s"] == bounds
+    unbounded = plan_search(case="synthetic", seed=11, hpo_config=case["hpo"], training_config=case["training"],
+                            model_config=dict(model, input_delay=dict(delay, within_standard_errors=None)),
+                            plan_path=tmp_path / "plan2.json", tracking_uri=None, experiment=None, roles=ROLES,
+                            time_offset_path=offset)
+    assert "delay_bounds_s" not in unbounded and unbounded["search_id"] != plan["search_id"]
+    fmu_model = load_fmu(case["fmu"])
+    spec = model_spec(model, fmu_model, H, width=8, depth=2, gate_opening=0.3,
+                      delay_init_s=plan["initial_delays_s"], delay_bounds_s=plan["delay_bounds_s"])
+    net = NeuralFmu(FmuRhs(fmu_model), spec, None)
+    with torch.no_grad():
+        net.delay.raw.fill_(1e9)
+    assert net.delay_s() == pytest.approx({"duties": 2.8e-5, "rest": 3e-4}, rel=1e-9)
+    # an identified group without its standard error, and bounds without the time-offset start, are named
+    offset.write_text(json.dumps({"groups": {"duties": {"delay_s": 2.5e-5, "identified": True},
+                                             "rest": {"delay_s": 0.0, "identified": False}}}))
+    with pytest.raises(ValueError, match=r"time_offset\.json: group 'duties' is identified but has no positive "
+                                         r"'standard_error_s'"):
+        delay_bounds_from_time_offset(model, offset)
+    with pytest.raises(ValueError, match=r"within_standard_errors is 3\.0, which needs init_s: time_offset"):
+        delay_bounds_from_time_offset(dict(model, input_delay=dict(delay, init_s=0.0)), offset)

@@ -47,8 +47,11 @@ def read_baseline(path: str | Path, state_names: list[str], time_s: np.ndarray) 
 
 def learned_quantities(model: Any) -> dict[str, Any]:
     """The learned input delays ``dt_s`` ({group: s}) and the gates ``{state: {"g_F", "g_A"}}`` of a neural FMU;
-    for a hybrid whose effect coefficients trained, also ``coefficients`` ({name: {"diagnosed", "trained"}})."""
+    ``delay_bounds_s`` ({group: [low, high]} s) where some groups learned within narrower bounds; for a hybrid
+    whose effect coefficients trained, also ``coefficients`` ({name: {"diagnosed", "trained"}})."""
     learned = {"dt_s": model.delay_s(), "gates": model.gate_values()}
+    if model.spec.delay_bounds_s:
+        learned["delay_bounds_s"] = {name: list(bounds) for name, bounds in model.spec.delay_bounds_s.items()}
     coefficients = model.physics_coefficients()
     if coefficients:
         learned["coefficients"] = coefficients
@@ -217,6 +220,8 @@ def run_evaluation(best_path: str | Path, trajectory_paths: list[str], learned_p
         run = ManeuverRun.from_frame(pd.read_parquet(path), name, signals, str(path))
         runs_by_role.setdefault(maneuver_roles[name], []).append(run)
     extra = {"dt_s": learned[0]["dt_s"], "gates": learned[0]["gates"], "best_trial": summary}
+    if learned[0].get("delay_bounds_s"):
+        extra["delay_bounds_s"] = learned[0]["delay_bounds_s"]
     if learned[0].get("hybrid"):
         extra["hybrid_learned"] = learned[0]["hybrid"]
     metrics_by_role: dict[str, dict] = {}

@@ -229,7 +229,8 @@ def group_estimates(simulate: Any, measured: Any, x: np.ndarray, roles: Any, man
 
     Returns:
         {group: {inputs, delay_s, windows, window_samples, lead_samples, gains, identified, improvement,
-        not_identified_because, cost_without_delay, cost_with_delay}} (``delay_s`` fixed, ``note``, when the
+        not_identified_because, cost_without_delay, cost_with_delay, standard_error_s (bootstrap over the
+        windows; None for a group not identified), bootstrap_on_edge}} (``delay_s`` fixed, ``note``, when the
         delay's range is empty).
     """
     from hybridfmu.evaluation.group_offset import estimate_group_delays
@@ -239,6 +240,8 @@ def group_estimates(simulate: Any, measured: Any, x: np.ndarray, roles: Any, man
     windows = int(settings.get("windows", 100))
     lead_samples = int(settings.get("lead_samples", 2))
     min_improvement = float(settings.get("min_improvement", 0.05))
+    bootstrap_samples = int(settings.get("bootstrap_samples", 200))
+    seed = int(settings.get("seed", 0))
     input_names = list(roles.input_names)
     configured = dict((delay_config or {}).get("groups") or {})
     groups = ({name: [input_names.index(i) for i in inputs] for name, inputs in configured.items()}
@@ -266,7 +269,7 @@ def group_estimates(simulate: Any, measured: Any, x: np.ndarray, roles: Any, man
         return (states[1:, measured_index] - first) / spread, (data - first) / spread
 
     estimate = estimate_group_delays(simulate_window, measured.u, groups, window_samples, windows, candidates,
-                                     margin, lead_samples, min_improvement)
+                                     margin, lead_samples, min_improvement, bootstrap_samples, seed)
     return {name: {"inputs": [input_names[c] for c in columns], "delay_s": estimate.delays_s[name],
                    "windows": estimate.windows[name], "window_samples": window_samples,
                    "lead_samples": lead_samples,
@@ -274,5 +277,7 @@ def group_estimates(simulate: Any, measured: Any, x: np.ndarray, roles: Any, man
                    "identified": estimate.identified[name], "improvement": estimate.improvement[name],
                    "not_identified_because": estimate.reasons.get(name),
                    "cost_without_delay": estimate.cost_without_delay[name],
-                   "cost_with_delay": estimate.cost_with_delay[name]}
+                   "cost_with_delay": estimate.cost_with_delay[name],
+                   "standard_error_s": estimate.standard_errors_s.get(name),
+                   "bootstrap_on_edge": estimate.bootstrap_on_edge.get(name)}
             for name, columns in groups.items()}

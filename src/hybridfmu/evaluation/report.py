@@ -151,13 +151,17 @@ def verdicts(metrics_by_role: dict[str, dict], reference: dict[str, Any] | None 
 
 def delay_lines(dt_s: dict[str, float] | None, true_dt_s: dict[str, float | None] | None,
                 truth_source: str | None, reference: dict[str, Any] | None = None,
-                estimates_s: dict[str, float] | None = None) -> list[str]:
+                estimates: dict[str, Any] | None = None, bounds_s: dict[str, list[float]] | None = None
+                ) -> list[str]:
     """A table of the learned input delays per group, beside the time-offset stage's estimate and, when the
     case has a ground truth, the true offset of the group's logged inputs.
 
     Args:
         dt_s: {group: learned delay (s)}; true_dt_s: {group: true offset (s), None where its inputs differ}.
-        estimates_s: {group: the time-offset stage's estimate (s)}.
+        estimates: {group: the time-offset stage's estimate}: its summary entry (``delay_s``, and
+            ``standard_error_s`` shown as ± where there is one) or the delay in s.
+        bounds_s: {group: [low, high] (s)} of the groups that learned within narrower bounds than the
+            config's range (a column of its own when there are any).
     """
     if not dt_s:
         return ["The model has no learned input delay."]
@@ -165,13 +169,19 @@ def delay_lines(dt_s: dict[str, float] | None, true_dt_s: dict[str, float | None
         dt_s = {"inputs": float(dt_s)}
     header = "| input group | learned Δt | time-offset estimate |"
     rule = "|---|---|---|"
+    if bounds_s:
+        header += " learned within |"
+        rule += "---|"
     if true_dt_s is not None:
         header += " true offset | learned − true |"
         rule += "---|---|"
     lines = [header, rule]
     for group, value in dt_s.items():
-        estimate = (estimates_s or {}).get(group)
-        row = f"| {group} | {format_delay(value)} | {'-' if estimate is None else format_delay(estimate)} |"
+        row = f"| {group} | {format_delay(value)} | {estimate_text((estimates or {}).get(group))} |"
+        if bounds_s:
+            band = bounds_s.get(group)
+            row += (" the config's range |" if band is None
+                    else f" {format_delay(band[0])} … {format_delay(band[1])} |")
         if true_dt_s is not None:
             truth = true_dt_s.get(group)
             error = "" if truth is None else format_delay(value - truth)
@@ -189,6 +199,18 @@ def delay_lines(dt_s: dict[str, float] | None, true_dt_s: dict[str, float | None
     return lines
 
 
+def estimate_text(estimate: Any) -> str:
+    """A time-offset estimate for the delay table: '28.45 µs ± 0.61 µs' (with its standard error), '28.45 µs',
+    or '-' (none). ``estimate``: a group entry of the time-offset summary, a delay in s, or None."""
+    if estimate is None:
+        return "-"
+    if not isinstance(estimate, dict):
+        return format_delay(estimate)
+    error = estimate.get("standard_error_s")
+    text = format_delay(estimate["delay_s"])
+    return text if error is None else f"{text} ± {format_delay(error)}"
+
+
 def hyperparameter_lines(hyperparameters: dict[str, Any]) -> list[str]:
     """Markdown table of the chosen hyperparameters."""
     lines = ["| hyperparameter | value |", "|---|---|"]
@@ -201,8 +223,8 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
                   best_summary: dict[str, Any], dt_s: float | None, gates: Any, true_dt_s: float | None,
                   truth_source: str | None, figures: list[ReportFigure], mlflow_run: dict[str, Any] | None,
                   units: dict[str, str] | None = None, reference: dict[str, Any] | None = None,
-                  delay_estimates_s: dict[str, float] | None = None,
-                  hybrid_delay_estimates_s: dict[str, float] | None = None) -> str:
+                  delay_estimates: dict[str, Any] | None = None,
+                  hybrid_delay_estimates: dict[str, Any] | None = None) -> str:
     """The report as Markdown text.
 
     Args:
@@ -212,9 +234,9 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
         best_summary: other facts about the best trial (trial id, validation loss, resource ...).
         dt_s: learned input delays ({group: s}) or None; gates: the learned gates.
         true_dt_s, truth_source: the true offset of each delay group ({group: s}) and where it comes from, or None.
-        delay_estimates_s: the time-offset stage's estimate of each group ({group: s}).
-        hybrid_delay_estimates_s: the same on the hybrid's physical layer (rule ``hybrid_time_offset``), beside
-            the hybrid's delays; None: ``delay_estimates_s``.
+        delay_estimates: the time-offset stage's estimate of each group ({group: summary entry or s}).
+        hybrid_delay_estimates: the same on the hybrid's physical layer (rule ``hybrid_time_offset``), beside
+            the hybrid's delays; None: ``delay_estimates``.
         figures: the figures, paths relative to the report.
         mlflow_run: ``{"tracking_uri", "experiment", "run_id"}`` of the evaluation run, or None.
         units: target signal -> unit (``Signal.unit``) for the tables.
@@ -237,8 +259,9 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
             "Chosen where the FMU and the data part most, from the FMU's error alone (`auto`), or set in the "
             "config (`config`).", ""]
     out += zoom_table(metrics_by_role, units) + [""]
+    first = next(iter(metrics_by_role.values()), {})
     out += ["## Learned input delay and gates", ""] + delay_lines(dt_s, true_dt_s, truth_source, reference,
-                                                                         delay_estimates_s)
+                                                                         delay_estimates, first.get("delay_bounds_s"))
     out += [f"- gates (ẋ = g_F·ẋ_FMU + g_A·ẋ_ANN): {_gates_text(gates)}", ""]
     hybrid = next((m["hybrid_learned"] for m in metrics_by_role.values() if m.get("hybrid_learned")), None)
     if hybrid:
@@ -246,7 +269,8 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
         out += ["### The hybrid's delays and gates", "",
                 f"Physical layer: the FMU plus {effects} (trial {hybrid.get('trial_id')}).", ""]
         out += delay_lines(hybrid.get("dt_s"), true_dt_s, truth_source, None,
-                           hybrid_delay_estimates_s if hybrid_delay_estimates_s is not None else delay_estimates_s)
+                           hybrid_delay_estimates if hybrid_delay_estimates is not None else delay_estimates,
+                           hybrid.get("delay_bounds_s"))
         out += [f"- gates: {_gates_text(hybrid.get('gates'))}", ""]
         out += coefficient_lines(hybrid.get("coefficients"))
     out += ["## Best hyperparameters", ""]
@@ -369,22 +393,22 @@ def group_estimate_text(group: str, entry: dict[str, Any]) -> str:
 def learned_delay_facts(best: dict[str, Any], time_offset: dict[str, Any], truth_paths: list[str],
                         roles: Any) -> tuple[dict[str, float | None] | None, str | None, dict[str, float]]:
     """What the delay table needs besides the learned delays: ({group: true offset} or None, the truth's
-    file, {group: the time-offset stage's estimate}); ``best`` is ``hpo/best.json`` (its ``model_spec``)."""
+    file, {group: the time-offset stage's estimate (its summary entry)}); ``best`` is ``hpo/best.json`` (its
+    ``model_spec``)."""
     learned_groups = (best.get("model_spec") or {}).get("delay_groups") or {"inputs": list(roles.input_names)}
     input_channels = {name: roles.signals[roles.inputs[name]].channel for name in roles.input_names}
     true_dt_s, truth_source = true_input_delay(truth_paths, learned_groups, input_channels)
-    estimates_s = {group: entry["delay_s"] for group, entry in (time_offset.get("groups") or {}).items()}
-    return true_dt_s, truth_source, estimates_s
+    return true_dt_s, truth_source, dict(time_offset.get("groups") or {})
 
 
-def hybrid_estimates(path: str | Path | None) -> dict[str, float] | None:
-    """{group: s} of the time-offset estimates on the hybrid's physical layer (rule ``hybrid_time_offset``), or
-    None without the file."""
+def hybrid_estimates(path: str | Path | None) -> dict[str, dict[str, Any]] | None:
+    """{group: summary entry} of the time-offset estimates on the hybrid's physical layer (rule
+    ``hybrid_time_offset``), or None without the file."""
     if not path:
         return None
     from hybridfmu.io import read_json
 
-    return {group: entry["delay_s"] for group, entry in (read_json(path).get("groups") or {}).items()}
+    return dict(read_json(path).get("groups") or {})
 
 
 def write_report(report_path: str | Path, case: str, metrics_paths: list[str], best_path: str | Path,

@@ -96,13 +96,13 @@ def write_case_summary(out_path: str | Path, case: str, test_metrics_path: str |
                                                              list(truth_paths or []), roles)
         text += "\nLearned input delays of the neural FMU:\n\n" + "\n".join(
             delay_lines(test_metrics["dt_s"], true_dt_s, Path(source).name if source else None, None,
-                        estimates_s)) + "\n"
+                        estimates_s, test_metrics.get("delay_bounds_s"))) + "\n"
         hybrid = test_metrics.get("hybrid_learned") or {}
         if hybrid.get("dt_s"):
             own = hybrid_estimates(hybrid_time_offset_path)
             text += "\nLearned input delays of the hybrid:\n\n" + "\n".join(
                 delay_lines(hybrid["dt_s"], true_dt_s, Path(source).name if source else None, None,
-                            own if own is not None else estimates_s)) + "\n"
+                            own if own is not None else estimates_s, hybrid.get("delay_bounds_s"))) + "\n"
     with atomic_path(out_path) as tmp:
         Path(tmp).write_text(text)
     return Path(out_path)

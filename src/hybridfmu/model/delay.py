@@ -19,14 +19,16 @@ class InputDelay(nn.Module):
     """Differentiable time shift of sampled inputs: returns u_j(t + dt_g(j)) by linear interpolation, where
     input j belongs to group g(j) and every group has its own offset dt_g.
 
-    Each dt_g is bounded to ``[min_s, max_s]`` by a smooth map of its trainable raw value:
-    dt = centre + half_range * tanh(raw * scale_s / half_range), so near the centre
-    dt ≈ centre + raw * scale_s (``scale_s`` sets how far one unit of ``raw`` moves dt, in s).
-    With ``min_s == max_s`` the delays are fixed and have no trainable parameter.
+    Each dt_g is bounded to its group's ``[low_g, high_g]`` (``[min_s, max_s]`` unless ``bounds_s`` narrows
+    it) by a smooth map of its trainable raw value: dt = centre_g + half_g * tanh(raw * scale_s / half_g),
+    so near the centre dt ≈ centre_g + raw * scale_s (``scale_s`` sets how far one unit of ``raw`` moves
+    dt, in s). With ``min_s == max_s`` the delays are fixed and have no trainable parameter.
 
     Args:
         sample_period_s: sampling period h of the input sequences (s).
         min_s, max_s: bounds of every dt_g (s); ``min_s <= init <= max_s`` (strictly inside if trainable).
+        bounds_s: ``{group: (low, high)}`` narrower bounds (s) of some groups, within ``[min_s, max_s]``
+            with ``low < high``; the others keep ``[min_s, max_s]``.
         init_s: initial dt (s): one value for every group, or ``{group: value}`` naming every group.
         scale_s: dt per unit of a raw parameter near the centre (s).
         sample_position: a key of ``SAMPLE_POSITIONS``.
@@ -42,7 +44,7 @@ class InputDelay(nn.Module):
     def __init__(self, sample_period_s: float, min_s: float = 0.0, max_s: float = 0.0,
                  init_s: float | Mapping[str, float] = 0.0, scale_s: float = 1e-4,
                  sample_position: str = "hold_center", groups: Sequence[tuple[str, Sequence[int]]] | None = None,
-                 n_inputs: int | None = None) -> None:
+                 n_inputs: int | None = None, bounds_s: Mapping[str, Sequence[float]] | None = None) -> None:
         super().__init__()
         if not sample_period_s > 0:
             raise ValueError(f"InputDelay: sample_period_s must be > 0, got {sample_period_s}")
@@ -65,33 +67,37 @@ class InputDelay(nn.Module):
         inits = _initial_values(init_s, self.group_names)
         self.sample_period_s = float(sample_period_s)
         self.sample_offset = SAMPLE_POSITIONS[sample_position]
-        self.centre_s = 0.5 * (min_s + max_s)
-        self.half_range_s = 0.5 * (max_s - min_s)
+        self.min_s, self.max_s = float(min_s), float(max_s)
+        self.bounds_s = _group_bounds(bounds_s, self.group_names, self.min_s, self.max_s)
+        self.register_buffer("centre_s", torch.tensor([0.5 * (lo + hi) for lo, hi in self.bounds_s],
+                                                      dtype=torch.float64), persistent=False)
+        self.register_buffer("half_range_s", torch.tensor([0.5 * (hi - lo) for lo, hi in self.bounds_s],
+                                                          dtype=torch.float64), persistent=False)
         self.scale_s = float(scale_s)
-        for name, value in zip(self.group_names, inits):
-            if not min_s <= value <= max_s:
-                raise ValueError(f"InputDelay: expected min_s <= init_s <= max_s for group {name!r}, got "
-                                 f"{min_s}, {value}, {max_s}")
-        if self.half_range_s > 0:
+        for name, value, (low, high) in zip(self.group_names, inits, self.bounds_s):
+            if not low <= value <= high:
+                raise ValueError(f"InputDelay: expected the bounds of group {name!r} to hold its init_s, got "
+                                 f"{low} <= {value} <= {high}")
+        if self.max_s > self.min_s:
             raw = []
-            for name, value in zip(self.group_names, inits):
-                ratio = (value - self.centre_s) / self.half_range_s
+            for name, value, (low, high) in zip(self.group_names, inits, self.bounds_s):
+                ratio = (value - 0.5 * (low + high)) / (0.5 * (high - low))
                 if abs(ratio) >= 1.0:
                     raise ValueError(f"InputDelay: init_s={value} of group {name!r} must lie strictly inside "
-                                     f"({min_s}, {max_s})")
-                raw.append(math.atanh(ratio) * self.half_range_s / self.scale_s)
+                                     f"({low}, {high})")
+                raw.append(math.atanh(ratio) * 0.5 * (high - low) / self.scale_s)
             self.raw = nn.Parameter(torch.tensor(raw, dtype=torch.float64))
         else:
             self.register_buffer("raw", torch.zeros(len(groups), dtype=torch.float64))
 
     @property
     def trainable(self) -> bool:
-        return self.half_range_s > 0
+        return self.max_s > self.min_s
 
     def delays_s(self) -> torch.Tensor:
         """The current offsets dt_g (s), (G,), differentiable w.r.t. ``raw``."""
         if not self.trainable:
-            return torch.full((len(self.group_names),), self.centre_s, dtype=torch.float64)
+            return self.centre_s.clone()
         return self.centre_s + self.half_range_s * torch.tanh(self.raw * (self.scale_s / self.half_range_s))
 
     def input_delays_s(self) -> torch.Tensor:
@@ -169,6 +175,25 @@ def _check_groups(groups, n_inputs):
         raise ValueError(f"InputDelay: the groups must cover every input index {expected} exactly once, got "
                          f"{dict(groups)}")
     return groups
+
+
+def _group_bounds(bounds_s, names, min_s, max_s):
+    """[(low, high)] per group, in group order: ``bounds_s[group]`` where given, else (min_s, max_s)."""
+    bounds_s = dict(bounds_s or {})
+    unknown = [name for name in bounds_s if name not in names]
+    if unknown:
+        raise ValueError(f"InputDelay: bounds_s names unknown group(s) {unknown}; the groups are {names}")
+    result = []
+    for name in names:
+        if name not in bounds_s:
+            result.append((min_s, max_s))
+            continue
+        low, high = (float(value) for value in bounds_s[name])
+        if not (min_s <= low < high <= max_s):
+            raise ValueError(f"InputDelay: bounds_s of group {name!r} must satisfy min_s <= low < high <= max_s, "
+                             f"got {min_s} <= {low} < {high} <= {max_s}")
+        result.append((low, high))
+    return result
 
 
 def _initial_values(init_s, names):

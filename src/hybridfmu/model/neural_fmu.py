@@ -40,7 +40,8 @@ class NeuralFmu(nn.Module):
         self.n_states, self.n_inputs = n_x, n_u
         self.delay = InputDelay(spec.sample_period_s, spec.delay_min_s, spec.delay_max_s, spec.delay_init_s,
                                 spec.delay_scale_s, spec.sample_position,
-                                groups=list(spec.delay_group_columns().items()), n_inputs=n_u)
+                                groups=list(spec.delay_group_columns().items()), n_inputs=n_u,
+                                bounds_s=spec.delay_bounds_s)
         self.fmu = FmuLayer(rhs, n_x, n_u, train_coefficients=_trains_coefficients(rhs, spec))
         self.register_buffer("idx_states", torch.tensor(spec.state_index(spec.ann_states), dtype=torch.long))
         self.register_buffer("idx_inputs", torch.tensor(spec.input_index(spec.ann_inputs), dtype=torch.long))

@@ -36,6 +36,8 @@ class NeuralFmuSpec:
         delay_groups: group name -> inputs sharing one learned delay; every input in exactly one group.
             Empty: one group ``"inputs"`` of all inputs.
         delay_init_s: initial delay (s): one value for every group, or ``{group: value}``.
+        delay_bounds_s: ``{group: [low, high]}`` (s) narrower bounds of some groups' delays, within
+            ``[delay_min_s, delay_max_s]`` (e.g. the time-offset stage's estimate ± a few standard errors).
         delay_step_s: Adam step size of the delays (s per step: how far a delay moves per step at most,
             about); None: the delays train with the network's learning rate (dt moves about lr * scale_s).
         sample_position: how sampled inputs are placed within their interval (see ``InputDelay``).
@@ -62,6 +64,7 @@ class NeuralFmuSpec:
     delay_min_s: float = 0.0
     delay_max_s: float = 0.0
     delay_init_s: float | dict[str, float] = 0.0
+    delay_bounds_s: dict[str, list[float]] = field(default_factory=dict)
     delay_scale_s: float = 1e-4
     delay_groups: dict[str, list[str]] = field(default_factory=dict)
     delay_step_s: float | None = None
@@ -102,6 +105,10 @@ class NeuralFmuSpec:
             if sorted(self.delay_init_s) != sorted(names):
                 raise ValueError(f"model.input_delay.init_s: expected a value for each group {names}, got "
                                  f"{sorted(self.delay_init_s)}")
+        unknown = [name for name in self.delay_bounds_s if name not in self.delay_group_columns()]
+        if unknown:
+            raise ValueError(f"model.input_delay: bounds for unknown group(s) {unknown}; the groups are "
+                             f"{list(self.delay_group_columns())}")
         if self.delay_step_s is not None and not self.delay_step_s > 0:
             raise ValueError(f"model.input_delay.step_s: expected > 0, got {self.delay_step_s}")
         if self.physics_coefficient_step is not None:

@@ -21,13 +21,16 @@ def _names(value: Any, available: list[str], field: str) -> list[str]:
 
 def model_spec(model_config: dict[str, Any], fmu_model: Any, sample_period_s: float, width: int, depth: int,
                gate_opening: float, delay_init_s: float | dict[str, float] | None = None,
-               physics_effects: list[str] | None = None) -> NeuralFmuSpec:
+               physics_effects: list[str] | None = None,
+               delay_bounds_s: dict[str, list[float]] | None = None) -> NeuralFmuSpec:
     """The architecture: ``model_config`` is the validated ``model`` section; the FMU gives the state and
     input names (and the end-stop values from its parameters).
 
     ``delay_init_s``: the delays' start (s, one value or ``{group: value}``) when ``input_delay.init_s`` is
     ``time_offset`` (the search's plan holds the time-offset stage's estimates, ``initial_delays_s``);
-    a number in the config is used as it is. ``physics_effects``: the effects of a hybrid's physical layer
+    a number in the config is used as it is. ``delay_bounds_s``: {group: [low, high]} (s) narrower bounds of
+    some groups' delays (the plan's ``delay_bounds_s``, from ``input_delay.within_standard_errors``).
+    ``physics_effects``: the effects of a hybrid's physical layer
     (``PhysicsModel.effects``), None for the paper's neural FMU; a hybrid's coefficients train with
     ``model.physics_coefficient_step`` (null: fixed)."""
     states, inputs = list(fmu_model.state_names), list(fmu_model.input_names)
@@ -64,6 +67,7 @@ def model_spec(model_config: dict[str, Any], fmu_model: Any, sample_period_s: fl
         ann_derivatives=_names(ann["derivatives"], states, "ann_inputs.derivatives"),
         sample_period_s=float(sample_period_s), width=int(width), depth=int(depth), gate_opening=float(gate_opening),
         delay_min_s=float(delay["min_s"]), delay_max_s=float(delay["max_s"]), delay_init_s=init_s,
+        delay_bounds_s={name: [float(low), float(high)] for name, (low, high) in (delay_bounds_s or {}).items()},
         delay_groups={name: list(inputs) for name, inputs in (delay.get("groups") or {}).items()},
         delay_step_s=None if delay.get("step_s") is None else float(delay["step_s"]),
         ann_output_init=model_config["ann_output_init"],

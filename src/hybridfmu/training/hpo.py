@@ -90,11 +90,15 @@ def plan_search(*, case: str, seed: int, hpo_config: dict[str, Any], training_co
 
     When ``model.input_delay.init_s`` is ``time_offset``, the plan's ``initial_delays_s`` ({group: s}) are
     the time-offset stage's estimates (``time_offset_path``, rule ``time_offset``), the start of every
-    configuration's delays."""
+    configuration's delays; with ``input_delay.within_standard_errors`` its ``delay_bounds_s`` ({group:
+    [low, high]}) hold each identified group's delay within that many standard errors of its estimate."""
     sections = {"hpo": hpo_config, "training": training_config, "model": model_config}
     initial_delays = initial_delays_from_time_offset(model_config, time_offset_path)
     if initial_delays is not None:
         sections["initial_delays_s"] = initial_delays
+    delay_bounds = delay_bounds_from_time_offset(model_config, time_offset_path)
+    if delay_bounds is not None:
+        sections["delay_bounds_s"] = delay_bounds
     if roles is not None:
         check_target_weights(hpo_config, roles)
         sections["targets"] = dict(roles.target_weights)
@@ -102,6 +106,8 @@ def plan_search(*, case: str, seed: int, hpo_config: dict[str, Any], training_co
     plan = search_plan(hpo_config, training_config, seed, identifier)
     if initial_delays is not None:
         plan["initial_delays_s"] = initial_delays
+    if delay_bounds is not None:
+        plan["delay_bounds_s"] = delay_bounds
     if tracking_uri:
         from hybridfmu.tracking.search import start_search
 
@@ -111,6 +117,8 @@ def plan_search(*, case: str, seed: int, hpo_config: dict[str, Any], training_co
                   "search_space": json.dumps(hpo_config["search_space"], sort_keys=True)}
         if initial_delays is not None:
             params["initial_delays_s"] = json.dumps(initial_delays, sort_keys=True)
+        if delay_bounds is not None:
+            params["delay_bounds_s"] = json.dumps(delay_bounds, sort_keys=True)
         params["physics_terms"] = json.dumps(model_config.get("physics_terms", "none"))
         if model_config.get("physics_terms", "none") != "none":
             params["physics_coefficient_step"] = json.dumps(model_config.get("physics_coefficient_step"))
@@ -140,6 +148,46 @@ def initial_delays_from_time_offset(model_config: dict[str, Any],
         raise ValueError(f"{time_offset_path}: field 'groups' estimates {sorted(groups or {})}, expected the groups "
                          f"of config.model.input_delay {expected}; rerun rule time_offset")
     return {name: float(groups[name]["delay_s"]) for name in expected}
+
+
+def delay_bounds_from_time_offset(model_config: dict[str, Any],
+                                  time_offset_path: str | Path | None) -> dict[str, list[float]] | None:
+    """{group: [low, high]} (s) for every group the time-offset stage identified, when
+    ``model.input_delay.within_standard_errors`` (k) is set: its estimate ± k bootstrap standard errors,
+    within ``[min_s, max_s]``. The training loss compares only the target states, where a delay can trade
+    off against the model's other errors; the band keeps the learned delay where the time-offset stage's
+    windows (every measured state, right after the inputs change) put it. Groups not identified keep
+    ``[min_s, max_s]``. None when k is not set.
+
+    Raises:
+        ValueError: k is set but ``init_s`` is not ``time_offset``, or the summary lacks an identified group's
+            standard error (names the file and the group).
+    """
+    delay = model_config.get("input_delay", {})
+    k = delay.get("within_standard_errors")
+    if k is None:
+        return None
+    if delay.get("init_s") != "time_offset":
+        raise ValueError(f"config.model.input_delay.within_standard_errors is {k}, which needs init_s: time_offset "
+                         f"(the bounds are around the time-offset stage's estimates), got init_s "
+                         f"{delay.get('init_s')!r}")
+    initial = initial_delays_from_time_offset(model_config, time_offset_path)
+    groups = read_json(time_offset_path)["groups"]
+    low_s, high_s = float(delay["min_s"]), float(delay["max_s"])
+    bounds = {}
+    for name, estimate_s in initial.items():
+        entry = groups[name]
+        if not entry.get("identified"):
+            continue
+        error_s = entry.get("standard_error_s")
+        if error_s is None or not float(error_s) > 0:
+            raise ValueError(f"{time_offset_path}: group {name!r} is identified but has no positive "
+                             f"'standard_error_s' (got {error_s!r}); config.model.input_delay.within_standard_errors "
+                             f"needs it: set evaluation.time_offset.groups.bootstrap_samples > 0 and rerun rule "
+                             f"time_offset")
+        half_width_s = float(k) * float(error_s)
+        bounds[name] = [max(low_s, estimate_s - half_width_s), min(high_s, estimate_s + half_width_s)]
+    return bounds
 
 
 def select_rung(*, plan_path: str | Path, bracket: int, rung: int, result_paths: list[str],

@@ -236,7 +236,7 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
     if physics is not None:
         train, valid = hybrid_arrays(train, physics), hybrid_arrays(valid, physics)
     spec = model_spec(model_config, fmu_model, train.sample_period_s, hyper.width, hyper.depth, hyper.gate_opening,
-                      delay_init_s=plan.get("initial_delays_s"),
+                      delay_init_s=plan.get("initial_delays_s"), delay_bounds_s=plan.get("delay_bounds_s"),
                       physics_effects=None if physics is None else physics.effects)
     model = build_neural_fmu(FmuRhs(fmu_model if physics is None else physics), spec, statistics, entry["seed"])
     settings = TrainerSettings(max_skipped_steps=int(training_config["max_skipped_steps"]),
