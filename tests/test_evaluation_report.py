@@ -130,3 +130,7 @@ def test_delay_table_shows_the_estimates_error_and_the_band_the_delay_learned_wi
     plain = delay_lines({"duties": 2.7e-5}, None, None, None, {"duties": 2.845e-5})
     assert plain[:3] == ["| input group | learned Δt | time-offset estimate |", "|---|---|---|",
                          "| duties | 27.00 µs | 28.45 µs |"]
+    from hybridfmu.evaluation.report import group_estimate_text
+
+    assert group_estimate_text("duties", {**estimates["duties"], "windows": 100, "window_samples": 4}) == (
+        "duties 28.45 µs ± 0.61 µs (100 windows of 4 steps)")

@@ -21,7 +21,7 @@ those windows (an input that follows the states, such as a supply voltage that s
 invites it). Such a group is reported as not identified and estimated 0.
 
 How precisely the windows fix an identified group's delay is measured by a bootstrap over its windows
-(``standard_errors``): the windows are simulated once more on a fine local grid around the estimate, each
+(``standard_errors_s``): the windows are simulated once more on a fine local grid around the estimate, each
 resample of the windows (with replacement) gets its own minimum (parabola through the grid's three best
 points), and the standard deviation of those minima is the estimate's standard error. The learned delays
 may be held within a few of them (``model.input_delay.within_standard_errors``): the training loss compares

@@ -383,7 +383,7 @@ def true_input_delay(truth_paths: list[str], groups: dict[str, list[str]] | None
 
 def group_estimate_text(group: str, entry: dict[str, Any]) -> str:
     """One input group's time-offset estimate (an entry of the summary's ``groups``) as report text."""
-    text = (f"{group} {format_delay(entry['delay_s'])} ({entry['windows']} windows of "
+    text = (f"{group} {estimate_text(entry)} ({entry['windows']} windows of "
             f"{entry.get('window_samples', '?')} steps")
     if not entry.get("identified", True):
         text += f"; not identified: {entry.get('not_identified_because') or 'see the log'}"
