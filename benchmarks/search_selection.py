@@ -11,7 +11,7 @@ each validation and test maneuver, per target signal. The selected configuration
 Needs a finished search (``results/<case>/<search>/best.json``) and the baselines of the evaluated maneuvers
 (rule ``simulate_baseline``); the hybrid's search also needs ``diagnosis/diagnosed_model.pkl``.
 
-    python benchmarks/search_selection.py [--config config/config.yaml] [--search hpo] [--markdown FILE]
+    python benchmarks/search_selection.py [--config config/config.yaml] [--search hpo] [--top N] [--markdown FILE]
 
 Prints one line per configuration with rate and time left, the table, and as its last line a JSON object.
 """
@@ -72,13 +72,16 @@ def whole_trajectory_factors(model, roles, calibration, config, results: Path, m
     return improvement_factors({k: reference[k] for k in keys}, {k: candidate[k] for k in keys})
 
 
-def markdown(rows: list[dict], maneuvers: dict[str, str], search: str, config_path: str) -> str:
-    """The table: one row per configuration, best objective first."""
+def markdown(rows: list[dict], maneuvers: dict[str, str], search: str, config_path: str,
+             top: int | None = None) -> str:
+    """The table: one row per configuration (the ``top`` best only, when given), best objective first."""
     keys = sorted({key for row in rows for values in row["factors"].values() for key in values})
     columns = [(name, key) for name in maneuvers for key in keys]
-    lines = [f"Every configuration of search `{search}` open loop over whole maneuvers, against the FMU "
-             f"(`benchmarks/search_selection.py --config {config_path} --search {search}`; factor = FMU error / "
-             "model error, above 1 is better; ✓: the configuration the search selected):", "",
+    which = "Every configuration" if top is None else f"The {top} configurations with the best objectives"
+    option = "" if top is None else f" --top {top}"
+    lines = [f"{which} of search `{search}` open loop over whole maneuvers, against the FMU "
+             f"(`benchmarks/search_selection.py --config {config_path} --search {search}{option}`; factor = FMU "
+             "error / model error, above 1 is better; ✓: the configuration the search selected):", "",
              "| configuration | objective (rank) | " + " | ".join(f"{name} {key}" for name, key in columns) + " |",
              "|---|---|" + "---|" * len(columns)]
     for row in rows:
@@ -92,12 +95,22 @@ def markdown(rows: list[dict], maneuvers: dict[str, str], search: str, config_pa
     return "\n".join(lines) + "\n"
 
 
+def _objective(result: dict) -> float:
+    """A rung result's validation objective (inf for a failed or diverged configuration)."""
+    objective = result.get("objective")
+    return float("inf") if objective is None else float(objective)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", default="config/config.yaml")
     parser.add_argument("--search", default="hpo", help="hpo (the neural FMU) or hybrid")
     parser.add_argument("--markdown", default=None, help="also write the table to this file")
+    parser.add_argument("--top", type=int, default=None,
+                        help="only the N configurations with the best objectives (a large search)")
     args = parser.parse_args()
+    if args.top is not None and args.top < 1:
+        parser.error(f"--top: expected a positive number of configurations, got {args.top}")
 
     config = check_config_file(args.config)
     roles = case_roles(config)
@@ -112,6 +125,8 @@ def main() -> None:
     folders = last_rungs(search_dir)
     if not folders:
         raise SystemExit(f"{search_dir}: no trained configuration (b*/r*/c*/result.json); run the search first")
+    if args.top is not None:
+        folders = sorted(folders, key=lambda folder: _objective(read_json(folder / "result.json")))[:args.top]
     rows = []
     started = time.perf_counter()
     for done, folder in enumerate(folders, start=1):
@@ -122,9 +137,8 @@ def main() -> None:
             model = load_trained_neural_fmu(pointer, fmu_path, dict(calibration.parameters) or None, diagnosed)
         factors = {name: whole_trajectory_factors(model, roles, calibration, config, results, name,
                                                   diagnosed is not None) for name in maneuvers}
-        objective = result.get("objective")
         rows.append({"trial": result.get("trial_id", folder.as_posix()), "folder": folder.as_posix(),
-                     "objective": float("inf") if objective is None else float(objective), "factors": factors,
+                     "objective": _objective(result), "factors": factors,
                      "selected": result.get("trial_id") == best.get("trial_id")})
         elapsed = time.perf_counter() - started
         print(f"{done}/{len(folders)} {rows[-1]['trial']}: objective {rows[-1]['objective']:.4g}, "
@@ -135,7 +149,7 @@ def main() -> None:
     rows.sort(key=lambda row: row["objective"])
     for rank, row in enumerate(rows, start=1):
         row["rank"] = rank
-    table = markdown(rows, maneuvers, args.search, args.config)
+    table = markdown(rows, maneuvers, args.search, args.config, args.top)
     print(table)
     if args.markdown:
         with atomic_path(args.markdown) as tmp:

@@ -401,3 +401,65 @@ def test_the_hybrids_time_offset_is_estimated_on_its_physical_layer(diagnosed):
             assert estimate["identified"] and estimate["delay_s"] == pytest.approx(true_delay_s, abs=0.02 * H)
         else:
             assert not estimate["identified"] and estimate["delay_s"] == 0.0
+
+
+def _validation_arrays(n=300, seed=5):
+    from hybridfmu.training.data import ManeuverArrays
+
+    rng = np.random.default_rng(seed)
+    time_s = np.arange(n) * H
+    u = np.repeat(rng.normal(0.0, 3.0, n // 20), 20)[:, None]
+    x_init = np.column_stack([np.cumsum(rng.normal(0, 0.01, n)), rng.normal(0, 0.1, n)])
+    return ManeuverArrays(name="validation", time_s=time_s, u=u, x_init=x_init, targets=x_init.copy(),
+                          spans=np.array([[10, 120], [150, 290]]), state_names=["x", "v"], input_names=["F"],
+                          target_states=["x", "v"], target_signals=["position", "velocity"],
+                          measured_states=["x", "v"])
+
+
+def _untrained_hybrid(physics, width, depth, gate_opening, delay_init_s=0.3 * H):
+    spec = NeuralFmuSpec(state_names=["x", "v"], input_names=["F"], corrected_states=["v"], ann_states=["x", "v"],
+                         ann_inputs=["F"], ann_derivatives=["x", "v"], sample_period_s=H, width=width, depth=depth,
+                         gate_opening=gate_opening, delay_min_s=-2 * H, delay_max_s=2 * H,
+                         delay_init_s=delay_init_s, physics_effects=physics.effects)
+    stats = dict(x_mean=[0.0, 0.0], x_std=[0.5, 2.0], u_mean=[0.0], u_std=[3.0], xdot_mean=[0.3, -4.0],
+                 xdot_std=[2.0, 5.0], target_std=[0.5, 2.0])
+    return NeuralFmu(FmuRhs(physics), spec, stats), stats
+
+
+def test_the_shared_rollout_of_the_physical_layer_scores_like_each_trials_own_validation(diagnosed, tmp_path):
+    """Rule physical_layer_rollout's file, scored with another configuration's loss, gives that configuration's
+    own validation to the bit; a trained model, other delays or another physical layer's files do not use it."""
+    from hybridfmu.training.losses import Objective
+    from hybridfmu.training.physical_layer_rollout import (read_physical_layer_rollout, untrained_is_physical_layer,
+                                                           write_physical_layer_rollout)
+    from hybridfmu.training.validation import score_states, validate, validation_batch
+
+    physics = PhysicsModel(BridgedSpring(), BridgedSpring(), diagnosed.selected(None, DELAY_KINDS))
+    arrays = _validation_arrays()
+    sources = {"fmu": "f1", "calibration": "c1", "diagnosed": "d1"}
+    shared, _ = _untrained_hybrid(physics, width=8, depth=2, gate_opening=0.1)
+    path = tmp_path / "physical_layer_rollout.pt"
+    write_physical_layer_rollout(path, shared, arrays, sources)
+    trial, stats = _untrained_hybrid(physics, width=16, depth=3, gate_opening=0.4)  # another configuration
+    assert untrained_is_physical_layer(trial)
+    objective = Objective("MAE", {"x": 0.5, "v": 0.5})
+    weights = {"x": 0.2, "v": 0.8}
+    batch = validation_batch(trial.spec, arrays)
+    saved = read_physical_layer_rollout(path, trial, arrays, sources)
+    assert saved is not None
+    assert score_states(*saved, batch, arrays, "MSE", weights, objective, stats) == validate(
+        trial, arrays, "MSE", weights, objective, stats, batch)
+    # not the same untrained trajectory: not used
+    assert read_physical_layer_rollout(path, trial, arrays, {**sources, "diagnosed": "d2"}) is None
+    other_delay, _ = _untrained_hybrid(physics, width=16, depth=3, gate_opening=0.4, delay_init_s=0.5 * H)
+    assert read_physical_layer_rollout(path, other_delay, arrays, sources) is None
+    with torch.no_grad():
+        trial.ann.output.bias.fill_(0.1)  # a trained ANN contributes: its state is no longer the physical layer
+    assert not untrained_is_physical_layer(trial)
+    assert read_physical_layer_rollout(path, trial, arrays, sources) is None
+    neural = NeuralFmu(FmuRhs(physics), NeuralFmuSpec(**{**shared.spec.to_dict(), "physics_effects": None}), stats)
+    with pytest.raises(ValueError, match="not an untrained hybrid"):
+        write_physical_layer_rollout(tmp_path / "other.pt", neural, arrays, sources)
+    (tmp_path / "bad.pt").write_bytes(b"not a torch file")
+    with pytest.raises(ValueError, match=r"bad\.pt: not a physical-layer rollout"):
+        read_physical_layer_rollout(tmp_path / "bad.pt", shared, arrays, sources)

@@ -94,6 +94,10 @@ def test_every_stage_writes_its_outputs(tiny_run):
         # the tiny case's physical layer has additive terms, and they trained (physics_coefficient_step)
         coefficients = metrics["hybrid_learned"]["coefficients"]
         assert coefficients and any(c["trained"] != c["diagnosed"] for c in coefficients.values())
+    # every rung-0 hybrid scored the search's one rollout of the physical layer instead of simulating it again
+    assert (results / "hybrid" / "physical_layer_rollout.pt").is_file()
+    rung0_logs = sorted((results / "logs" / "train_rung" / "hybrid").glob("*_r0_*.log"))
+    assert rung0_logs and all("scores the search's shared rollout" in log.read_text() for log in rung0_logs)
         assert metrics["fmu"]["angle_mae"] > 0 and metrics["neural_fmu"]["angle_mae"] > 0
         assert metrics["improvement"]["angle_mae"] == pytest.approx(
             metrics["fmu"]["angle_mae"] / metrics["neural_fmu"]["angle_mae"])
@@ -182,12 +186,13 @@ def test_snakemake_report(tiny_run):
 # Rules of the tiny case's default target, by how far upstream a config change reaches.
 ALL_RULES = {"build_fmu", "emulate_bench", "check_bench_spread", "ingest", "select_segments", "calibrate",
              "simulate_baseline", "time_offset", "hpo_prepare", "hpo_plan", "train_rung", "select_rung",
-             "select_best", "simulate_best", "evaluate", "plot", "report", "diagnose", "summary"}
+             "select_best", "simulate_best", "evaluate", "plot", "report", "diagnose", "summary",
+             "physical_layer_rollout"}
 FROM_EMULATION = ALL_RULES - {"build_fmu"}
 FROM_INGEST = FROM_EMULATION - {"emulate_bench", "check_bench_spread"}
 FROM_CALIBRATION = FROM_INGEST - {"ingest", "select_segments"}
 FROM_SEARCH = {"hpo_plan", "train_rung", "select_rung", "select_best", "simulate_best", "evaluate", "plot",
-               "report", "diagnose", "summary"}
+               "report", "diagnose", "summary", "physical_layer_rollout"}
 FROM_SEGMENTS = {"select_segments", "hpo_prepare"} | FROM_SEARCH
 
 
@@ -236,8 +241,8 @@ SECTION_CHANGES = {
     "evaluation.reference": (_set("evaluation", "reference", "name", "paper, 2nd reading"), {"report"}),
     # the diagnosed model is the hybrid's physical layer and a model of the evaluation
     "diagnosis": (_set("diagnosis", "selection", "bootstrap_samples", 21),
-                  {"diagnose", "train_rung", "select_rung", "select_best", "simulate_best", "evaluate", "plot",
-                   "report", "summary"}),
+                  {"diagnose", "physical_layer_rollout", "train_rung", "select_rung", "select_best", "simulate_best",
+                   "evaluate", "plot", "report", "summary"}),
     "withheld": (_set("withheld", "duration_s", 5.0), set()),  # the `withheld` target only
     "bench": (_set("bench", "effects", "inertia_mismatch", "scale", 1.07), FROM_EMULATION),
 }

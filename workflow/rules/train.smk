@@ -146,6 +146,38 @@ if HYBRID_TIME_OFFSET:
             "../scripts/hybrid_time_offset.py"
 
 
+def shared_rollout(wildcards):
+    """The hybrid search's shared rollout of its untrained state, for its rung-0 trials (rule
+    physical_layer_rollout); none for the neural FMU and later rungs."""
+    return [PHYSICAL_LAYER_ROLLOUT] if wildcards.search == "hybrid" and int(wildcards.rung) == 0 else []
+
+
+PHYSICAL_LAYER_ROLLOUT = f"{RESULTS}/hybrid/physical_layer_rollout.pt"
+if HYBRID:
+
+    rule physical_layer_rollout:
+        """The untrained hybrid (its physical layer) over the validation segments, once for all rung-0 trials."""
+        input:
+            plan=f"{RESULTS}/hybrid/plan.json",
+            train=f"{PREPARED_DIR}/train.npz",
+            validation=f"{PREPARED_DIR}/validation.npz",
+            statistics=f"{PREPARED_DIR}/statistics.json",
+            fmu=fmu_path(),
+            calibration=CALIBRATION_JSON,
+            diagnosed=DIAGNOSED_MODEL,
+        output:
+            rollout=PHYSICAL_LAYER_ROLLOUT,
+        params:
+            model=SEARCH_MODELS["hybrid"],
+        threads: 1
+        log:
+            f"{RESULTS}/logs/physical_layer_rollout/physical_layer_rollout.log",
+        benchmark:
+            f"{RESULTS}/benchmarks/physical_layer_rollout/physical_layer_rollout.tsv"
+        script:
+            "../scripts/train_physical_layer_rollout.py"
+
+
 rule train_rung:
     input:
         plan=f"{RESULTS}/{{search}}/plan.json",
@@ -156,6 +188,7 @@ rule train_rung:
         calibration=CALIBRATION_JSON,
         previous=previous_rung_checkpoint,
         diagnosed=search_diagnosed_model,
+        shared_rollout=shared_rollout,
     output:
         checkpoint=f"{RESULTS}/{{search}}/b{{bracket}}/r{{rung}}/c{{config}}/checkpoint.pt",
         result=f"{RESULTS}/{{search}}/b{{bracket}}/r{{rung}}/c{{config}}/result.json",

@@ -28,7 +28,8 @@ from hybridfmu.training.data import ManeuverArrays
 from hybridfmu.training.losses import objective_from_config
 from hybridfmu.training.plan import plan_entry
 from hybridfmu.training.trainer import Hyperparameters, Trainer, TrainerSettings, TrialDiverged
-from hybridfmu.training.validation import validate, validation_batch
+from hybridfmu.training.physical_layer_rollout import read_physical_layer_rollout, write_physical_layer_rollout
+from hybridfmu.training.validation import score_states, validate, validation_batch
 
 LOG = logging.getLogger(__name__)
 CHECKPOINT_FORMAT = 1
@@ -167,6 +168,67 @@ def hybrid_arrays(arrays: ManeuverArrays, physics: Any) -> ManeuverArrays:
     return dataclasses.replace(arrays, u=physics.inputs(arrays.u, arrays.sample_period_s), x_init=x_init)
 
 
+def trial_model(plan: dict[str, Any], entry: dict[str, Any], model_config: dict[str, Any],
+                train_arrays_path: str | Path, validation_arrays_path: str | Path, statistics_path: str | Path,
+                fmu_path: str | Path, calibration_path: str | Path | None, diagnosed_path: str | Path | None
+                ) -> tuple[ManeuverArrays, ManeuverArrays, dict[str, Any], Any]:
+    """A configuration's untrained model and its data: (train, validation, statistics, model).
+
+    ``entry`` is the configuration's plan entry (``plan_entry``); for a hybrid (``model.physics_terms``) the
+    maneuvers are as its physical layer sees them (:func:`hybrid_arrays`) and the model is built around it.
+    """
+    from hybridfmu.fmu import FmuRhs
+    from hybridfmu.training.measured import load_calibrated_fmu, load_calibration
+
+    hyper = Hyperparameters.from_dict(entry["hyperparameters"])
+    train = ManeuverArrays.load(train_arrays_path)
+    valid = ManeuverArrays.load(validation_arrays_path)
+    statistics = read_json(statistics_path)
+    calibration = load_calibration(calibration_path)
+    fmu_model = load_calibrated_fmu(fmu_path, calibration)
+    physics = hybrid_physics(model_config, fmu_path, calibration.parameters, diagnosed_path)
+    if physics is not None:
+        train, valid = hybrid_arrays(train, physics), hybrid_arrays(valid, physics)
+    spec = model_spec(model_config, fmu_model, train.sample_period_s, hyper.width, hyper.depth, hyper.gate_opening,
+                      delay_init_s=plan.get("initial_delays_s"), delay_bounds_s=plan.get("delay_bounds_s"),
+                      physics_effects=None if physics is None else physics.effects)
+    model = build_neural_fmu(FmuRhs(fmu_model if physics is None else physics), spec, statistics, entry["seed"])
+    return train, valid, statistics, model
+
+
+def physical_layer_sources(fmu_path: str | Path, calibration_path: str | Path | None,
+                           diagnosed_path: str | Path | None) -> dict[str, str]:
+    """{file role: SHA-256} of the files a hybrid's physical layer is made of (part of its rollout's key)."""
+    return {role: file_sha256(path) if path else "" for role, path in
+            (("fmu", fmu_path), ("calibration", calibration_path), ("diagnosed", diagnosed_path))}
+
+
+def run_physical_layer_rollout(*, plan_path: str | Path, train_arrays_path: str | Path,
+                               validation_arrays_path: str | Path, statistics_path: str | Path,
+                               fmu_path: str | Path, calibration_path: str | Path | None,
+                               model_config: dict[str, Any], diagnosed_path: str | Path,
+                               rollout_path: str | Path) -> dict[str, Any]:
+    """Rule ``physical_layer_rollout``: the untrained hybrid of the search's first configuration (every
+    configuration's untrained hybrid is the same physical layer) simulated over the validation segments once,
+    for all rung-0 trials of the search (:mod:`hybridfmu.training.physical_layer_rollout`).
+
+    Raises:
+        ValueError: the search's model is not a hybrid (``model.physics_terms`` is ``none``).
+    """
+    plan = read_json(plan_path)
+    first = plan["brackets"][0]
+    entry = plan_entry(plan, first["bracket"], 0, 0)
+    _, valid, _, model = trial_model(plan, entry, model_config, train_arrays_path, validation_arrays_path,
+                                     statistics_path, fmu_path, calibration_path, diagnosed_path)
+    if model.spec.physics_effects is None:
+        raise ValueError("config.model.physics_terms is 'none': a neural FMU has no physical layer to roll out")
+    started = time.perf_counter()
+    content = write_physical_layer_rollout(rollout_path, model, valid,
+                                           physical_layer_sources(fmu_path, calibration_path, diagnosed_path))
+    LOG.info("physical layer rollout for the search's rung-0 trials: %.1f s", time.perf_counter() - started)
+    return content
+
+
 def validation_points(start_s: float, target_s: float, every_s: float | None) -> list[float]:
     """Resources (s of data) at which a rung from ``start_s`` to ``target_s`` validates: evenly spaced, at most
     ``every_s`` apart, the last at ``target_s`` (only there if ``every_s`` is None)."""
@@ -183,7 +245,8 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
                    previous_checkpoint: str | Path | None,
                    checkpoint_path: str | Path, result_path: str | Path, track: bool = True,
                    tracking_options: dict[str, Any] | None = None,
-                   diagnosed_path: str | Path | None = None) -> dict[str, Any]:
+                   diagnosed_path: str | Path | None = None,
+                   physical_layer_rollout_path: str | Path | None = None) -> dict[str, Any]:
     """Train configuration ``config_index`` of ``bracket`` up to the resource of ``rung`` and validate it.
 
     Validation (open loop over the validation segments) runs at the rung's end and, with
@@ -207,6 +270,9 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
         diagnosed_path: the diagnosed model (``diagnosis/diagnosed_model.pkl``), for a hybrid
             (``model.physics_terms``): its physical layer is the FMU plus the diagnosed effects, and the data's
             inputs pass through the effects' input changes (:mod:`hybridfmu.model.physics`).
+        physical_layer_rollout_path: the hybrid search's shared rollout of its untrained state (rule
+            ``physical_layer_rollout``): a rung-0 hybrid scores it instead of simulating its untrained state,
+            when it is its own (:mod:`hybridfmu.training.physical_layer_rollout`).
 
     The checkpoint and the result are written before anything is logged: a tracking store that is locked
     too long, lost or unreachable does not fail the job. The result's ``tracking`` records what happened
@@ -217,28 +283,17 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
     Returns:
         The result record (also written to ``result_path``).
     """
-    from hybridfmu.fmu import FmuRhs
-    from hybridfmu.training.measured import load_calibrated_fmu, load_calibration
-
     wall_start = time.perf_counter()
     plan = read_json(plan_path)
     entry = plan_entry(plan, bracket, rung, config_index)
     hyper = Hyperparameters.from_dict(entry["hyperparameters"])
     trial_id = f"b{bracket}c{config_index}"
-    train = ManeuverArrays.load(train_arrays_path)
-    valid = ManeuverArrays.load(validation_arrays_path)
-    statistics = read_json(statistics_path)
     weights = roles.weights_with(hyper.target_weights)
     objective = objective_from_config(plan["objective"], roles)
-    calibration = load_calibration(calibration_path)
-    fmu_model = load_calibrated_fmu(fmu_path, calibration)
-    physics = hybrid_physics(model_config, fmu_path, calibration.parameters, diagnosed_path)
-    if physics is not None:
-        train, valid = hybrid_arrays(train, physics), hybrid_arrays(valid, physics)
-    spec = model_spec(model_config, fmu_model, train.sample_period_s, hyper.width, hyper.depth, hyper.gate_opening,
-                      delay_init_s=plan.get("initial_delays_s"), delay_bounds_s=plan.get("delay_bounds_s"),
-                      physics_effects=None if physics is None else physics.effects)
-    model = build_neural_fmu(FmuRhs(fmu_model if physics is None else physics), spec, statistics, entry["seed"])
+    train, valid, statistics, model = trial_model(plan, entry, model_config, train_arrays_path,
+                                                  validation_arrays_path, statistics_path, fmu_path,
+                                                  calibration_path, diagnosed_path)
+    spec = model.spec
     settings = TrainerSettings(max_skipped_steps=int(training_config["max_skipped_steps"]),
                                max_grad_norm=float(training_config["max_grad_norm"]),
                                gradients=str(training_config.get("gradients", "adjoint")))
@@ -284,7 +339,16 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
             for target_s in points:
                 trainer.train_until(target_s, progress)
                 valid_batch = valid_batch or validation_batch(spec, valid)
-                metrics = validate(model, valid, hyper.loss, weights, objective, statistics, valid_batch)
+                shared = (read_physical_layer_rollout(physical_layer_rollout_path, model, valid,
+                                                      physical_layer_sources(fmu_path, calibration_path,
+                                                                             diagnosed_path))
+                          if physical_layer_rollout_path and trainer.steps == 0 else None)
+                if shared is not None:  # the untrained hybrid: its search's shared rollout, scored with this loss
+                    metrics = score_states(*shared, valid_batch, valid, hyper.loss, weights, objective, statistics)
+                    LOG.info("trial %s: the untrained state is the physical layer; its validation scores the "
+                             "search's shared rollout %s", trial_id, physical_layer_rollout_path)
+                else:
+                    metrics = validate(model, valid, hyper.loss, weights, objective, statistics, valid_batch)
                 metrics.update(resource_s=trainer.resource_used_s, rung=rung)
                 validations.append(metrics)
                 LOG.info("trial %s: validation at %.4g s of data: objective %.4g, %s", trial_id,

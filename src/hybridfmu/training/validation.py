@@ -84,6 +84,14 @@ def validate(model: NeuralFmu, arrays: ManeuverArrays, loss_kind: str, weights: 
     """
     batch = batch or validation_batch(model.spec, arrays)
     states, mask = simulate_segments(model, arrays, batch)
+    return score_states(states, mask, batch, arrays, loss_kind, weights, objective, statistics)
+
+
+def score_states(states: torch.Tensor, mask: torch.Tensor, batch: ValidationBatch, arrays: ManeuverArrays,
+                 loss_kind: str, weights: dict[str, float], objective: Objective,
+                 statistics: dict[str, Any]) -> dict[str, float]:
+    """The metrics of :func:`validate` from simulated segments (``simulate_segments``: states (S, n_max + 1,
+    n_x), mask (S, n_max + 1)) of ``batch``, the validation batch of ``arrays``."""
     mask = mask.clone()
     mask[:, 0] = False  # the initial state is given, not predicted
     errors = states.index_select(2, batch.target_index) - batch.targets  # (S, n + 1, n_t)
