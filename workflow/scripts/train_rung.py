@@ -37,6 +37,5 @@ with job_guard(Path(snakemake.output.checkpoint).with_name("job.lock"), label):
         result_path=snakemake.output.result,
         tracking_options=retry_settings(snakemake.config.get("mlflow")),
         diagnosed_path=snakemake.input.diagnosed[0] if snakemake.input.diagnosed else None,
-        physical_layer_rollout_path=(snakemake.input.shared_rollout[0]
-                                     if getattr(snakemake.input, "shared_rollout", None) else None),
+        physical_layer_rollout_path=snakemake.input.shared_rollout[0] if snakemake.input.shared_rollout else None,
     )

@@ -92,17 +92,17 @@ def write_case_summary(out_path: str | Path, case: str, test_metrics_path: str |
     test_metrics = read_json(test_metrics_path)
     text = case_summary(case, test_metrics, diagnosis, units)
     if best_path and time_offset_path and roles is not None and test_metrics.get("dt_s"):
-        true_dt_s, source, estimates_s = learned_delay_facts(read_json(best_path), read_json(time_offset_path),
+        true_dt_s, source, estimates = learned_delay_facts(read_json(best_path), read_json(time_offset_path),
                                                              list(truth_paths or []), roles)
         text += "\nLearned input delays of the neural FMU:\n\n" + "\n".join(
             delay_lines(test_metrics["dt_s"], true_dt_s, Path(source).name if source else None, None,
-                        estimates_s, test_metrics.get("delay_bounds_s"))) + "\n"
+                        estimates, test_metrics.get("delay_bounds_s"))) + "\n"
         hybrid = test_metrics.get("hybrid_learned") or {}
         if hybrid.get("dt_s"):
             own = hybrid_estimates(hybrid_time_offset_path)
             text += "\nLearned input delays of the hybrid:\n\n" + "\n".join(
                 delay_lines(hybrid["dt_s"], true_dt_s, Path(source).name if source else None, None,
-                            own if own is not None else estimates_s, hybrid.get("delay_bounds_s"))) + "\n"
+                            own if own is not None else estimates, hybrid.get("delay_bounds_s"))) + "\n"
     with atomic_path(out_path) as tmp:
         Path(tmp).write_text(text)
     return Path(out_path)
