@@ -12,6 +12,12 @@ Needs a finished search (``results/<case>/<search>/best.json``) and the baseline
 (rule ``simulate_baseline``); the hybrid's search also needs ``diagnosis/diagnosed_model.pkl``.
 
     python benchmarks/search_selection.py [--config config/config.yaml] [--search hpo] [--top N] [--markdown FILE]
+        [--finalists-on train validation [--finalists-top 5]]
+
+With ``--finalists-on`` it also scores the search's finalists as rule ``score_finalists`` would with
+``hpo.selection: {maneuvers: [...], top: ...}`` (open loop over those whole maneuvers against the FMU), shows
+each finalist's score in the table and marks (◆) the finalist that selection would choose: the comparison of
+the two ways to choose on one finished search, without rerunning it.
 
 Prints one line per configuration with rate and time left, the table, and as its last line a JSON object.
 """
@@ -20,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import tempfile
 import time
 from pathlib import Path
@@ -31,7 +38,9 @@ from hybridfmu.config import check_config_file
 from hybridfmu.evaluation.evaluate import read_baseline
 from hybridfmu.evaluation.metrics import improvement_factors, trajectory_errors
 from hybridfmu.io import atomic_path, read_json
+from hybridfmu.training.finalists import finite_or_null, score_finalists
 from hybridfmu.training.inference import load_trained_neural_fmu, physical_layer, simulate_neural_fmu
+from hybridfmu.training.maneuver_roles import role_maneuver
 from hybridfmu.training.measured import initial_state, load_calibration, read_measured
 
 
@@ -73,26 +82,59 @@ def whole_trajectory_factors(model, roles, calibration, config, results: Path, m
 
 
 def markdown(rows: list[dict], maneuvers: dict[str, str], search: str, config_path: str,
-             top: int | None = None) -> str:
+             top: int | None = None, finalists: dict | None = None) -> str:
     """The table: one row per configuration (the ``top`` best only, when given), best objective first."""
     keys = sorted({key for row in rows for values in row["factors"].values() for key in values})
     columns = [(name, key) for name in maneuvers for key in keys]
     which = "Every configuration" if top is None else f"The {top} configurations with the best objectives"
     option = "" if top is None else f" --top {top}"
+    if finalists is not None:
+        option += f" --finalists-on {' '.join(finalists['roles'])} --finalists-top {finalists['top']}"
+    scores = {} if finalists is None else {f["trial_id"]: f["score"] for f in finalists["finalists"]}
+    score_header = "" if finalists is None else f"score over whole {' + '.join(finalists['roles'])} | "
     lines = [f"{which} of search `{search}` open loop over whole maneuvers, against the FMU "
              f"(`benchmarks/search_selection.py --config {config_path} --search {search}{option}`; factor = FMU "
-             "error / model error, above 1 is better; ✓: the configuration the search selected):", "",
-             "| configuration | objective (rank) | " + " | ".join(f"{name} {key}" for name, key in columns) + " |",
-             "|---|---|" + "---|" * len(columns)]
+             "error / model error, above 1 is better; ✓: the configuration the search selected"
+             + ("" if finalists is None else
+                f"; score: the finalist's error as a fraction of the FMU's over the whole {' and '.join(finalists['roles'])} "
+                f"maneuvers, ◆: the finalist with the smallest, which hpo.selection would choose")
+             + "):", "",
+             "| configuration | objective (rank) | " + score_header
+             + " | ".join(f"{name} {key}" for name, key in columns) + " |",
+             "|---|---|" + ("---|" if finalists is not None else "") + "---|" * len(columns)]
     for row in rows:
         cells = []
         for name, key in columns:
             value = row["factors"].get(name, {}).get(key)
             cells.append("diverged" if not row["factors"].get(name) else
                          ("–" if value is None else f"×{value:.3g}"))
-        mark = " ✓" if row["selected"] else ""
-        lines.append(f"| {row['trial']}{mark} | {row['objective']:.4g} ({row['rank']}) | " + " | ".join(cells) + " |")
+        mark = (" ✓" if row["selected"] else "") + (
+            " ◆" if finalists is not None and row["trial"] == finalists["chosen"] else "")
+        score = ""
+        if finalists is not None:
+            value = scores.get(row["trial"], "–")
+            score = ("diverged" if value is None else value if isinstance(value, str) else f"{value:.3g}") + " | "
+        lines.append(f"| {row['trial']}{mark} | {row['objective']:.4g} ({row['rank']}) | " + score
+                     + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def score_search_finalists(config: dict, roles, results: Path, search_dir: Path, fmu_path, diagnosed,
+                           on_roles: list[str], top: int) -> dict:
+    """The search's finalists scored over the whole maneuvers of ``on_roles`` as rule score_finalists does:
+    ``{"roles", "top", "finalists": [{"trial_id", "score", ...}], "chosen"}``."""
+    training = config.get("training") or {}
+    names = {role: role_maneuver(config, role, training.get(f"{role}_maneuver")) for role in on_roles}
+    paths = {name: {"data": str(results / "data" / f"{name}.parquet"),
+                    "baseline": str(results / "baseline" / f"{name}.parquet")} for name in names.values()}
+    with tempfile.TemporaryDirectory() as scratch:
+        record = score_finalists(plan_path=search_dir / "plan.json",
+                                 selection_paths=sorted(str(p) for p in search_dir.glob("b*/r*/selection.json")),
+                                 top=top, maneuver_paths=paths, fmu_path=fmu_path,
+                                 calibration_path=results / "calibration" / "calibration.json", roles=roles,
+                                 maneuvers_config=config["maneuvers"], scores_path=Path(scratch) / "finalists.json",
+                                 diagnosed_path=diagnosed)
+    return {**finite_or_null(record), "roles": on_roles}
 
 
 def _objective(result: dict) -> float:
@@ -108,10 +150,16 @@ def main() -> None:
     parser.add_argument("--markdown", default=None, help="also write the table to this file")
     parser.add_argument("--top", type=int, default=None,
                         help="only the N configurations with the best objectives (a large search)")
+    parser.add_argument("--finalists-on", nargs="+", choices=["train", "validation"], default=None,
+                        help="also score the finalists over these whole maneuvers (roles), as hpo.selection would")
+    parser.add_argument("--finalists-top", type=int, default=5, help="number of finalists (hpo.selection.top)")
     args = parser.parse_args()
     if args.top is not None and args.top < 1:
         parser.error(f"--top: expected a positive number of configurations, got {args.top}")
+    if args.finalists_top < 1:
+        parser.error(f"--finalists-top: expected a positive number of finalists, got {args.finalists_top}")
 
+    logging.basicConfig(level=logging.INFO, format="%(message)s")  # the finalists' progress lines
     config = check_config_file(args.config)
     roles = case_roles(config)
     results = Path(config.get("results_dir", "results")) / config["case"]
@@ -149,12 +197,16 @@ def main() -> None:
     rows.sort(key=lambda row: row["objective"])
     for rank, row in enumerate(rows, start=1):
         row["rank"] = rank
-    table = markdown(rows, maneuvers, args.search, args.config, args.top)
+    finalists = None
+    if args.finalists_on:
+        finalists = score_search_finalists(config, roles, results, search_dir, fmu_path, diagnosed,
+                                           args.finalists_on, args.finalists_top)
+    table = markdown(rows, maneuvers, args.search, args.config, args.top, finalists)
     print(table)
     if args.markdown:
         with atomic_path(args.markdown) as tmp:
             Path(tmp).write_text(table)
-    print(json.dumps({"config": args.config, "search": args.search, "maneuvers": maneuvers,
+    print(json.dumps({"config": args.config, "search": args.search, "maneuvers": maneuvers, "finalists": finalists,
                       "configurations": [{key: row[key] for key in ("trial", "objective", "rank", "selected",
                                                                       "factors")} for row in rows]}))
 

@@ -12,6 +12,8 @@ from hybridfmu.data.settings import section_settings
 from hybridfmu.fmu import load_fmu, simulate_open_loop
 from hybridfmu.fmu.build import build_fmu
 from hybridfmu.io import read_json, write_json_atomic
+from hybridfmu.evaluation.baseline import run_baseline
+from hybridfmu.training.finalists import score_finalists
 from hybridfmu.training.hpo import plan_search, prepare_training_data, select_best, select_rung
 from hybridfmu.training.inference import load_trained_neural_fmu, simulate_neural_fmu
 from hybridfmu.training.trial import load_checkpoint, run_trial_rung
@@ -128,16 +130,38 @@ def test_search_end_to_end(case):
                        selection_path=hpo / "b0/r0/selection.json")
     assert last["n_failed"] == 1 and last["ranking"][-1]["config"] == 1 and last["survivors"] == []
 
-    best = select_best(plan_path=case["plan"], selection_paths=[hpo / "b1/r0/selection.json",
-                                                                 hpo / "b1/r1/selection.json",
-                                                                 hpo / "b0/r0/selection.json"],
+    selections = [hpo / "b1/r0/selection.json", hpo / "b1/r1/selection.json", hpo / "b0/r0/selection.json"]
+    best = select_best(plan_path=case["plan"], selection_paths=selections,
                        best_path=hpo / "best.json", best_model_path=hpo / "best_model.pt",
                        summary_path=hpo / "summary.json", case="synthetic")
     winner = min((resumed, ok), key=lambda r: r["objective"])
     assert best["trial_id"] == winner["trial_id"] and best["objective"] == winner["objective"]
+    assert best["selection"] == {"by": "objective"}
     summary = read_json(hpo / "summary.json")
     assert len(summary["trials"]) == 6 and summary["best_trial"] == best["trial_id"]
     assert {t["status"] for t in summary["trials"]} == {"ok", "failed"}
+
+    # the finalists (the last rungs' successful results) open loop over both whole maneuvers against the FMU
+    maneuver_paths = {}
+    for role, name in (("train", "train"), ("validation", "val")):
+        maneuver_paths[name] = {"data": case["root"] / f"{role}.parquet", "baseline": hpo / f"baseline_{name}.parquet"}
+        run_baseline(case["fmu"], case["calibration"], maneuver_paths[name]["data"], maneuver_paths[name]["baseline"],
+                     hpo / f"baseline_{name}.json", ROLES, MANEUVERS, name)
+    scores = score_finalists(plan_path=case["plan"], selection_paths=selections, top=5, maneuver_paths=maneuver_paths,
+                             fmu_path=case["fmu"], calibration_path=case["calibration"], roles=ROLES,
+                             maneuvers_config=MANEUVERS, scores_path=hpo / "finalists.json")
+    assert [f["trial_id"] for f in scores["finalists"]] == [r["trial_id"] for r in sorted((resumed, ok),
+                                                                                          key=lambda r: r["objective"])]
+    for finalist in scores["finalists"]:
+        ratios = [finalist["maneuvers"][name]["ratio"] for name in ("train", "val")]
+        assert all(0 < r < 10 for r in ratios) and finalist["score"] == pytest.approx(math.sqrt(ratios[0] * ratios[1]))
+    chosen = min(scores["finalists"], key=lambda f: f["score"])
+    assert scores["chosen"] == chosen["trial_id"] and read_json(hpo / "finalists.json") == scores
+    chosen_best = select_best(plan_path=case["plan"], selection_paths=selections, best_path=hpo / "best_chosen.json",
+                              best_model_path=hpo / "best_chosen.pt", summary_path=hpo / "summary_chosen.json",
+                              case="synthetic", finalists_path=hpo / "finalists.json")
+    assert chosen_best["trial_id"] == chosen["trial_id"] and chosen_best["selection"]["by"] == "maneuvers"
+    assert read_json(hpo / "summary_chosen.json")["best_trial"] == chosen["trial_id"]
 
     model = load_trained_neural_fmu(hpo / "best.json", case["fmu"], {"theta_min": -100.0})
     assert model.delay_s() == pytest.approx(best["delay_s"]) and model.gate_values() == best["gates"]

@@ -243,6 +243,10 @@ SECTION_CHANGES = {
     "diagnosis": (_set("diagnosis", "selection", "bootstrap_samples", 21),
                   {"diagnose", "physical_layer_rollout", "train_rung", "select_rung", "select_best", "simulate_best",
                    "evaluate", "plot", "report", "summary"}),
+    # the final choice over whole maneuvers is no part of the plan: the search's trained rungs stay
+    "hpo.selection": (_set("hpo", "searches", {"hpo": {"selection": {"maneuvers": ["train", "validation"]}}}),
+                      {"score_finalists", "select_best", "simulate_best", "evaluate", "plot", "report", "summary",
+                       "diagnose", "physical_layer_rollout", "train_rung", "select_rung"}),
     "withheld": (_set("withheld", "duration_s", 5.0), set()),  # the `withheld` target only
     "bench": (_set("bench", "effects", "inertia_mismatch", "scale", 1.07), FROM_EMULATION),
 }
@@ -294,3 +298,34 @@ def test_withheld_cases_follow_the_sections_they_are_derived_from(tmp_path):
         configfile.write_text(yaml.safe_dump(changed, sort_keys=False))
         output = snakemake(tmp_path, configfile, "-n", target)
         assert planned_rules(output.stdout + output.stderr) == expected, (name, output.stdout[-4000:])
+
+
+def test_the_best_neural_fmu_chosen_over_whole_maneuvers(tiny_run, tmp_path):
+    """With hpo.selection the search's finalists run open loop over the whole train and validation maneuvers and
+    select_best takes the one with the smallest error relative to the FMU; the trained rungs are reused. (Last in
+    this module: it changes the tiny run's hpo/best.json.)"""
+    workdir, results, config, _ = tiny_run
+    changed = copy.deepcopy(config)
+    _set("hpo", "searches", {"hpo": {"selection": {"maneuvers": ["train", "validation"], "top": 2}}})(changed)
+    configfile = tmp_path / "tiny_selection.yaml"
+    configfile.write_text(yaml.safe_dump(changed, sort_keys=False))
+    best_path = results / "hpo" / "best.json"
+    target = str(best_path.relative_to(workdir))
+    assert planned_rules(snakemake(workdir, configfile, "-n", target).stdout) == {"score_finalists", "select_best"}
+    before = json.loads(best_path.read_text())
+    snakemake(workdir, configfile, target)
+    scores = json.loads((results / "hpo" / "finalists.json").read_text())
+    assert scores["maneuvers"] == [next(name for name, item in config["maneuvers"].items() if item["role"] == role)
+                                   for role in ("train", "validation")]
+    ranked = [entry["trial_id"] for entry in before["ranking"]][:2]
+    assert [f["trial_id"] for f in scores["finalists"]] == ranked
+    finite = [f for f in scores["finalists"] if f["score"] is not None]
+    best = json.loads(best_path.read_text())
+    if finite:
+        chosen = min(finite, key=lambda f: f["score"])
+        assert scores["chosen"] == chosen["trial_id"] == best["trial_id"]
+        assert best["selection"]["by"] == "maneuvers" and best["selection"]["score"] == chosen["score"]
+    else:
+        assert best["selection"]["by"] == "objective" and best["trial_id"] == before["trial_id"]
+    log = (results / "logs" / "score_finalists" / "hpo.log").read_text()
+    assert "finalists of search" in log and "simulated s/s" in log

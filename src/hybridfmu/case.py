@@ -383,18 +383,27 @@ def check_gradients(config: dict[str, Any]) -> None:
 
 
 def check_hpo(config: dict[str, Any]) -> None:
-    """The Hyperband budget of a validated config is a real search (:func:`hybridfmu.training.hyperband.check_budget`).
+    """The Hyperband budget of a validated config is a real search (:func:`hybridfmu.training.hyperband.check_budget`),
+    for the section and for every search that sets its own (``config.hpo.searches.<search>``).
 
     Raises:
-        ConfigError: naming ``config.hpo.R`` and ``config.hpo.eta`` and what is expected.
+        ConfigError: naming ``config.hpo.R`` and ``config.hpo.eta`` (or ``config.hpo.searches.<search>.R``, ...)
+            and what is expected.
     """
     from hybridfmu.training.hyperband import check_budget
 
     hpo = config.get("hpo") or {}
-    try:
-        check_budget(hpo.get("R", 81), hpo.get("eta", 3), names=("config.hpo.R", "config.hpo.eta"))
-    except ValueError as err:
-        raise ConfigError(str(err)) from None
+    budgets = [("config.hpo", hpo.get("R", 81), hpo.get("eta", 3))]
+    for search, own in (hpo.get("searches") or {}).items():
+        own = own or {}
+        if "R" in own or "eta" in own:
+            budgets.append((f"config.hpo.searches.{search}", own.get("R", hpo.get("R", 81)),
+                            own.get("eta", hpo.get("eta", 3))))
+    for where, R, eta in budgets:
+        try:
+            check_budget(R, eta, names=(f"{where}.R", f"{where}.eta"))
+        except ValueError as err:
+            raise ConfigError(str(err)) from None
 
 
 def check_maneuvers(config: dict[str, Any], roles: CaseRoles) -> None:

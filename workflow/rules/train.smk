@@ -5,11 +5,14 @@
 # configuration over all brackets is written to {search}/best.json (rule select_best).
 # Search "hpo" trains the paper's neural FMU (the FMU under the ANN). When model.physics_terms names a
 # physical layer, search "hybrid" trains the hybrid (the FMU plus the diagnosed effects under the ANN) with
-# the same search space and budget, after the diagnosis (its diagnosis/diagnosed_model.pkl).
+# the same search space, after the diagnosis (its diagnosis/diagnosed_model.pkl); config.hpo.searches gives a
+# search its own budget. With config.hpo.selection.maneuvers, rule score_finalists runs a search's finalists
+# open loop over whole maneuvers and select_best takes the one it chooses.
 from hybridfmu.data.settings import section_settings
 from hybridfmu.io import read_json
 from hybridfmu.tracking import experiment_name, tracking_uri
 from hybridfmu.training.maneuver_roles import role_maneuver
+from hybridfmu.training.hpo import search_settings
 from hybridfmu.training.hyperband import hyperband_brackets
 
 HPO = section_settings(config.get("hpo"), "hpo")
@@ -22,7 +25,12 @@ SEARCH_MODELS = {"hpo": {**{k: v for k, v in MODEL.items() if k != "physics_coef
 if HYBRID:
     SEARCH_MODELS["hybrid"] = MODEL
 SEARCHES = list(SEARCH_MODELS)
-HPO_BRACKETS = {bracket.s: bracket for bracket in hyperband_brackets(HPO["R"], HPO["eta"])}
+# search -> its settings (config.hpo with its own config.hpo.searches.<search>) and its brackets by index
+SEARCH_HPO = {search: search_settings(HPO, search) for search in SEARCHES}
+SEARCH_BRACKETS = {search: {bracket.s: bracket for bracket in hyperband_brackets(settings["R"], settings["eta"])}
+                   for search, settings in SEARCH_HPO.items()}
+# searches whose best configuration is chosen over whole maneuvers (rule score_finalists)
+FINALIST_SEARCHES = [search for search, settings in SEARCH_HPO.items() if "selection" in settings]
 TRAIN_MANEUVERS = {"train": role_maneuver(config, "train", TRAINING["train_maneuver"]),
                    "validation": role_maneuver(config, "validation", TRAINING["validation_maneuver"])}
 
@@ -53,7 +61,7 @@ def previous_rung_checkpoint(wildcards):
 def rung_configs(search, bracket, rung):
     """Configurations trained in a rung: all of the bracket in rung 0, else the previous rung's survivors."""
     if rung == 0:
-        return list(range(HPO_BRACKETS[bracket].n_configs))
+        return list(range(SEARCH_BRACKETS[search][bracket].n_configs))
     selection = checkpoints.select_rung.get(search=search, bracket=bracket, rung=rung - 1).output.selection
     return read_json(selection)["survivors"]
 
@@ -105,7 +113,8 @@ rule hpo_plan:
     params:
         case=CASE,
         seed=config.get("seed", 0),
-        hpo=HPO,
+        # the final choice (selection) is no part of the plan: changing it reruns score_finalists and select_best only
+        hpo=lambda wildcards: {k: v for k, v in SEARCH_HPO[wildcards.search].items() if k != "selection"},
         training=TRAINING,
         model=lambda wildcards: SEARCH_MODELS[wildcards.search],
         case_sections=case_sections(),
@@ -228,11 +237,52 @@ checkpoint select_rung:
         "../scripts/train_select_rung.py"
 
 
+def search_selections(wildcards):
+    """Every rung's selection of every bracket of a search."""
+    return [f"{RESULTS}/{wildcards.search}/b{bracket.s}/r{rung.index}/selection.json"
+            for bracket in SEARCH_BRACKETS[wildcards.search].values() for rung in bracket.rungs]
+
+
+def selection_maneuvers(search):
+    """Role -> maneuver name of the maneuvers a search's finalists are scored on (config hpo.selection)."""
+    return {role: TRAIN_MANEUVERS[role] for role in SEARCH_HPO[search]["selection"]["maneuvers"]}
+
+
+rule score_finalists:
+    """The search's finalists open loop over whole maneuvers against the FMU (config hpo.selection)."""
+    input:
+        plan=f"{RESULTS}/{{search}}/plan.json",
+        selections=search_selections,
+        fmu=fmu_path(),
+        calibration=CALIBRATION_JSON,
+        data=lambda wildcards: [f"{RESULTS}/data/{name}.parquet"
+                                for name in selection_maneuvers(wildcards.search).values()],
+        baselines=lambda wildcards: [f"{RESULTS}/baseline/{name}.parquet"
+                                     for name in selection_maneuvers(wildcards.search).values()],
+        diagnosed=search_diagnosed_model,
+    output:
+        finalists=f"{RESULTS}/{{search}}/finalists.json",
+    params:
+        maneuvers=lambda wildcards: list(selection_maneuvers(wildcards.search).values()),
+        top=lambda wildcards: SEARCH_HPO[wildcards.search]["selection"]["top"],
+        case=case_sections(),
+    wildcard_constraints:
+        search="|".join(FINALIST_SEARCHES) if FINALIST_SEARCHES else "(?!)",
+    threads: 1
+    log:
+        f"{RESULTS}/logs/score_finalists/{{search}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/score_finalists/{{search}}.tsv"
+    script:
+        "../scripts/train_score_finalists.py"
+
+
 rule select_best:
     input:
         plan=f"{RESULTS}/{{search}}/plan.json",
-        selections=[f"{RESULTS}/{{search}}/b{bracket.s}/r{rung.index}/selection.json"
-                    for bracket in HPO_BRACKETS.values() for rung in bracket.rungs],
+        selections=search_selections,
+        finalists=lambda wildcards: ([f"{RESULTS}/{wildcards.search}/finalists.json"]
+                                     if wildcards.search in FINALIST_SEARCHES else []),
     output:
         best=f"{RESULTS}/{{search}}/best.json",
         model=f"{RESULTS}/{{search}}/best_model.pt",

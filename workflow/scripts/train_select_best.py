@@ -1,4 +1,5 @@
-"""Rule select_best: the best configuration over all brackets -> hpo/best.json.
+"""Rule select_best: the best configuration over all brackets -> hpo/best.json (by the objective, or the finalist
+rule score_finalists chose over whole maneuvers).
 
 Rungs whose MLflow logging failed are logged first (the queue beside the plan), runs that killed jobs left
 RUNNING are ended, and best.json names the best trial's MLflow run even when it was logged late.
@@ -19,5 +20,6 @@ record = select_best(
     best_model_path=snakemake.output.model,
     summary_path=snakemake.output.summary,
     case=snakemake.params.case,
+    finalists_path=snakemake.input.finalists[0] if snakemake.input.finalists else None,
 )
 catch_up_search(snakemake.input.plan, settings, best_path=snakemake.output.best)

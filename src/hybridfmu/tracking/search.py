@@ -305,7 +305,8 @@ def finish_search(tracking: dict[str, str], best: dict[str, Any] | None, summary
         tracker = Tracker(tracking["uri"], create=False, **tracker_options)
         run_id = tracking["parent_run_id"]
         if best is not None:
-            tags = {"best_trial": best["trial_id"], "best_run_id": best.get("mlflow_run_id") or ""}
+            tags = {"best_trial": best["trial_id"], "best_run_id": best.get("mlflow_run_id") or "",
+                    "best_chosen_by": (best.get("selection") or {}).get("by", "objective")}
             metrics = [(f"best_val_{key}", best["validation"][key], 0)
                        for key in validation_metric_keys(best["validation"], with_loss=False)]
             tracker.log(run_id, metrics=new_metric_rows(tracker, run_id, metrics), tags=tags)

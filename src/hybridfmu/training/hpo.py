@@ -59,6 +59,25 @@ def prepare_training_data(*, fmu_path: str | Path, calibration_path: str | Path 
     return statistics
 
 
+#: Settings a search may set for itself in ``config.hpo.searches.<search>``.
+SEARCH_OWN_SETTINGS = ("R", "eta", "max_resource_s", "selection")
+
+
+def search_settings(hpo_config: dict[str, Any], search: str) -> dict[str, Any]:
+    """The validated ``config.hpo`` section as one search sees it: its ``searches.<search>`` entries replace
+    the section's, and ``searches`` itself is dropped. A ``selection`` without maneuvers (the objective
+    decides, the default) is dropped too, so a search's settings, and with them its id, stay those of a
+    config that never mentioned it."""
+    settings = {key: value for key, value in hpo_config.items() if key != "searches"}
+    settings.update((hpo_config.get("searches") or {}).get(search) or {})
+    selection = settings.get("selection") or {}
+    if selection.get("maneuvers"):
+        settings["selection"] = {"maneuvers": list(selection["maneuvers"]), "top": int(selection.get("top", 5))}
+    else:
+        settings.pop("selection", None)
+    return settings
+
+
 def check_target_weights(hpo_config: dict[str, Any], roles: Any) -> None:
     """Every ``w_<state>`` of the search space and the objective names a target state of the case.
 
@@ -218,8 +237,11 @@ def select_rung(*, plan_path: str | Path, bracket: int, rung: int, result_paths:
 
 
 def select_best(*, plan_path: str | Path, selection_paths: list[str], best_path: str | Path,
-                best_model_path: str | Path, summary_path: str | Path, case: str) -> dict[str, Any]:
-    """The best configuration over all brackets (by the validation objective of the brackets' last rungs).
+                best_model_path: str | Path, summary_path: str | Path, case: str,
+                finalists_path: str | Path | None = None) -> dict[str, Any]:
+    """The best configuration over all brackets: by the validation objective of the brackets' last rungs, or,
+    with ``finalists_path`` (rule ``score_finalists``, config ``hpo.selection``), the finalist chosen there
+    over whole maneuvers (the objective decides when every finalist diverged).
 
     ``selection_paths``: the selections of every rung of every bracket (the last rungs' decide).
 
@@ -242,10 +264,13 @@ def select_best(*, plan_path: str | Path, selection_paths: list[str], best_path:
             trials.append({key: record.get(key) for key in TRIAL_SUMMARY_KEYS})
     trials.sort(key=lambda t: (-t["bracket"], t["config"], t["rung"]))
     ranked = [r for r in rank_results(finals) if r["status"] == "ok" and r["objective"] is not None]
+    best, choice = (ranked[0], {"by": "objective"}) if ranked else (None, {"by": "objective"})
+    if ranked and finalists_path is not None:
+        best, choice = finalist_choice(finalists_path, ranked)
     summary = {"search_id": plan["search_id"], "R": plan["R"], "eta": plan["eta"], "unit_s": plan["unit_s"],
                "max_resource_s": plan["max_resource_s"], "objective": plan["objective"],
                "n_configurations": plan["n_configurations"], "trials": trials,
-               "best_trial": ranked[0]["trial_id"] if ranked else None}
+               "best_trial": best["trial_id"] if best else None, "selection": choice}
     write_json_atomic(summary_path, summary)
     if not ranked:
         if plan.get("tracking"):
@@ -253,7 +278,6 @@ def select_best(*, plan_path: str | Path, selection_paths: list[str], best_path:
             finish_search(plan["tracking"], None, summary_path)
         raise RuntimeError(f"hyperparameter search of case {case}: every configuration of the last rungs failed "
                            f"or diverged; see {summary_path}")
-    best = ranked[0]
     checkpoint = load_checkpoint(best["checkpoint"])
     with atomic_path(best_model_path) as tmp:
         shutil.copyfile(best["checkpoint"], tmp)
@@ -265,11 +289,37 @@ def select_best(*, plan_path: str | Path, selection_paths: list[str], best_path:
         "model_spec": checkpoint["spec"], "fmu": best["fmu"], "mlflow_run_id": best.get("mlflow_run_id"),
         "tracking": plan.get("tracking"), "search_id": plan["search_id"], "summary": str(summary_path),
         "ranking": [{"trial_id": r["trial_id"], "objective": r["objective"]} for r in ranked],
+        "selection": choice,
     }
     write_json_atomic(best_path, record)
     if plan.get("tracking"):
         from hybridfmu.tracking.search import finish_search
         finish_search(plan["tracking"], record, summary_path)
-    LOG.info("best: %s (objective %.4g, delays %s, gates %s)", best["trial_id"], best["objective"],
-             describe_delays(best["delay_s"]), best["gates"])
+    LOG.info("best: %s (objective %.4g, chosen by %s, delays %s, gates %s)", best["trial_id"], best["objective"],
+             choice["by"], describe_delays(best["delay_s"]), best["gates"])
     return record
+
+
+def finalist_choice(finalists_path: str | Path, ranked: list[dict[str, Any]]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The result chosen by rule ``score_finalists`` among ``ranked`` (the last rungs' successful results, best
+    objective first), and how: ``{"by": "maneuvers", "maneuvers", "score", "objective_rank", "finalists":
+    [{"trial_id", "score"}]}``, or ``{"by": "objective", ...}`` when every finalist diverged.
+
+    Raises:
+        ValueError: the chosen trial is none of the ranked results (the scores belong to another search run).
+    """
+    scores = read_json(finalists_path)
+    finalists = [{"trial_id": f["trial_id"], "score": f["score"], "objective_rank": f["objective_rank"]}
+                 for f in scores["finalists"]]
+    if scores.get("chosen") is None:
+        LOG.warning("%s: every finalist diverged over %s; choosing by the objective", finalists_path,
+                    scores.get("maneuvers"))
+        return ranked[0], {"by": "objective", "maneuvers": scores.get("maneuvers"), "finalists": finalists}
+    by_trial = {r["trial_id"]: r for r in ranked}
+    if scores["chosen"] not in by_trial:
+        raise ValueError(f"{finalists_path}: chosen trial {scores['chosen']!r} is not among the search's last-rung "
+                         f"results {sorted(by_trial)}; rerun rule score_finalists")
+    chosen = next(f for f in finalists if f["trial_id"] == scores["chosen"])
+    return by_trial[scores["chosen"]], {"by": "maneuvers", "maneuvers": scores["maneuvers"],
+                                         "score": chosen["score"], "objective_rank": chosen["objective_rank"],
+                                         "finalists": finalists}

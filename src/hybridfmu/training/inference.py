@@ -25,9 +25,6 @@ def load_trained_neural_fmu(best_json_path: str | Path, fmu_path: str | Path,
     model at ``diagnosed_path`` (``diagnosis/diagnosed_model.pkl``). The learned delays are
     ``model.delay_s()`` ({group: s}), the gates ``model.gate_values()``.
     """
-    from hybridfmu.fmu import FmuRhs, load_fmu
-    from hybridfmu.training.trial import load_checkpoint
-
     best = read_json(best_json_path)
     if "checkpoint" not in best:
         raise ValueError(f"{best_json_path}: field 'checkpoint' missing (expected the best.json of a search)")
@@ -36,6 +33,17 @@ def load_trained_neural_fmu(best_json_path: str | Path, fmu_path: str | Path,
         # paths are relative to the workflow's folder; the copy also lies beside best.json
         beside = Path(best_json_path).parent / checkpoint_path.name
         checkpoint_path = beside if beside.exists() else checkpoint_path
+    return load_checkpoint_model(checkpoint_path, fmu_path, fmu_parameters, diagnosed_path)
+
+
+def load_checkpoint_model(checkpoint_path: str | Path, fmu_path: str | Path,
+                          fmu_parameters: dict[str, float] | None = None,
+                          diagnosed_path: str | Path | None = None) -> NeuralFmu:
+    """The trained neural FMU (or hybrid) of one trial's ``checkpoint.pt``, around the FMU at ``fmu_path``
+    (see :func:`load_trained_neural_fmu`), in evaluation mode."""
+    from hybridfmu.fmu import FmuRhs, load_fmu
+    from hybridfmu.training.trial import load_checkpoint
+
     checkpoint = load_checkpoint(checkpoint_path)
     spec = NeuralFmuSpec.from_dict(checkpoint["spec"])
     fmu_model = load_fmu(fmu_path, parameters=fmu_parameters or None)

@@ -1,0 +1,202 @@
+"""The search's final choice over whole maneuvers (config ``hpo.selection``, rule ``score_finalists``).
+
+Hyperband ranks configurations by the validation objective: the open loop over the selected segments of the
+validation maneuver, each segment started from its measured state. What a user wants from the chosen model is
+the evaluation's open loop: every whole maneuver from its first sample, through the rest phases between the
+segments, where a model must stay in step on its own. With ``hpo.selection.maneuvers`` the search's finalists
+(the ``top`` configurations of the brackets' last rungs with the best objectives) are each run that way over
+the named maneuvers (train and validation only; the test maneuver stays unseen), and the one whose error is
+the smallest fraction of the FMU's is chosen:
+
+- per maneuver, the **error ratio** is the objective's weighted mean over the target states of model error /
+  FMU error (the objective's loss kind, MAE or MSE, on the whole trajectory);
+- the **score** is the geometric mean of the maneuvers' ratios (below 1: better than the FMU on average);
+- a finalist that diverges or leaves the finite range scores infinity.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from hybridfmu.io import read_json, write_json_atomic
+from hybridfmu.training.hyperband import rank_results
+from hybridfmu.training.losses import Objective
+
+LOG = logging.getLogger(__name__)
+
+
+def last_rung_results(selection_paths: Sequence[str | Path]) -> list[dict[str, Any]]:
+    """The results of every bracket's last rung (the candidates of the final choice), each with its
+    ``result_path``, ranked best objective first (:func:`hybridfmu.training.hyperband.rank_results`)."""
+    finals = []
+    for path in selection_paths:
+        selection = read_json(path)
+        if not selection.get("last_rung"):
+            continue
+        for item in selection["ranking"]:
+            finals.append({**read_json(item["result"]), "result_path": item["result"]})
+    return rank_results(finals)
+
+
+def finalist_results(selection_paths: Sequence[str | Path], top: int) -> list[dict[str, Any]]:
+    """The ``top`` successful last-rung results with the best finite objectives, best first."""
+    ranked = [r for r in last_rung_results(selection_paths)
+              if r.get("status") == "ok" and isinstance(r.get("objective"), (int, float))
+              and math.isfinite(float(r["objective"]))]
+    return ranked[:top]
+
+
+def target_errors(simulated: np.ndarray, measured: np.ndarray, loss: str) -> np.ndarray:
+    """(n_t,) MAE or MSE per target column of two (T, n_t) trajectories (model units)."""
+    difference = np.asarray(simulated, dtype=float) - np.asarray(measured, dtype=float)
+    if loss == "MSE":
+        return np.mean(difference ** 2, axis=0)
+    return np.mean(np.abs(difference), axis=0)
+
+
+def error_ratio(model_targets: np.ndarray, fmu_targets: np.ndarray, measured_targets: np.ndarray,
+                target_states: Sequence[str], objective: Objective) -> tuple[float, dict[str, float]]:
+    """The model's error as a fraction of the FMU's on one whole maneuver.
+
+    Args:
+        model_targets, fmu_targets, measured_targets: (T, n_t) target states (model units).
+        target_states: (n_t,) their names; objective: loss kind and one weight per target state.
+
+    Returns:
+        (the objective's weighted mean of the per-target ratios, {state: model error / FMU error}); a target
+        the FMU reproduces exactly has ratio 1 when the model does too, else infinity. Infinity when the
+        model's trajectory is not finite.
+    """
+    if not np.all(np.isfinite(model_targets)):
+        return math.inf, {name: math.inf for name in target_states}
+    model_errors = target_errors(model_targets, measured_targets, objective.loss)
+    fmu_errors = target_errors(fmu_targets, measured_targets, objective.loss)
+    ratios = {}
+    for name, model_error, fmu_error in zip(target_states, model_errors, fmu_errors):
+        if fmu_error > 0.0:
+            ratios[name] = float(model_error / fmu_error)
+        else:
+            ratios[name] = 1.0 if model_error == 0.0 else math.inf
+    total_weight = sum(objective.weights[name] for name in target_states)
+    weighted = sum(objective.weights[name] * ratios[name] for name in target_states) / total_weight
+    return float(weighted), ratios
+
+
+def geometric_mean(values: Sequence[float]) -> float:
+    """Geometric mean of positive values; infinity when any is infinite, 0 when any is 0."""
+    values = [float(v) for v in values]
+    if not values:
+        raise ValueError("geometric_mean: no values")
+    if any(math.isinf(v) or math.isnan(v) for v in values):
+        return math.inf
+    if any(v <= 0.0 for v in values):
+        return 0.0
+    return float(math.exp(sum(math.log(v) for v in values) / len(values)))
+
+
+def finite_or_null(value: Any) -> Any:
+    """``value`` with every non-finite float (a diverged finalist's ratio or score) as None, for JSON."""
+    if isinstance(value, dict):
+        return {key: finite_or_null(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [finite_or_null(item) for item in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def choose_finalist(scored: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
+    """The finalist with the smallest finite ``score`` (ties: the better objective); None when every
+    finalist diverged. A score of None (read back from JSON) counts as diverged."""
+    finite = [entry for entry in scored if entry["score"] is not None and math.isfinite(float(entry["score"]))]
+    if not finite:
+        return None
+    return min(finite, key=lambda entry: (float(entry["score"]), float(entry["objective"])))
+
+
+def score_finalists(*, plan_path: str | Path, selection_paths: Sequence[str | Path], top: int,
+                    maneuver_paths: dict[str, dict[str, str]], fmu_path: str | Path,
+                    calibration_path: str | Path | None, roles: Any, maneuvers_config: dict[str, Any] | None,
+                    scores_path: str | Path, diagnosed_path: str | Path | None = None) -> dict[str, Any]:
+    """Run each finalist open loop over every whole maneuver and score it against the FMU.
+
+    Args:
+        plan_path: the search plan (its ``objective``); selection_paths: the rungs' selections (the last
+            rungs' name the candidates); top: how many finalists.
+        maneuver_paths: maneuver name -> ``{"data": ingested Parquet, "baseline": the FMU's baseline Parquet}``.
+        fmu_path, calibration_path: the FMU and its calibration (None: as configured).
+        roles: :class:`hybridfmu.case.CaseRoles`; maneuvers_config: config ``maneuvers`` (initial states).
+        scores_path: output JSON.
+        diagnosed_path: the diagnosed model under a hybrid's ANN (search "hybrid"), else None.
+
+    Writes ``scores_path``: ``{"maneuvers", "top", "objective", "finalists": [{"trial_id", "bracket",
+    "config", "rung", "objective", "objective_rank", "checkpoint", "maneuvers": {name: {"ratio",
+    "ratios"}}, "score"}], "chosen"}`` (a diverged finalist's ratios and score are null; ``chosen``: a trial
+    id, or None when every finalist diverged).
+    Returns it.
+    """
+    from hybridfmu.evaluation.evaluate import read_baseline
+    from hybridfmu.progress import Progress
+    from hybridfmu.training.inference import load_checkpoint_model, physical_layer, simulate_neural_fmu
+    from hybridfmu.training.losses import objective_from_config
+    from hybridfmu.training.measured import initial_state, load_calibration, read_measured
+
+    if top < 1:
+        raise ValueError(f"config.hpo.selection.top: expected at least 1 finalist, got {top}")
+    if not maneuver_paths:
+        raise ValueError("config.hpo.selection.maneuvers: no maneuver to score the finalists on")
+    plan = read_json(plan_path)
+    objective = objective_from_config(plan["objective"], roles)
+    calibration = load_calibration(calibration_path)
+    finalists = finalist_results(selection_paths, top)
+    state_names = list(roles.state_names)
+    maneuvers = {}
+    for name, paths in maneuver_paths.items():
+        measured = read_measured(paths["data"], roles)
+        maneuvers[name] = (measured, read_baseline(paths["baseline"], state_names, measured.time_s))
+    simulated_s = sum(float(m.time_s[-1] - m.time_s[0]) for m, _ in maneuvers.values())
+    progress = Progress(simulated_s * len(finalists), f"finalists of search {plan['search_id']}",
+                        "simulated s", LOG)
+    scored = []
+    for objective_rank, result in enumerate(finalists, start=1):
+        model = load_checkpoint_model(result["checkpoint"], fmu_path, dict(calibration.parameters) or None,
+                                      diagnosed_path)
+        entry = {key: result.get(key) for key in ("trial_id", "bracket", "config", "rung", "objective", "checkpoint")}
+        entry["objective_rank"] = objective_rank
+        entry["maneuvers"] = {}
+        for name, (measured, fmu_states) in maneuvers.items():
+            index = [state_names.index(state) for state in measured.target_states]
+            x0 = initial_state(model.fmu.rhs.model, measured.x[0], roles, calibration, name, maneuvers_config)
+            layer = physical_layer(model)
+            if layer is not None:
+                x0 = layer.diagnosed.initial_state(x0, name)  # the physical layer's start, as the evaluation
+            try:
+                states = np.asarray(simulate_neural_fmu(model, measured.time_s, measured.u, x0), dtype=float)
+            except (FloatingPointError, RuntimeError) as err:
+                LOG.warning("finalist %s diverged on %s: %s", entry["trial_id"], name, err)
+                states = np.full((measured.time_s.size, len(state_names)), np.nan)
+            ratio, ratios = error_ratio(states[:, index], fmu_states[:, index], measured.targets,
+                                        measured.target_states, objective)
+            entry["maneuvers"][name] = {"ratio": ratio, "ratios": ratios}
+            progress.update(float(measured.time_s[-1] - measured.time_s[0]))
+        entry["score"] = geometric_mean([m["ratio"] for m in entry["maneuvers"].values()])
+        LOG.info("finalist %s (objective %.4g, rank %d): score %.4g (%s)", entry["trial_id"], entry["objective"],
+                 objective_rank, entry["score"],
+                 ", ".join(f"{name} {m['ratio']:.4g}" for name, m in entry["maneuvers"].items()))
+        scored.append(entry)
+    progress.finish()
+    chosen = choose_finalist(scored)
+    record = {"maneuvers": list(maneuver_paths), "top": top, "objective": objective.to_dict(),
+              "finalists": scored, "chosen": None if chosen is None else chosen["trial_id"]}
+    write_json_atomic(scores_path, finite_or_null(record))
+    if chosen is None:
+        LOG.warning("every finalist diverged over the whole maneuvers; the search falls back to the objective")
+    else:
+        LOG.info("chosen over whole maneuvers %s: %s (score %.4g, objective rank %d)", list(maneuver_paths),
+                 chosen["trial_id"], chosen["score"], chosen["objective_rank"])
+    return record
