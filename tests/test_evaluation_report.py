@@ -103,6 +103,15 @@ def test_write_report_from_files(tmp_path):
            "(figures/validation_angle.png)" in text
     assert "speed MSE 4 → 1 (rad/s)²" in text
     assert "| depth | 4 |" in text and "trial_id: b2c1" in text and "estimated input delay 30.0 µs" in text
+    assert "chosen by: the validation objective" in text
+    chosen = json.loads(best.read_text())
+    chosen["selection"] = {"by": "maneuvers", "maneuvers": ["train", "validation"], "score": 0.1211,
+                           "objective_rank": 2, "finalists": [{"trial_id": "b2c0"}, {"trial_id": "b2c1"}]}
+    best.write_text(json.dumps(chosen))
+    text = write_report(tmp_path / "report.md", "tiny", paths, best, run, offset, figures, [str(truth)],
+                        roles=motor_roles(), reference=_reference(), log_to_mlflow=False).read_text()
+    assert ("chosen by: open loop over the whole train and validation maneuvers (error 0.121 of the FMU's; "
+            "rank 2 by the objective among 2 finalists)") in text
     bad = tmp_path / "bad.truth.json"
     bad.write_text("{}")
     with pytest.raises(ValueError, match=r"bad\.truth\.json: field 'time_offset.input_delay_s' missing"):

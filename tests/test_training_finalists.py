@@ -10,7 +10,8 @@ from hybridfmu.data.settings import section_settings
 from hybridfmu.io import write_json_atomic
 from hybridfmu.training.finalists import (choose_finalist, error_ratio, finalist_results, finite_or_null,
                                           geometric_mean)
-from hybridfmu.training.hpo import finalist_choice, search_settings
+from hybridfmu.training.hpo import finalist_choice
+from hybridfmu.training.plan import search_settings
 from hybridfmu.training.losses import Objective
 
 

@@ -12,7 +12,7 @@ from hybridfmu.data.settings import section_settings
 from hybridfmu.io import read_json
 from hybridfmu.tracking import experiment_name, tracking_uri
 from hybridfmu.training.maneuver_roles import role_maneuver
-from hybridfmu.training.hpo import search_settings
+from hybridfmu.training.plan import search_settings
 from hybridfmu.training.hyperband import hyperband_brackets
 
 HPO = section_settings(config.get("hpo"), "hpo")

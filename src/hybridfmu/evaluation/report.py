@@ -401,6 +401,15 @@ def learned_delay_facts(best: dict[str, Any], time_offset: dict[str, Any], truth
     return true_dt_s, truth_source, dict(time_offset.get("groups") or {})
 
 
+def chosen_by_text(selection: dict[str, Any] | None) -> str:
+    """How the search chose its best configuration (``best.json``'s ``selection``), for the report."""
+    if not selection or selection.get("by") != "maneuvers":
+        return "the validation objective"
+    return (f"open loop over the whole {' and '.join(selection['maneuvers'])} maneuvers (error "
+            f"{_number(selection['score'], 3)} of the FMU's; rank {selection['objective_rank']} by the objective "
+            f"among {len(selection['finalists'])} finalists)")
+
+
 def hybrid_estimates(path: str | Path | None) -> dict[str, dict[str, Any]] | None:
     """{group: summary entry} of the time-offset estimates on the hybrid's physical layer (rule
     ``hybrid_time_offset``), or None without the file."""
@@ -450,6 +459,7 @@ def write_report(report_path: str | Path, case: str, metrics_paths: list[str], b
                for name, path in figure_paths.items()]
     best_facts = {key: summary[key] for key in ("trial_id", "bracket", "rung", "objective", "resource_s",
                                                 "mlflow_run_id") if summary.get(key) is not None}
+    best_facts["chosen by"] = chosen_by_text(best.get("selection"))
     text = render_report(case, metrics_by_role, summary["hyperparameters"], best_facts, first.get("dt_s"),
                          first.get("gates"), true_dt_s, truth_source, figures, run, units, reference, estimates_s,
                          hybrid_estimates(hybrid_time_offset_path))

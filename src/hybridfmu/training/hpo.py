@@ -59,25 +59,6 @@ def prepare_training_data(*, fmu_path: str | Path, calibration_path: str | Path 
     return statistics
 
 
-#: Settings a search may set for itself in ``config.hpo.searches.<search>``.
-SEARCH_OWN_SETTINGS = ("R", "eta", "max_resource_s", "selection")
-
-
-def search_settings(hpo_config: dict[str, Any], search: str) -> dict[str, Any]:
-    """The validated ``config.hpo`` section as one search sees it: its ``searches.<search>`` entries replace
-    the section's, and ``searches`` itself is dropped. A ``selection`` without maneuvers (the objective
-    decides, the default) is dropped too, so a search's settings, and with them its id, stay those of a
-    config that never mentioned it."""
-    settings = {key: value for key, value in hpo_config.items() if key != "searches"}
-    settings.update((hpo_config.get("searches") or {}).get(search) or {})
-    selection = settings.get("selection") or {}
-    if selection.get("maneuvers"):
-        settings["selection"] = {"maneuvers": list(selection["maneuvers"]), "top": int(selection.get("top", 5))}
-    else:
-        settings.pop("selection", None)
-    return settings
-
-
 def check_target_weights(hpo_config: dict[str, Any], roles: Any) -> None:
     """Every ``w_<state>`` of the search space and the objective names a target state of the case.
 
@@ -264,7 +245,7 @@ def select_best(*, plan_path: str | Path, selection_paths: list[str], best_path:
             trials.append({key: record.get(key) for key in TRIAL_SUMMARY_KEYS})
     trials.sort(key=lambda t: (-t["bracket"], t["config"], t["rung"]))
     ranked = [r for r in rank_results(finals) if r["status"] == "ok" and r["objective"] is not None]
-    best, choice = (ranked[0], {"by": "objective"}) if ranked else (None, {"by": "objective"})
+    best, choice = (ranked[0] if ranked else None), {"by": "objective"}
     if ranked and finalists_path is not None:
         best, choice = finalist_choice(finalists_path, ranked)
     summary = {"search_id": plan["search_id"], "R": plan["R"], "eta": plan["eta"], "unit_s": plan["unit_s"],

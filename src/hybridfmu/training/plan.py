@@ -50,3 +50,18 @@ def plan_entry(plan: dict[str, Any], bracket: int, rung: int, config: int) -> di
                     "hyperparameters": item["hyperparameters"], "resource_s": entry["rungs"][rung]["resource_s"],
                     "last_rung": len(entry["rungs"]) - 1}
     raise ValueError(f"search plan: no bracket {bracket}")
+
+
+def search_settings(hpo_config: dict[str, Any], search: str) -> dict[str, Any]:
+    """The validated ``config.hpo`` section as one search sees it: its ``searches.<search>`` entries replace
+    the section's, and ``searches`` itself is dropped. A ``selection`` without maneuvers (the objective
+    decides, the default) is dropped too, so a search's settings, and with them its id, stay those of a
+    config that never mentioned it."""
+    settings = {key: value for key, value in hpo_config.items() if key != "searches"}
+    settings.update((hpo_config.get("searches") or {}).get(search) or {})
+    selection = settings.get("selection") or {}
+    if selection.get("maneuvers"):
+        settings["selection"] = {"maneuvers": list(selection["maneuvers"]), "top": int(selection.get("top", 5))}
+    else:
+        settings.pop("selection", None)
+    return settings
