@@ -1,6 +1,7 @@
 """Rule logging and progress reporting for long-running work.
 
-``setup_rule_logging`` sends log records to the rule's log file (and stderr);
+``setup_rule_logging`` sends log records to the rule's log file (and stderr), starting with the job's
+kernel-choice and thread settings (:func:`hybridfmu.numerics.describe_numerics`);
 ``Progress`` emits periodic lines with the rate and the estimated time left.
 """
 
@@ -10,6 +11,8 @@ import logging
 import sys
 import time
 from pathlib import Path
+
+from hybridfmu.numerics import describe_numerics
 
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 
@@ -33,7 +36,9 @@ def setup_rule_logging(log_path: str | Path | None, level: int = logging.INFO) -
         file_handler.setFormatter(formatter)
         root.addHandler(file_handler)
     root.setLevel(level)
-    return logging.getLogger("hybridfmu")
+    logger = logging.getLogger("hybridfmu")
+    logger.info(describe_numerics())
+    return logger
 
 
 class Progress:

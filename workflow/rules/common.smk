@@ -8,6 +8,11 @@ CONFIG_FILE = str((workflow.config_settings.configfiles or ["config/config.yaml"
 from hybridfmu.config import check_config_file
 check_config_file(CONFIG_FILE, config)
 validate_case_config(config)
+# The math libraries' kernel choice fixed for every job started from here (inherited environment), so that the
+# same config and seed give the same numbers on any x86-64 machine (hybridfmu.numerics; config.pin_kernels).
+if config.get("pin_kernels", True):
+    from hybridfmu.numerics import pin_process_environment
+    pin_process_environment()
 # Roles against the FMU's interface and every unit, before any job runs: a ConfigError here names the
 # config file and the field (an FMU variable that does not exist, a unit of the wrong dimension ...).
 ROLES = check_case(config, CONFIG_FILE)
