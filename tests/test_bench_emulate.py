@@ -190,13 +190,24 @@ def test_spread_rule_checks_every_pair():
 
 
 def test_demo_maneuvers_differ_by_ten_percent_in_max_load_and_speed():
-    planned = check_planned_spread(parse_bench_settings(load_case_config(DEMO_CONFIG)))
-    assert set(planned) == {"train", "validation", "test"}
     config = load_case_config(DEMO_CONFIG)
+    roles = {name: item["role"] for name, item in config["maneuvers"].items()}
+    planned = check_planned_spread(parse_bench_settings(config), roles=roles)
+    assert set(planned) == set(roles) and sum(role == "test" for role in roles.values()) >= 6
     config["bench"]["maneuvers"]["test"]["speed_limit_rad_s"] = config["bench"]["maneuvers"]["train"][
         "speed_limit_rad_s"] - 5
     with pytest.raises(ValueError, match="planned max_abs_omega_rad_s"):
-        check_planned_spread(parse_bench_settings(config))
+        check_planned_spread(parse_bench_settings(config), roles=roles)
+
+
+def test_maneuvers_of_one_role_may_resemble_each_other():
+    values = {"train": 100.0, "validation": 130.0, "test": 115.0, "test_b": 116.0}
+    roles = {"train": "train", "validation": "validation", "test": "test", "test_b": "test"}
+    check_spread(values, "max speed", roles=roles)
+    with pytest.raises(ValueError, match="'test' and 'test_b'"):
+        check_spread(values, "max speed")
+    with pytest.raises(ValueError, match="'train' and 'test_b'"):
+        check_spread({**values, "test_b": 105.0}, "max speed", roles=roles)
 
 
 def test_realised_spread_is_checked_from_the_ground_truth(tmp_path):

@@ -340,7 +340,8 @@ def test_with_a_test_maneuver_nothing_is_said_to_be_missing(demo_config):
     from hybridfmu.case import case_warnings
 
     assert case_warnings(validate_case_config(demo_config), "demo.yaml") == []
-    del demo_config["maneuvers"]["test"]
+    for name in [name for name, item in demo_config["maneuvers"].items() if item["role"] == "test"]:
+        del demo_config["maneuvers"][name]
     (warning,) = case_warnings(demo_config, "demo.yaml")
     assert warning.startswith("demo.yaml: config.maneuvers: no maneuver has role: test")
     assert "add a maneuver with role: test" in warning

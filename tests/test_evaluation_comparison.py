@@ -129,3 +129,53 @@ def test_trained_coefficients_are_tabled_with_their_change():
     assert "| `periodic(x)[1]` | 0 | 0.25 | – |" in lines
     assert all(line.count("|") - line.count("\\|") in (0, 5) for line in lines)
     assert coefficient_lines({}) == [] and coefficient_lines(None) == []
+
+
+def test_in_tolerance_metrics_distributions_and_warnings_by_hand():
+    """In step: share of time within the tolerance, exits, errors while within; median and range over the
+    maneuvers; a model worse than its own physics is named."""
+    from hybridfmu.evaluation.comparison import tolerance_settings
+    from hybridfmu.evaluation.report import distribution_table, warning_lines
+
+    t = np.linspace(0.0, 1.0, 11)
+    data = np.column_stack([np.linspace(0, 2, 11), np.full(11, 2.0)])
+    slip = np.where(np.arange(11) >= 6, 1.0, 0.05)  # in step for 6 samples, then 1 rad off
+    fmu = data + np.column_stack([np.full(11, 2.0), np.full(11, 1.0)])
+    runs = []
+    for name, hybrid_offset in (("a", 0.02), ("b", 0.5), ("c", 0.1)):
+        neural = data + np.column_stack([slip, np.full(11, 0.5)])
+        effects = data + np.column_stack([np.full(11, 0.1), np.full(11, 0.2)])
+        hybrid = data + np.column_stack([np.full(11, hybrid_offset), np.full(11, 0.1)])
+        runs.append(ManeuverRun(name, t, SIGNALS, data, fmu, neural,
+                                further={"fmu_effects": effects, "hybrid": hybrid, "ceiling": data + 0.001}))
+    tolerance = tolerance_settings({"signals": {"angle": 0.3}}, SIGNALS, runs[:1])
+    assert tolerance == {"signals": {"angle": 0.3}, "source": "config"}
+    metrics = role_metrics("test", runs, ZOOM, {}, tolerance)
+    neural = metrics["per_maneuver"]["a"]["in_tolerance"]["neural_fmu"]
+    assert neural["in_tolerance_share"] == pytest.approx(6 / 11) and neural["tolerance_exits"] == 1
+    assert neural["angle_mae_in_tolerance"] == pytest.approx(0.05)
+    assert neural["speed_mae_in_tolerance"] == pytest.approx(0.5)
+    fmu = metrics["per_maneuver"]["a"]["in_tolerance"]["fmu"]
+    assert fmu["in_tolerance_share"] == 0.0 and fmu["angle_mae_in_tolerance"] is None
+    hybrid = metrics["distribution"]["hybrid"]["angle_mae_factor"]  # FMU 2.0 over 0.02, 0.5, 0.1
+    assert (hybrid["median"], hybrid["min"], hybrid["max"], hybrid["n"]) == pytest.approx((20.0, 4.0, 100.0, 3))
+    assert metrics["distribution"]["ceiling"]["angle_mae"]["median"] == pytest.approx(0.001)
+    assert metrics["models"] == ["fmu", "fmu_effects", "neural_fmu", "hybrid", "ceiling"]
+    # the hybrid (0.5) is worse than its physical layer, the FMU + effects (0.1), on maneuver b only
+    (warning,) = metrics["warnings"]
+    assert warning.startswith("b: hybrid is worse than fmu_effects, its own physics, in angle MAE (0.5 against 0.1")
+    assert warning_lines({"test": metrics}) == [f"- **WARNING** test: {warning}"]
+    table = "\n".join(distribution_table({"test": metrics}))
+    assert "| test | 3 | hybrid (FMU + effects + ANN) | ×20 [×4 – ×100] |" in table
+    assert "| test | 3 | ceiling (true plant) |" in table
+    # defaults chosen from the validation maneuvers' data: 5 % of each signal's 1st..99th percentile range
+    angle_only = [ManeuverRun("v", t, ["angle"], data[:, 0], data[:, 0] + 2.0, data[:, 0])]
+    chosen = tolerance_settings({}, ["angle"], angle_only)
+    assert chosen["signals"]["angle"] == pytest.approx(0.05 * (np.percentile(data[:, 0], 99)
+                                                                - np.percentile(data[:, 0], 1)))
+    assert chosen["source"].startswith("chosen from the data")
+    with pytest.raises(ValueError, match="speed does not vary"):  # speed is constant: its tolerance must be named
+        tolerance_settings({"fraction_of_range": 0.05}, ["speed"], [ManeuverRun("v", t, ["speed"], data[:, 1],
+                                                                                 data[:, 1], data[:, 1])])
+    with pytest.raises(ValueError, match=r"config.evaluation.tolerance.signals: \['torque'\]"):
+        tolerance_settings({"signals": {"torque": 1.0}}, SIGNALS, runs)

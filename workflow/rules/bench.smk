@@ -1,6 +1,6 @@
 # The demo's "real hardware" (only for cases with a `bench` section): the test-bench emulator
-# writes one MDF4 log and one ground-truth JSON per maneuver, then checks that the maneuvers'
-# realised max load and max speed differ by at least 10 % pairwise.
+# writes one MDF4 log and one ground-truth JSON per maneuver, then checks that the realised max load and max
+# speed of every two maneuvers of different roles differ by at least 10 %; and the ceiling of the evaluation.
 
 if "bench" in config:
     from hybridfmu.bench.settings import check_raw_paths as _bench_check_raw_paths
@@ -14,6 +14,7 @@ if "bench" in config:
         params:
             # what hybridfmu.bench reads: the bench, the master seed and the FMU's nominal parameters
             config={**config_sections("bench", "seed"), "fmu": {"parameters": config["fmu"].get("parameters", {})}},
+            roles={name: item["role"] for name, item in config["maneuvers"].items()},
         wildcard_constraints:
             maneuver="|".join(MANEUVERS),
         log:
@@ -30,10 +31,33 @@ if "bench" in config:
             summary=f"{RESULTS}/raw/bench_summary.json",
         params:
             maneuvers=MANEUVERS,
+            roles={name: item["role"] for name, item in config["maneuvers"].items()},
         log:
             f"{RESULTS}/logs/check_bench_spread/check_bench_spread.log",
         script:
             "../scripts/check_bench_spread.py"
+
+    # The ceiling: the bench's true plant open loop over an evaluated maneuver from its measured initial state and
+    # logged duties (hybridfmu.bench.ceiling); read by the evaluation only (rule simulate_best), never by
+    # training, selection or diagnosis.
+    rule simulate_ceiling:
+        input:
+            raw=lambda wildcards: config["maneuvers"][wildcards.maneuver]["raw"],
+            data=f"{RESULTS}/data/{{maneuver}}.parquet",
+        output:
+            trajectory=f"{RESULTS}/evaluation/ceiling/{{maneuver}}.parquet",
+        params:
+            config={**config_sections("bench", "seed", "signals", "maneuvers"),
+                    "fmu": {"parameters": config["fmu"].get("parameters", {})}},
+            case=case_sections(),
+        wildcard_constraints:
+            maneuver="|".join(MANEUVERS),
+        log:
+            f"{RESULTS}/logs/simulate_ceiling/{{maneuver}}.log",
+        benchmark:
+            f"{RESULTS}/benchmarks/simulate_ceiling/{{maneuver}}.tsv"
+        script:
+            "../scripts/simulate_ceiling.py"
 
     ALL_TARGETS.extend(expand(f"{RESULTS}/raw/{{maneuver}}.{{ext}}", maneuver=MANEUVERS, ext=["mf4", "truth.json"]))
     ALL_TARGETS.append(f"{RESULTS}/raw/bench_summary.json")

@@ -50,6 +50,8 @@ rule simulate_best:
         # the FMU plus the diagnosed effects, and the hybrid around it when the case trains one
         diagnosed=DIAGNOSED_MODEL,
         hybrid_best=[f"{RESULTS}/hybrid/best.json"] if HYBRID else [],
+        # the best any model could reach (the bench's true plant, emulated cases only; bench.smk)
+        ceiling=[f"{RESULTS}/evaluation/ceiling/{{maneuver}}.parquet"] if "bench" in config else [],
     output:
         trajectory=f"{RESULTS}/evaluation/trajectories/{{maneuver}}.parquet",
         learned=f"{RESULTS}/evaluation/trajectories/{{maneuver}}.learned.json",
@@ -77,6 +79,7 @@ rule evaluate:
     params:
         maneuvers={name: config["maneuvers"][name]["role"] for name in EVAL_MANEUVERS},
         zoom=EVAL_CONFIG.get("zoom", {}),
+        tolerance=EVAL_CONFIG.get("tolerance", {}),
         mlflow=mlflow_destination(),
         results_dir=config.get("results_dir", "results"),
         case=CASE,

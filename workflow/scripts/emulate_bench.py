@@ -4,4 +4,4 @@ from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 emulate_bench(dict(snakemake.params.config), snakemake.wildcards.maneuver, mdf_path=snakemake.output.mdf,
-              truth_path=snakemake.output.truth)
+              truth_path=snakemake.output.truth, roles=dict(snakemake.params.roles))

@@ -12,6 +12,7 @@ run_evaluation(
     metrics_paths=list(snakemake.output.metrics),
     run_path=snakemake.output.run,
     zoom_settings=snakemake.params.zoom,
+    tolerance=snakemake.params.tolerance,
     mlflow_config=snakemake.params.mlflow,
     results_dir=snakemake.params.results_dir,
     case=snakemake.params.case,

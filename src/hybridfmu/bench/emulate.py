@@ -95,8 +95,10 @@ def maneuver_references(settings: BenchSettings, maneuver: str, duration_s: floa
                             settings.ecu_curve(), settings.acceleration_limit_rad_s2, duration_s=duration_s)
 
 
-def check_planned_spread(settings: BenchSettings, min_relative: float = 0.10) -> dict[str, dict[str, float]]:
-    """Check that the planned max load and max speed of all maneuvers differ pairwise by >= ``min_relative``.
+def check_planned_spread(settings: BenchSettings, min_relative: float = 0.10,
+                         roles: Mapping[str, str] | None = None) -> dict[str, dict[str, float]]:
+    """Check that the planned max load and max speed of all maneuvers (with ``roles``: of every two maneuvers of
+    different roles) differ by >= ``min_relative``.
 
     Returns maneuver -> planned extremes. Raises ValueError naming the maneuvers otherwise.
     """
@@ -105,7 +107,7 @@ def check_planned_spread(settings: BenchSettings, min_relative: float = 0.10) ->
     if len(planned) > 1:
         for quantity in ("max_tau_load_nm", "max_abs_omega_rad_s"):
             check_spread({name: values[quantity] for name, values in planned.items()}, f"planned {quantity}",
-                         min_relative)
+                         min_relative, roles)
     return planned
 
 
@@ -328,7 +330,8 @@ def ground_truth(run: BenchRun, settings: BenchSettings, planned: Mapping[str, A
 
 
 def emulate_bench(config: Mapping[str, Any], maneuver: str, mdf_path: str | Path, truth_path: str | Path,
-                  duration_s: float | None = None, check_spread_of_maneuvers: bool = True) -> dict[str, Any]:
+                  duration_s: float | None = None, check_spread_of_maneuvers: bool = True,
+                  roles: Mapping[str, str] | None = None) -> dict[str, Any]:
     """Emulate ``maneuver`` of the case ``config``; write its MDF4 log and ground-truth JSON.
 
     Args:
@@ -338,14 +341,14 @@ def emulate_bench(config: Mapping[str, Any], maneuver: str, mdf_path: str | Path
         truth_path: output ground-truth JSON (``{RESULTS}/raw/{maneuver}.truth.json``).
         duration_s: emulate only the first ``duration_s`` seconds (tests); default: all.
         check_spread_of_maneuvers: first check that the planned max load and speed differ by >= 10 %
-            between the configured maneuvers.
+            between the configured maneuvers (with ``roles``, maneuver -> role: between those of different roles).
     Returns:
         The ground-truth record written to ``truth_path``.
     """
     settings = parse_bench_settings(config)
     planned: dict[str, Any] = {}
     if check_spread_of_maneuvers:
-        planned = check_planned_spread(settings)[maneuver] if maneuver in settings.maneuvers else {}
+        planned = check_planned_spread(settings, roles=roles)[maneuver] if maneuver in settings.maneuvers else {}
     LOGGER.info("bench %s: effects %s, true parameters %s", maneuver,
                 [effect.name for effect in settings.effects], settings.true_parameters)
     run = run_maneuver(settings, maneuver, duration_s)
@@ -362,12 +365,13 @@ def emulate_bench(config: Mapping[str, Any], maneuver: str, mdf_path: str | Path
 
 
 def summarize_bench(truth_paths: Mapping[str, str | Path], output_path: str | Path,
-                    min_relative: float = 0.10) -> dict[str, Any]:
+                    min_relative: float = 0.10, roles: Mapping[str, str] | None = None) -> dict[str, Any]:
     """Check the REALISED max load and max speed of the maneuvers differ pairwise by >= ``min_relative``.
 
     Args:
         truth_paths: maneuver -> its ground-truth JSON.
         output_path: JSON written with the extremes per maneuver (only when the check passes).
+        roles: maneuver -> role: only maneuvers of different roles must differ (None: every two).
     Raises:
         ValueError: naming the two maneuvers that are too alike.
     """
@@ -381,7 +385,8 @@ def summarize_bench(truth_paths: Mapping[str, str | Path], output_path: str | Pa
         extremes[name] = {key: float(summary[key]) for key in
                           ("max_tau_load_nm", "max_abs_omega_rad_s", "max_pressure_bar", "duration_s")}
     for quantity in ("max_tau_load_nm", "max_abs_omega_rad_s"):
-        check_spread({name: values[quantity] for name, values in extremes.items()}, quantity, min_relative)
-    record = {"min_relative_difference": min_relative, "maneuvers": extremes}
+        check_spread({name: values[quantity] for name, values in extremes.items()}, quantity, min_relative, roles)
+    record = {"min_relative_difference": min_relative, "maneuvers": extremes,
+              **({"roles": dict(roles)} if roles else {})}
     write_json_atomic(output_path, record)
     return record

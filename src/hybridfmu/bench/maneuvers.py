@@ -279,18 +279,25 @@ def planned_extremes(references: References, torque_per_pa: float) -> dict[str, 
     }
 
 
-def check_spread(values: Mapping[str, float], quantity: str, min_relative: float = 0.10) -> None:
+def check_spread(values: Mapping[str, float], quantity: str, min_relative: float = 0.10,
+                 roles: Mapping[str, str] | None = None) -> None:
     """Check that every two maneuvers differ in ``quantity`` by at least ``min_relative``.
 
-    The difference is relative to the larger value: |a - b| / max(a, b) >= min_relative.
+    The difference is relative to the larger value: |a - b| / max(a, b) >= min_relative. With ``roles``
+    (maneuver -> role), only maneuvers of different roles must differ: the held-out maneuvers of one role may
+    resemble each other, but none of them the train or validation maneuvers.
 
     Raises:
         ValueError: naming the two maneuvers, their values and the difference.
     """
     names = sorted(values, key=lambda name: values[name])
-    for low, high in zip(names, names[1:]):
-        a, b = float(values[low]), float(values[high])
-        relative = (b - a) / b if b > 0.0 else 0.0
-        if relative < min_relative:
-            raise ValueError(f"bench maneuvers {low!r} and {high!r}: {quantity} {a:.4g} and {b:.4g} differ by "
-                             f"{100 * relative:.1f} %, expected at least {100 * min_relative:.0f} %")
+    roles = roles or {}
+    for i, low in enumerate(names):
+        for high in names[i + 1:]:
+            if roles and roles.get(low, low) == roles.get(high, high):
+                continue
+            a, b = float(values[low]), float(values[high])
+            relative = (b - a) / b if b > 0.0 else 0.0
+            if relative < min_relative:
+                raise ValueError(f"bench maneuvers {low!r} and {high!r}: {quantity} {a:.4g} and {b:.4g} differ by "
+                                 f"{100 * relative:.1f} %, expected at least {100 * min_relative:.0f} %")

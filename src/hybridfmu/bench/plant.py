@@ -119,9 +119,10 @@ class Plant:
             return di_d, di_q, 0.0, 0.0
         return di_d, di_q, omega, tau * self._inv_J
 
-    def advance(self, d_a: float, d_b: float, d_c: float, t_s: float) -> None:
-        """Integrate one PWM period from ``t_s`` (s) with the duties ``d_a, d_b, d_c`` (0..1) held."""
-        h = self.h_s
+    def advance(self, d_a: float, d_b: float, d_c: float, t_s: float, duration_s: float | None = None) -> None:
+        """Integrate one PWM period from ``t_s`` (s) with the duties ``d_a, d_b, d_c`` (0..1) held; with
+        ``duration_s`` (s, > 0) only that part of a period (a start between two PWM instants)."""
+        h = self.h_s if duration_s is None else float(duration_s) / self.substeps
         half = 0.5 * h
         sixth = h / 6.0
         f = self.derivatives

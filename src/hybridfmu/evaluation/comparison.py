@@ -12,7 +12,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from hybridfmu.evaluation.metrics import improvement_factors, interval_mask, trajectory_errors
+from hybridfmu.evaluation.metrics import (improvement_factors, interval_mask, range_tolerance, summary_statistics,
+                                          tolerance_errors, trajectory_errors)
 from hybridfmu.evaluation.zoom import choose_zoom_intervals, zoom_choices
 
 #: Sources of the saved trajectories: column ``<source>_<signal>`` per target signal (the files also
@@ -20,11 +21,15 @@ from hybridfmu.evaluation.zoom import choose_zoom_intervals, zoom_choices
 SOURCES = ("data", "fmu", "neural_fmu")
 
 #: Further models of the saved trajectories (columns ``<model>_<signal>`` and ``<model>_state_<state>`` when the
-#: case has them): the FMU plus the diagnosed effects, and the hybrid (the same under an ANN).
-FURTHER_MODELS = ("fmu_effects", "hybrid")
+#: case has them): the FMU plus the diagnosed effects, the hybrid (the same under an ANN), and the ceiling: the
+#: best any model could reach in these metrics (the true plant open loop, for an emulated case).
+FURTHER_MODELS = ("fmu_effects", "hybrid", "ceiling")
 
 #: Every compared model, in the order of the reports.
-MODELS = ("fmu", "fmu_effects", "neural_fmu", "hybrid")
+MODELS = ("fmu", "fmu_effects", "neural_fmu", "hybrid", "ceiling")
+
+#: The models a user takes away (trained or diagnosed); the ceiling is a yardstick, not one of them.
+CANDIDATE_MODELS = ("fmu_effects", "neural_fmu", "hybrid")
 
 
 def trajectory_columns(signals: list[str]) -> list[str]:
@@ -99,6 +104,84 @@ class ManeuverRun:
         sel = slice(None) if mask is None else mask
         return trajectory_errors(self.values(model)[sel], self.data[sel], self.signals)
 
+    def tolerance_errors(self, model: str, tolerance: dict[str, float]) -> dict[str, float | int | None]:
+        """Share of time ``model`` stays within ``tolerance`` ({signal: model unit}) of the data, and its errors
+        while it does (:func:`hybridfmu.evaluation.metrics.tolerance_errors`)."""
+        return tolerance_errors(self.values(model), self.data, self.signals, tolerance)
+
+
+def tolerance_settings(settings: dict[str, Any] | None, signals: list[str],
+                       validation_runs: list[ManeuverRun]) -> dict[str, Any]:
+    """The tolerance of the in-tolerance metrics: ``{"signals": {signal: tolerance}, "source": text}``.
+
+    Args:
+        settings: config ``evaluation.tolerance`` (``signals``, ``fraction_of_range``).
+        signals: the target signals.
+        validation_runs: the validation maneuvers: a signal's default tolerance is chosen from their data alone.
+    """
+    settings = settings or {}
+    configured = dict(settings.get("signals") or {})
+    unknown = sorted(set(configured) - set(signals))
+    if unknown:
+        raise ValueError(f"config.evaluation.tolerance.signals: {unknown} are not target signals; expected some of "
+                         f"{signals}")
+    if configured:
+        return {"signals": {k: float(v) for k, v in configured.items()}, "source": "config"}
+    if not validation_runs:
+        raise ValueError("config.evaluation.tolerance.signals is empty and there is no validation maneuver to choose "
+                         "the tolerances from; name them in the config")
+    fraction = float(settings.get("fraction_of_range", 0.05))
+    chosen = {signal: range_tolerance([run.data[:, k] for run in validation_runs], fraction, signal)
+              for k, signal in enumerate(signals)}
+    return {"signals": chosen, "source": f"chosen from the data: {fraction:g} of each signal's range (1st to 99th "
+                                         f"percentile) over the validation maneuvers"}
+
+
+def physics_warnings(per_maneuver: dict[str, dict], signals: list[str]) -> list[str]:
+    """One line per maneuver, model and target signal where a model is worse (whole-record MAE) than the physics
+    it is built on (:data:`OWN_PHYSICS`): a trained model worse than its own physics is a bug to look into."""
+    lines = []
+    for maneuver, entry in per_maneuver.items():
+        for model, physics in OWN_PHYSICS.items():
+            if model not in entry or physics not in entry:
+                continue
+            for signal in signals:
+                key = f"{signal}_mae"
+                worse, base = float(entry[model][key]), float(entry[physics][key])
+                if worse > base:
+                    lines.append(f"{maneuver}: {model} is worse than {physics}, its own physics, in {signal} MAE "
+                                 f"({worse:.4g} against {base:.4g}, x{base / worse:.3g})")
+    return lines
+
+
+def distribution(per_maneuver: dict[str, dict], signals: list[str], models: list[str]) -> dict[str, dict]:
+    """Median, min and max over the maneuvers of every model's errors, factors against the FMU (FMU error / model
+    error) and in-tolerance metrics: ``{model: {key: {"median", "min", "max", "n"}}}``, keys ``<signal>_mae``,
+    ``<signal>_mse``, ``<signal>_mae_factor``, ``<signal>_mse_factor`` (not for the FMU), ``in_tolerance_share``,
+    ``tolerance_exits``, ``<signal>_mae_in_tolerance``."""
+    out: dict[str, dict] = {}
+    entries = list(per_maneuver.values())
+    for model in models:
+        keys: dict[str, list] = {}
+        for entry in entries:
+            errors = entry[model]
+            for signal in signals:
+                for measure in ("mae", "mse"):
+                    keys.setdefault(f"{signal}_{measure}", []).append(errors[f"{signal}_{measure}"])
+                    if model != "fmu":
+                        improvement = entry["improvement" if model == "neural_fmu" else f"improvement_{model}"]
+                        keys.setdefault(f"{signal}_{measure}_factor", []).append(improvement[f"{signal}_{measure}"])
+            tolerance = (entry.get("in_tolerance") or {}).get(model)
+            if tolerance:
+                for key in ("in_tolerance_share", "tolerance_exits", *(f"{s}_mae_in_tolerance" for s in signals)):
+                    keys.setdefault(key, []).append(tolerance[key])
+        out[model] = {key: summary_statistics(values) for key, values in keys.items()}
+    return out
+
+
+#: A trained or diagnosed model and the physics it is built on: it must never be worse than that physics.
+OWN_PHYSICS = {"neural_fmu": "fmu", "fmu_effects": "fmu", "hybrid": "fmu_effects"}
+
 
 def compare(reference: dict[str, float], candidate: dict[str, float]) -> dict[str, dict]:
     """``{"fmu": reference, "neural_fmu": candidate, "improvement": reference / candidate}``."""
@@ -133,7 +216,8 @@ def pooled_errors(runs: list[ManeuverRun], model: str) -> dict[str, float]:
                              np.concatenate([r.data for r in runs]), runs[0].signals)
 
 
-def role_metrics(role: str, runs: list[ManeuverRun], zoom_settings: dict, extra: dict) -> dict:
+def role_metrics(role: str, runs: list[ManeuverRun], zoom_settings: dict, extra: dict,
+                 tolerance: dict[str, Any] | None = None) -> dict:
     """The metrics object of one role (``validation.json`` / ``test.json``).
 
     Args:
@@ -141,13 +225,18 @@ def role_metrics(role: str, runs: list[ManeuverRun], zoom_settings: dict, extra:
         runs: the maneuvers of that role (same target signals).
         zoom_settings: config ``evaluation.zoom`` (``length_s``, ``criterion``, ``intervals``).
         extra: learned quantities to include (``dt_s``, ``gates``, ``best_trial`` ...).
+        tolerance: :func:`tolerance_settings` (``signals``, ``source``), or None: no in-tolerance metrics.
 
     Returns:
         ``{"role", "maneuvers", "signals", "samples", "duration_s", "fmu", "neural_fmu", "improvement",
-        <extra>, "zooms": [...], "per_maneuver": {...}}``; ``fmu`` and ``neural_fmu`` hold
-        ``<signal>_mae`` / ``_mse`` / ``_rmse`` per target signal over the whole trajectories (model units),
-        ``improvement`` the FMU error over the neural FMU error for each of them; for each further model
-        every maneuver has (``fmu_effects``, ``hybrid``) its errors and ``improvement_<model>`` likewise.
+        <extra>, "zooms": [...], "per_maneuver": {...}, "models", "distribution", "warnings"}``; ``fmu`` and
+        ``neural_fmu`` hold ``<signal>_mae`` / ``_mse`` / ``_rmse`` per target signal over the whole
+        trajectories of all maneuvers together (model units), ``improvement`` the FMU error over the neural FMU
+        error for each of them; for each further model every maneuver has (``fmu_effects``, ``hybrid``,
+        ``ceiling``) its errors and ``improvement_<model>`` likewise; each ``per_maneuver`` entry holds the same
+        for its maneuver and, with a tolerance, ``in_tolerance`` ({model: :func:`tolerance_errors`}); with it
+        ``tolerance``; ``distribution`` (:func:`distribution`) the median and range over the maneuvers;
+        ``warnings`` (:func:`physics_warnings`) every maneuver where a model is worse than its own physics.
     """
     if not runs:
         raise ValueError(f"no maneuver with role {role!r} to evaluate")
@@ -164,10 +253,17 @@ def role_metrics(role: str, runs: list[ManeuverRun], zoom_settings: dict, extra:
         per_maneuver[run.maneuver] = {"duration_s": float(run.time_s[-1] - run.time_s[0]),
                                       **compare(fmu, run.errors("neural_fmu")),
                                       **compare_further(fmu, {m: run.errors(m) for m in further})}
+        if tolerance:
+            per_maneuver[run.maneuver]["in_tolerance"] = {
+                m: run.tolerance_errors(m, tolerance["signals"]) for m in ("fmu", "neural_fmu", *further)}
+    models = [m for m in MODELS if m in ("fmu", "neural_fmu") or m in further]
     fmu = pooled_errors(runs, "fmu")
     return {"role": role, "maneuvers": [r.maneuver for r in runs], "signals": list(signals),
             "samples": int(sum(r.time_s.size for r in runs)),
             "duration_s": float(sum(r.time_s[-1] - r.time_s[0] for r in runs)),
             **compare(fmu, pooled_errors(runs, "neural_fmu")),
             **compare_further(fmu, {m: pooled_errors(runs, m) for m in further}),
-            **extra, "zooms": zooms, "per_maneuver": per_maneuver}
+            **extra, "zooms": zooms, "per_maneuver": per_maneuver, "models": models,
+            **({"tolerance": tolerance} if tolerance else {}),
+            "distribution": distribution(per_maneuver, list(signals), models),
+            "warnings": physics_warnings(per_maneuver, list(signals))}

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from hybridfmu.evaluation.best import best_trial_summary
-from hybridfmu.evaluation.comparison import ManeuverRun, role_metrics
+from hybridfmu.evaluation.comparison import ManeuverRun, role_metrics, tolerance_settings
 from hybridfmu.evaluation.tracking import log_evaluation_run, resolve_tracking
 from hybridfmu.io import read_json, write_json_atomic, write_parquet_atomic
 from hybridfmu.model.delay import describe_delays
@@ -43,6 +43,21 @@ def read_baseline(path: str | Path, state_names: list[str], time_s: np.ndarray) 
         raise ValueError(f"{path}: time_s does not match the ingested maneuver's grid ({len(frame)} vs "
                          f"{time_s.size} samples); rerun simulate_baseline")
     return frame[state_names].to_numpy(dtype=float)
+
+
+def read_ceiling(path: str | Path, signals: list[str], time_s: np.ndarray) -> dict[str, np.ndarray]:
+    """The ``ceiling_*`` columns (each (T,)) of a ceiling trajectory, checked against the target ``signals`` and the
+    data's grid ``time_s`` (T,)."""
+    path = Path(path)
+    frame = pd.read_parquet(path)
+    missing = [name for name in ["time_s", *(f"ceiling_{signal}" for signal in signals)] if name not in frame.columns]
+    if missing:
+        raise ValueError(f"{path}: column(s) {missing} missing; expected time_s and ceiling_<signal> per target "
+                         f"signal {signals}")
+    if len(frame) != time_s.size or not np.allclose(frame["time_s"].to_numpy(), time_s, rtol=0, atol=1e-9):
+        raise ValueError(f"{path}: time_s does not match the ingested maneuver's grid ({len(frame)} vs "
+                         f"{time_s.size} samples); rerun simulate_ceiling")
+    return {name: frame[name].to_numpy(dtype=float) for name in frame.columns if name.startswith("ceiling_")}
 
 
 def learned_quantities(model: Any) -> dict[str, Any]:
@@ -96,7 +111,8 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
                   data_path: str | Path, baseline_path: str | Path, trajectory_path: str | Path,
                   learned_path: str | Path, roles: Any, maneuvers: dict[str, Any] | None,
                   maneuver: str, diagnosed_path: str | Path | None = None,
-                  hybrid_best_path: str | Path | None = None) -> dict[str, Any]:
+                  hybrid_best_path: str | Path | None = None,
+                  ceiling_path: str | Path | None = None) -> dict[str, Any]:
     """Simulate the best neural FMU open loop over the whole maneuver; save it beside data and FMU.
 
     Args:
@@ -108,6 +124,9 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
             (model ``fmu_effects``), or None.
         hybrid_best_path: ``hybrid/best.json`` of the hybrid's search (model ``hybrid``, around the diagnosed
             model), or None.
+        ceiling_path: the best any model could reach on this maneuver (model ``ceiling``: Parquet with
+            ``time_s``, ``ceiling_<signal>`` per target signal and ``ceiling_state_<state>``; for an emulated
+            case, the bench's true plant open loop), or None.
 
     Writes ``trajectory_path`` (Parquet: ``time_s``; per target signal ``data_<signal>``, ``fmu_<signal>``,
     ``neural_fmu_<signal>`` and ``<model>_<signal>`` of the further models; per FMU state ``fmu_state_<state>``,
@@ -172,6 +191,8 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
             columns[f"{model_name}_{signal}"] = model_states[:, target_index[k]]
         for i, name in enumerate(state_names):
             columns[f"{model_name}_state_{name}"] = model_states[:, i]
+    if ceiling_path is not None:
+        columns.update(read_ceiling(ceiling_path, measured.target_signals, time_s))
     write_parquet_atomic(trajectory_path, pd.DataFrame(columns))
     write_json_atomic(learned_path, record)
     return record
@@ -180,7 +201,7 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
 def run_evaluation(best_path: str | Path, trajectory_paths: list[str], learned_paths: list[str],
                    maneuver_roles: dict[str, str], metrics_paths: list[str], run_path: str | Path,
                    zoom_settings: dict[str, Any], mlflow_config: dict[str, Any] | None, results_dir: str | Path,
-                   case: str) -> dict[str, dict]:
+                   case: str, tolerance: dict[str, Any] | None = None) -> dict[str, dict]:
     """Errors of the FMU and the best neural FMU on every validation and test maneuver, and the MLflow run.
 
     Args:
@@ -192,6 +213,8 @@ def run_evaluation(best_path: str | Path, trajectory_paths: list[str], learned_p
         run_path: JSON record of the MLflow run.
         zoom_settings: config ``evaluation.zoom``.
         mlflow_config, results_dir, case: config ``mlflow``; where the default store lies; default experiment.
+        tolerance: config ``evaluation.tolerance`` (the in-tolerance metrics; defaults chosen from the validation
+            maneuvers' data).
 
     Returns:
         Metrics per role.
@@ -224,11 +247,17 @@ def run_evaluation(best_path: str | Path, trajectory_paths: list[str], learned_p
         extra["delay_bounds_s"] = learned[0]["delay_bounds_s"]
     if learned[0].get("hybrid"):
         extra["hybrid_learned"] = learned[0]["hybrid"]
+    tolerance_used = tolerance_settings(tolerance, signals, runs_by_role.get("validation", []))
+    LOG.info("in-tolerance metrics: %s (%s)", ", ".join(f"{k} within {v:.4g}" for k, v in
+                                                         tolerance_used["signals"].items()), tolerance_used["source"])
     metrics_by_role: dict[str, dict] = {}
     for path in metrics_paths:
         role = Path(path).stem
-        metrics_by_role[role] = role_metrics(role, runs_by_role.get(role, []), zoom_settings or {}, extra)
+        metrics_by_role[role] = role_metrics(role, runs_by_role.get(role, []), zoom_settings or {}, extra,
+                                             tolerance_used)
         write_json_atomic(path, metrics_by_role[role])
+        for warning in metrics_by_role[role]["warnings"]:
+            LOG.warning("%s: %s", role, warning)
         for key, label in (("improvement", "neural FMU"), ("improvement_fmu_effects", "FMU + effects"),
                            ("improvement_hybrid", "hybrid")):
             improvement = metrics_by_role[role].get(key)

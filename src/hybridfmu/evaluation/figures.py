@@ -26,7 +26,8 @@ FMU_STYLE = {"color": "tab:red"}
 NEURAL_STYLE = {"color": "tab:blue"}
 #: Styles and legend names of the further models (saved trajectories ``<model>_<signal>``).
 FURTHER_STYLES = {"fmu_effects": ({"color": "tab:orange"}, "FMU + effects"),
-                  "hybrid": ({"color": "tab:green"}, "hybrid")}
+                  "hybrid": ({"color": "tab:green"}, "hybrid"),
+                  "ceiling": ({"color": "tab:gray", "linestyle": ":"}, "ceiling (true plant)")}
 
 
 
@@ -70,7 +71,7 @@ class Trajectories:
         signal: the target signal (label and unit of the axis and legends).
         time_s: (T,) s; data, fmu, neural_fmu: (T,) in the signal's unit.
         zooms: zoomed intervals (t_start_s, t_end_s).
-        further: further models (``fmu_effects``, ``hybrid``) -> (T,) in the signal's unit.
+        further: further models (``fmu_effects``, ``hybrid``, ``ceiling``) -> (T,) in the signal's unit.
     """
 
     maneuver: str
@@ -132,13 +133,14 @@ def _draw_lines(ax: plt.Axes, traj: Trajectories, mask: np.ndarray, options: Plo
     lines = [(traj.data, DATA_STYLE, None), (traj.fmu, FMU_STYLE, "FMU")]
     lines += [(traj.further[m], *FURTHER_STYLES[m]) for m in ("fmu_effects",) if m in traj.further]
     lines += [(traj.neural_fmu, NEURAL_STYLE, "neural FMU")]
-    lines += [(traj.further[m], *FURTHER_STYLES[m]) for m in ("hybrid",) if m in traj.further]
+    lines += [(traj.further[m], *FURTHER_STYLES[m]) for m in ("hybrid", "ceiling") if m in traj.further]
     for values, style, name in lines:
         x, y = decimate_minmax(t, values[mask], options.max_points)
         label = style.get("label") if name is None else _loss_label(name, values[mask], traj.data[mask],
                                                                     traj.signal.unit)
         # the data as a broad light band underneath, so that it stays visible where a model covers it
-        ax.plot(x, y, color=style["color"], lw=options.line_width if name else options.line_width * 3.0,
+        ax.plot(x, y, color=style["color"], ls=style.get("linestyle", "-"),
+                lw=options.line_width if name else options.line_width * 3.0,
                 alpha=0.85 if name else 0.35, label=label, zorder=3 if name else 2)
     ax.set_xlabel("time t [s]")
     ax.set_ylabel(traj.signal.display())

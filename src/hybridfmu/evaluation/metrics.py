@@ -56,6 +56,60 @@ def trajectory_errors(simulated: np.ndarray, measured: np.ndarray, signals: Sequ
     return errors
 
 
+def tolerance_errors(simulated: np.ndarray, measured: np.ndarray, signals: Sequence[str],
+                     tolerance: dict[str, float]) -> dict[str, float | int | None]:
+    """How long a simulation stays with the measurement, and its errors while it does.
+
+    A sample is *within tolerance* when every signal named in ``tolerance`` is within its tolerance of the
+    measurement (|simulated - measured| <= tolerance; e.g. a motor's angle within a quarter of an electrical
+    period: in step).
+
+    Args:
+        simulated, measured: (T, n_t) target signals (model units).
+        signals: (n_t,) their names; tolerance: signal -> tolerance (model unit), a non-empty subset of them.
+
+    Returns:
+        ``in_tolerance_share`` (0..1), ``tolerance_exits`` (how often the simulation leaves the tolerance), and per
+        signal ``<signal>_mae_in_tolerance`` / ``<signal>_rmse_in_tolerance`` over the samples within (None when
+        there is none).
+    """
+    simulated = np.asarray(simulated, dtype=float).reshape(np.shape(simulated)[0], -1)
+    measured = np.asarray(measured, dtype=float).reshape(np.shape(measured)[0], -1)
+    unknown = sorted(set(tolerance) - set(signals))
+    if unknown or not tolerance:
+        raise ValueError(f"tolerance: signal(s) {unknown or '(none)'} are not among the target signals {list(signals)}")
+    error = np.abs(simulated - measured)
+    within = np.ones(error.shape[0], dtype=bool)
+    for signal, bound in tolerance.items():
+        within &= error[:, list(signals).index(signal)] <= float(bound)
+    out: dict[str, float | int | None] = {"in_tolerance_share": float(np.mean(within)),
+                                          "tolerance_exits": int(np.count_nonzero(within[:-1] & ~within[1:]))}
+    for k, signal in enumerate(signals):
+        inside = error[within, k]
+        out[f"{signal}_mae_in_tolerance"] = float(np.mean(inside)) if inside.size else None
+        out[f"{signal}_rmse_in_tolerance"] = float(np.sqrt(np.mean(inside ** 2))) if inside.size else None
+    return out
+
+
+def range_tolerance(measured: Sequence[np.ndarray], fraction: float, signal: str = "the signal") -> float:
+    """``fraction`` of a signal's range (1st to 99th percentile) over several measured records (each (T,))."""
+    values = np.concatenate([np.asarray(m, dtype=float).reshape(-1) for m in measured])
+    low, high = np.percentile(values, [1.0, 99.0])
+    span = float(high - low)
+    if not span > 0.0:
+        raise ValueError(f"range_tolerance: {signal} does not vary in the validation maneuvers (1st and 99th "
+                         f"percentile equal); name its tolerance in config.evaluation.tolerance.signals")
+    return fraction * span
+
+
+def summary_statistics(values: Sequence[float | None]) -> dict[str, float | int | None]:
+    """``{"median", "min", "max", "n"}`` of the finite values among ``values`` (None where there is none)."""
+    finite = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    if not finite:
+        return {"median": None, "min": None, "max": None, "n": 0}
+    return {"median": float(np.median(finite)), "min": min(finite), "max": max(finite), "n": len(finite)}
+
+
 def improvement_factors(reference: dict[str, float], candidate: dict[str, float]) -> dict[str, float | None]:
     """Improvement of ``candidate`` over ``reference``: reference error / candidate error per key of ``reference``.
 

@@ -91,7 +91,60 @@ def _measure_rows(metrics_by_role: dict[str, dict], units: dict[str, str] | None
 
 #: Column titles of the compared models.
 MODEL_TITLES = {"fmu": "FMU", "fmu_effects": "FMU + diagnosed effects", "neural_fmu": "neural FMU",
-                "hybrid": "hybrid (FMU + effects + ANN)"}
+                "hybrid": "hybrid (FMU + effects + ANN)", "ceiling": "ceiling (true plant)"}
+
+
+def spread_text(stats: dict[str, Any] | None, digits: int = 3, percent: bool = False, factor: bool = False) -> str:
+    """``median [min – max]`` of :func:`hybridfmu.evaluation.metrics.summary_statistics` (``n/a`` without values);
+    ``percent``: as percentages; ``factor``: with a leading ×."""
+    if not stats or stats.get("median") is None:
+        return "n/a"
+    if percent:
+        fmt = lambda v: f"{100.0 * v:.{max(digits - 1, 1)}g} %"  # noqa: E731
+    else:
+        fmt = lambda v: ("×" if factor else "") + _number(float(v), digits)  # noqa: E731
+    if stats.get("n", 0) <= 1 or stats["min"] == stats["max"]:
+        return fmt(stats["median"])
+    return f"{fmt(stats['median'])} [{fmt(stats['min'])} – {fmt(stats['max'])}]"
+
+
+def distribution_table(metrics_by_role: dict[str, dict]) -> list[str]:
+    """Markdown table of every model over the maneuvers of each role: median [min – max] of the factors against
+    the FMU (FMU error / model error) per target signal, of the share of time within the tolerance and of how
+    often the model left it; [] when the metrics hold no distribution."""
+    lines: list[str] = []
+    for role, metrics in metrics_by_role.items():
+        stats = metrics.get("distribution")
+        if not stats:
+            continue
+        signals = _signals_of(metrics)
+        if not lines:
+            lines = ["| data | maneuvers | model | " + " | ".join(f"{s} MAE vs FMU | {s} MSE vs FMU" for s in signals)
+                     + " | within tolerance | exits |", "|---|---|---|" + "---|---|" * len(signals) + "---|---|"]
+        for model, values in stats.items():
+            cells = [spread_text(values.get(f"{s}_{m}_factor"), factor=True) if model != "fmu" else "×1"
+                     for s in signals for m in ("mae", "mse")]
+            cells += [spread_text(values.get("in_tolerance_share"), percent=True),
+                      spread_text(values.get("tolerance_exits"))]
+            lines.append(f"| {role} | {len(metrics.get('maneuvers', []))} | {MODEL_TITLES.get(model, model)} | "
+                         + " | ".join(cells) + " |")
+    return lines
+
+
+def tolerance_text(metrics_by_role: dict[str, dict], units: dict[str, str] | None = None) -> str:
+    """The tolerance of the in-tolerance metrics and where it comes from, or "" without one."""
+    tolerance = next((m["tolerance"] for m in metrics_by_role.values() if m.get("tolerance")), None)
+    if not tolerance:
+        return ""
+    bounds = ", ".join(f"|{signal} error| ≤ {_number(value, 4)} {(units or {}).get(signal, '')}".rstrip()
+                       for signal, value in tolerance["signals"].items())
+    return f"Within tolerance: {bounds} ({tolerance['source']})."
+
+
+def warning_lines(metrics_by_role: dict[str, dict]) -> list[str]:
+    """Every maneuver where a model is worse than its own physics, as Markdown list items (``[]`` when none)."""
+    return [f"- **WARNING** {role}: {line}" for role, metrics in metrics_by_role.items()
+            for line in metrics.get("warnings", [])]
 
 
 def models_table(metrics_by_role: dict[str, dict], units: dict[str, str] | None = None) -> list[str]:
@@ -249,6 +302,16 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
            f"neural FMU error; the factors the {name} reports are given beside this run's where configured.", "",
            "## Improvement factors", ""]
     out += improvement_table(metrics_by_role, units, reference) + [""] + verdicts(metrics_by_role, reference) + [""]
+    spread = distribution_table(metrics_by_role)
+    if spread:
+        out += ["## Over the maneuvers", "",
+                "Each model over every maneuver of a role on its own: median [min – max]. A factor is the FMU's "
+                "error over the model's on that maneuver; the ceiling, where the case has one, is the best any "
+                "model could reach in this test (for an emulated case, the true plant open loop from the same "
+                "measured state and logged inputs). " + tolerance_text(metrics_by_role, units), ""] + spread + [""]
+    warnings = warning_lines(metrics_by_role)
+    out += ["## Warnings", ""] + (warnings or ["- none: no model is worse than its own physics on any maneuver "
+                                               "(whole-record MAE of every target signal)."]) + [""]
     models = models_table(metrics_by_role, units)
     if models:
         out += ["## All models", "",

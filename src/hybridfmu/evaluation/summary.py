@@ -51,15 +51,31 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
         units: signal -> unit ("" for dimensionless).
 
     Returns:
-        A table: one row per target signal and model with RMSE and MAE on the whole test record, and
+        With a ``distribution`` in the metrics, first each model over the test maneuvers one by one: median
+        [min – max] of the factors against the FMU, of the share of time within the tolerance and of the exits
+        from it, the ceiling beside them, and every warning of a model worse than its own physics. Then a
+        table over all test maneuvers together: one row per target signal and model with RMSE and MAE, and
         the factors by which each model's MAE and MSE are below the FMU's (the paper's two measures; the
         MSE factor is the square of the RMSE factor).
     """
+    from hybridfmu.evaluation.report import distribution_table, tolerance_text, warning_lines
+
     far = (diagnosis or {}).get("how_far") or {}
     effects = (", ".join((diagnosis or {}).get("which", {}).get("found_effects", [])) or "none").replace("|", "\\|")
-    lines = [f"Case `{case}`, test maneuver(s) {', '.join(test_metrics.get('maneuvers', [])) or ''}, "
-             f"open loop over the whole record ({_number(test_metrics.get('duration_s'))} s):", "",
-             "| signal | model | RMSE | MAE | MAE vs FMU | MSE vs FMU |", "|---|---|---|---|---|---|"]
+    maneuvers = test_metrics.get("maneuvers", [])
+    lines = []
+    spread = distribution_table({"test": test_metrics})
+    if spread:
+        warnings = warning_lines({"test": test_metrics})
+        lines += [f"Case `{case}`, {len(maneuvers)} test maneuver(s) ({', '.join(maneuvers)}), each open loop over "
+                  "its whole record from the measured initial state; median [min – max] over them. "
+                  + tolerance_text({"test": test_metrics}, units), ""] + spread + [""]
+        lines += (warnings or ["No model is worse than its own physics on any test maneuver."]) + [""]
+        lines += ["All test maneuvers together:", ""]
+    else:
+        lines += [f"Case `{case}`, test maneuver(s) {', '.join(maneuvers)}, "
+                  f"open loop over the whole record ({_number(test_metrics.get('duration_s'))} s):", ""]
+    lines += ["| signal | model | RMSE | MAE | MAE vs FMU | MSE vs FMU |", "|---|---|---|---|---|---|"]
     for signal in test_metrics["signals"]:
         unit = f" {units.get(signal, '')}".rstrip()
         fmu = test_metrics["fmu"]
@@ -70,6 +86,8 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
             rows.append((f"FMU + diagnosed effects{', recalibrated' if refitted else ''} ({effects})", effects_errors))
         if test_metrics.get("hybrid"):
             rows.append(("hybrid: FMU + diagnosed effects + ANN", test_metrics["hybrid"]))
+        if test_metrics.get("ceiling"):
+            rows.append(("ceiling: the true plant (the best any model could reach)", test_metrics["ceiling"]))
         for label, values in rows:
             rmse, mae = values.get(f"{signal}_rmse"), values.get(f"{signal}_mae")
             lines.append(f"| {signal} | {label} | {_number(rmse)}{unit} | {_number(mae)}{unit} | "

@@ -28,8 +28,9 @@ def resolve_tracking(mlflow_config: dict[str, Any] | None, results_dir: str | Pa
 
 def flat_metrics(metrics_by_role: dict[str, dict]) -> dict[str, float]:
     """MLflow metric names -> values, ``<role>/<model>/<signal>_<measure>``, e.g. ``test/neural_fmu/angle_mae``
-    (model: fmu, neural_fmu, improvement, and those of fmu_effects, hybrid, improvement_fmu_effects,
-    improvement_hybrid the metrics hold)."""
+    (model: fmu, neural_fmu, improvement, and those of fmu_effects, hybrid, ceiling, improvement_<model> the
+    metrics hold; all maneuvers of the role together), and ``<role>/<statistic>/<model>/<key>`` the median, min
+    and max over the role's maneuvers (``distribution``), e.g. ``test/median/hybrid/angle_mae_factor``."""
     from hybridfmu.evaluation.comparison import FURTHER_MODELS
 
     flat: dict[str, float] = {}
@@ -39,6 +40,11 @@ def flat_metrics(metrics_by_role: dict[str, dict]) -> dict[str, float]:
             for key, value in metrics[model].items():
                 if value is not None:
                     flat[f"{role}/{model}/{key}"] = float(value)
+        for model, stats in (metrics.get("distribution") or {}).items():
+            for key, values in stats.items():
+                for statistic in ("median", "min", "max"):
+                    if values.get(statistic) is not None:
+                        flat[f"{role}/{statistic}/{model}/{key}"] = float(values[statistic])
     return flat
 
 
@@ -65,6 +71,9 @@ def log_evaluation_run(run_path: str | Path, tracking_uri: str, experiment: str,
     tags = {"hybridfmu.role": "evaluation", "case": case, **owner_tags()}
     if best_trial_run_id:
         tags["best_trial_run_id"] = best_trial_run_id
+    warnings = [f"{role}: {line}" for role, metrics in metrics_by_role.items() for line in metrics.get("warnings", [])]
+    if warnings:  # a trained model worse than its own physics somewhere (the report lists where)
+        tags["WARN"] = f"{len(warnings)} warning(s): " + "; ".join(warnings)[:4000]
     run_id = tracker.call("create_run", experiment_id, tags=tags, run_name="evaluation").info.run_id
     try:
         tracker.log(run_id, params=params,
