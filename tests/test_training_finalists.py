@@ -110,3 +110,31 @@ def test_the_test_maneuver_never_chooses_and_each_budget_is_checked():
     check_hpo({"hpo": {"R": 9, "eta": 3, "searches": {"hpo": {"R": 27}}}})
     with pytest.raises(ConfigError, match=r"config\.hpo\.searches\.hybrid\.R"):
         check_hpo({"hpo": {"R": 9, "eta": 3, "searches": {"hybrid": {"R": 1}}}})
+
+
+def test_a_hybrids_physical_layer_is_chosen_when_no_finalist_beats_it(tmp_path):
+    """The physical layer has no objective: it loses a tied score to a trained configuration, wins a lower one, and
+    finalist_choice hands select_best its entry (checkpoint, delays, gates) like a trial's result."""
+    layer = {"trial_id": "physical_layer", "score": 0.5, "objective": None, "objective_rank": None,
+             "checkpoint": "physical_layer.pt", "hyperparameters": {"width": 8}, "delay_s": {"duties": 3e-5},
+             "gates": {"omega": {"g_F": 1.0, "g_A": 0.2}}, "fmu": {"path": "m.fmu"}, "validation": None,
+             "resource_s": 0.0, "status": "ok", "bracket": None, "config": None, "rung": None}
+    trained = {"trial_id": "b0c1", "score": 0.5, "objective": 0.2, "objective_rank": 1}
+    assert choose_finalist([layer, trained])["trial_id"] == "b0c1"  # a tie goes to the trained configuration
+    assert choose_finalist([{**trained, "score": 0.6}, layer])["trial_id"] == "physical_layer"
+
+    results = [{"trial_id": "b0c1", "bracket": 0, "rung": 0, "config": 1, "status": "ok", "objective": 0.2,
+                "checkpoint": "c1.pt"}]
+    ranked = finalist_results([write_search(tmp_path, results)], 5)
+    scores = tmp_path / "finalists.json"
+    write_json_atomic(scores, {"maneuvers": ["train", "validation"], "chosen": "physical_layer",
+                               "finalists": [{**trained, "score": 0.6}, layer],
+                               "physical_layer": {"score": 0.5, "beaten_by": []}})
+    best, choice = finalist_choice(scores, ranked)
+    assert best["checkpoint"] == "physical_layer.pt" and best["delay_s"] == {"duties": 3e-5}
+    assert choice["objective_rank"] is None and choice["physical_layer"] == {"score": 0.5, "beaten_by": []}
+    from hybridfmu.evaluation.report import chosen_by_text
+
+    assert chosen_by_text(choice) == ("open loop over the whole train and validation maneuvers (error 0.5 of the "
+                                      "FMU's; the physical layer (ANN at zero), among 2 candidates: the finalists and "
+                                      "the physical layer)")

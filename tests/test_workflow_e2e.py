@@ -103,6 +103,16 @@ def test_every_stage_writes_its_outputs(tiny_run):
         assert metrics["gates"]
         assert metrics["zooms"] and all({"t_start_s", "t_end_s", "fmu", "neural_fmu", "improvement"} <= set(z)
                                         for z in metrics["zooms"])
+        # the ceiling (the bench's true plant open loop) beside every model, medians and ranges over the maneuvers,
+        # the in-tolerance metrics with tolerances chosen from the validation data, the warnings
+        assert metrics["ceiling"]["angle_mae"] < metrics["fmu"]["angle_mae"]
+        assert metrics["models"] == ["fmu", "fmu_effects", "neural_fmu", "hybrid", "ceiling"]
+        assert metrics["distribution"]["hybrid"]["angle_mae_factor"]["n"] == len(metrics["maneuvers"])
+        assert metrics["tolerance"]["source"].startswith("chosen from the data")
+        for entry in metrics["per_maneuver"].values():
+            assert 0.0 <= entry["in_tolerance"]["hybrid"]["in_tolerance_share"] <= 1.0
+            assert entry["in_tolerance"]["ceiling"]["in_tolerance_share"] > 0.9
+        assert isinstance(metrics["warnings"], list)
     # every rung-0 hybrid scored the search's one rollout of the physical layer instead of simulating it again
     assert (results / "hybrid" / "physical_layer_rollout.pt").is_file()
     rung0_logs = sorted((results / "logs" / "train_rung" / "hybrid").glob("*_r0_*.log"))
@@ -121,6 +131,11 @@ def test_every_stage_writes_its_outputs(tiny_run):
     assert {"test/improvement/angle_mae", "test/hybrid/angle_mae", "test/improvement_fmu_effects/angle_mae"} \
         <= set(logged.data.metrics)
     assert "## All models" in report and "hybrid (FMU + effects + ANN)" in report
+    assert "## Over the maneuvers" in report and "ceiling (true plant)" in report and "## Warnings" in report
+    assert "test/median/hybrid/angle_mae_factor" in logged.data.metrics
+    # every job ran with the math libraries' kernel choice pinned (hybridfmu.numerics)
+    assert "numerics: ATEN_CPU_CAPABILITY=avx2, MKL_CBWR=COMPATIBLE, OPENBLAS_CORETYPE=Haswell" in (
+        results / "logs" / "evaluate" / "evaluate.log").read_text()
     assert "### The hybrid's delays and gates" in report and "Physical layer: the FMU plus " in report
     assert "| coefficient | diagnosed | trained | change |" in report
     assert any(key.startswith("hybrid.coefficient.") for key in logged.data.params)
@@ -187,10 +202,10 @@ def test_snakemake_report(tiny_run):
 ALL_RULES = {"build_fmu", "emulate_bench", "check_bench_spread", "ingest", "select_segments", "calibrate",
              "simulate_baseline", "time_offset", "hpo_prepare", "hpo_plan", "train_rung", "select_rung",
              "select_best", "simulate_best", "evaluate", "plot", "report", "diagnose", "summary",
-             "physical_layer_rollout"}
+             "physical_layer_rollout", "simulate_ceiling"}
 FROM_EMULATION = ALL_RULES - {"build_fmu"}
 FROM_INGEST = FROM_EMULATION - {"emulate_bench", "check_bench_spread"}
-FROM_CALIBRATION = FROM_INGEST - {"ingest", "select_segments"}
+FROM_CALIBRATION = FROM_INGEST - {"ingest", "select_segments", "simulate_ceiling"}  # the true plant: no calibration
 FROM_SEARCH = {"hpo_plan", "train_rung", "select_rung", "select_best", "simulate_best", "evaluate", "plot",
                "report", "diagnose", "summary", "physical_layer_rollout"}
 FROM_SEGMENTS = {"select_segments", "hpo_prepare"} | FROM_SEARCH
@@ -329,3 +344,38 @@ def test_the_best_neural_fmu_chosen_over_whole_maneuvers(tiny_run, tmp_path):
         assert best["selection"]["by"] == "objective" and best["trial_id"] == before["trial_id"]
     log = (results / "logs" / "score_finalists" / "hpo.log").read_text()
     assert "finalists of search" in log and "simulated s/s" in log
+
+
+def test_the_hybrids_physical_layer_competes_in_its_final_choice(tiny_run, tmp_path):
+    """With a selection for the hybrid's search its physical layer (the FMU + effects, ANN at zero) is scored over
+    the whole maneuvers beside the finalists; the chosen hybrid is never worse than it there. (Last in this module:
+    it changes the tiny run's hybrid/best.json.)"""
+    workdir, results, config, _ = tiny_run
+    changed = copy.deepcopy(config)
+    _set("hpo", "searches", {"hybrid": {"selection": {"maneuvers": ["train", "validation"], "top": 1}}})(changed)
+    configfile = tmp_path / "tiny_hybrid_selection.yaml"
+    configfile.write_text(yaml.safe_dump(changed, sort_keys=False))
+    best_path = results / "hybrid" / "best.json"
+    target = str(best_path.relative_to(workdir))
+    assert planned_rules(snakemake(workdir, configfile, "-n", target).stdout) == {
+        "physical_layer_checkpoint", "score_finalists", "select_best"}
+    snakemake(workdir, configfile, target)
+    scores = json.loads((results / "hybrid" / "finalists.json").read_text())
+    trial_ids = [f["trial_id"] for f in scores["finalists"]]
+    assert len(trial_ids) == 2 and trial_ids[-1] == "physical_layer"
+    layer, finalist = scores["finalists"][-1], scores["finalists"][0]
+    assert layer["score"] is not None and scores["physical_layer"]["score"] == layer["score"]
+    best = json.loads(best_path.read_text())
+    assert best["trial_id"] == scores["chosen"]
+    if finalist["score"] is not None and finalist["score"] < layer["score"]:
+        assert best["trial_id"] == finalist["trial_id"] and scores["physical_layer"]["beaten_by"] == [best["trial_id"]]
+    else:  # the hybrid is its physical layer, and loads as a model like any trial
+        assert best["trial_id"] == "physical_layer" and best["selection"]["objective_rank"] is None
+        from hybridfmu.training.inference import load_trained_neural_fmu
+        from hybridfmu.training.physical_layer_rollout import untrained_is_physical_layer
+
+        model = load_trained_neural_fmu(best_path, workdir / json.loads(best_path.read_text())["fmu"]["path"],
+                                        None, results / "diagnosis" / "diagnosed_model.pkl")
+        assert untrained_is_physical_layer(model)
+    log = (results / "logs" / "score_finalists" / "hybrid.log").read_text()
+    assert "physical layer (the FMU + effects, ANN at zero): score" in log

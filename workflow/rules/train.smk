@@ -162,6 +162,7 @@ def shared_rollout(wildcards):
 
 
 PHYSICAL_LAYER_ROLLOUT = f"{RESULTS}/hybrid/physical_layer_rollout.pt"
+PHYSICAL_LAYER_CHECKPOINT = f"{RESULTS}/hybrid/physical_layer.pt"
 if HYBRID:
 
     rule physical_layer_rollout:
@@ -185,6 +186,27 @@ if HYBRID:
             f"{RESULTS}/benchmarks/physical_layer_rollout/physical_layer_rollout.tsv"
         script:
             "../scripts/train_physical_layer_rollout.py"
+
+
+    rule physical_layer_checkpoint:
+        """The hybrid's physical layer (the untrained hybrid: ANN at zero) as a candidate of the final choice."""
+        input:
+            plan=f"{RESULTS}/hybrid/plan.json",
+            train=f"{PREPARED_DIR}/train.npz",
+            validation=f"{PREPARED_DIR}/validation.npz",
+            statistics=f"{PREPARED_DIR}/statistics.json",
+            fmu=fmu_path(),
+            calibration=CALIBRATION_JSON,
+            diagnosed=DIAGNOSED_MODEL,
+        output:
+            checkpoint=PHYSICAL_LAYER_CHECKPOINT,
+        params:
+            model=SEARCH_MODELS["hybrid"],
+        threads: 1
+        log:
+            f"{RESULTS}/logs/physical_layer_checkpoint/physical_layer_checkpoint.log",
+        script:
+            "../scripts/train_physical_layer_checkpoint.py"
 
 
 rule train_rung:
@@ -260,6 +282,8 @@ rule score_finalists:
         baselines=lambda wildcards: [f"{RESULTS}/baseline/{name}.parquet"
                                      for name in selection_maneuvers(wildcards.search).values()],
         diagnosed=search_diagnosed_model,
+        # a hybrid's physical layer competes with its finalists: the chosen hybrid is never worse than it there
+        physical_layer=lambda wildcards: [PHYSICAL_LAYER_CHECKPOINT] if wildcards.search == "hybrid" else [],
     output:
         finalists=f"{RESULTS}/{{search}}/finalists.json",
     params:

@@ -20,4 +20,5 @@ score_finalists(
     maneuvers_config=snakemake.params.case["maneuvers"],
     scores_path=snakemake.output.finalists,
     diagnosed_path=snakemake.input.diagnosed[0] if snakemake.input.diagnosed else None,
+    physical_layer_path=snakemake.input.physical_layer[0] if snakemake.input.physical_layer else None,
 )

@@ -331,6 +331,8 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
         effects = ", ".join(hybrid.get("effects") or []) or "no effects"
         out += ["### The hybrid's delays and gates", "",
                 f"Physical layer: the FMU plus {effects} (trial {hybrid.get('trial_id')}).", ""]
+        if hybrid.get("trial_id") == "physical_layer":
+            out += [f"**{PHYSICAL_LAYER_CHOSEN}**", ""]
         out += delay_lines(hybrid.get("dt_s"), true_dt_s, truth_source, None,
                            hybrid_delay_estimates if hybrid_delay_estimates is not None else delay_estimates,
                            hybrid.get("delay_bounds_s"))
@@ -468,9 +470,18 @@ def chosen_by_text(selection: dict[str, Any] | None) -> str:
     """How the search chose its best configuration (``best.json``'s ``selection``), for the report."""
     if not selection or selection.get("by") != "maneuvers":
         return "the validation objective"
+    rank = selection.get("objective_rank")
+    rank_text = "the physical layer (ANN at zero)," if rank is None else f"rank {rank} by the objective"
+    among = (f"{len(selection['finalists'])} candidates: the finalists and the physical layer"
+             if selection.get("physical_layer") is not None else f"{len(selection['finalists'])} finalists")
     return (f"open loop over the whole {' and '.join(selection['maneuvers'])} maneuvers (error "
-            f"{_number(selection['score'], 3)} of the FMU's; rank {selection['objective_rank']} by the objective "
-            f"among {len(selection['finalists'])} finalists)")
+            f"{_number(selection['score'], 3)} of the FMU's; {rank_text} among {among})")
+
+
+#: What the report says when a hybrid's search chose its physical layer (no trained configuration beat it).
+PHYSICAL_LAYER_CHOSEN = ("No trained configuration of the hybrid's search beat its physical layer over the whole "
+                         "train and validation maneuvers: the hybrid is the FMU + effects with its ANN at zero (the "
+                         "ANN adds nothing here).")
 
 
 def hybrid_estimates(path: str | Path | None) -> dict[str, dict[str, Any]] | None:

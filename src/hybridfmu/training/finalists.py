@@ -12,6 +12,11 @@ the smallest fraction of the FMU's is chosen:
   FMU error (the objective's loss kind, MAE or MSE, on the whole trajectory);
 - the **score** is the geometric mean of the maneuvers' ratios (below 1: better than the FMU on average);
 - a finalist that diverges or leaves the finite range scores infinity.
+
+A hybrid's search scores one more candidate the same way: its **physical layer** (the FMU plus the diagnosed
+effects under the untrained ANN, whose output is exactly zero; its delays at their start values). When no
+trained configuration beats it over the whole maneuvers, it is chosen: the hybrid is then its physical layer and
+the report says so. The chosen hybrid is never worse than its own physics on the maneuvers the choice sees.
 """
 
 from __future__ import annotations
@@ -110,19 +115,120 @@ def finite_or_null(value: Any) -> Any:
     return value
 
 
+#: The trial id of a hybrid search's physical layer among its finalists.
+PHYSICAL_LAYER_ID = "physical_layer"
+
+
 def choose_finalist(scored: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
-    """The finalist with the smallest finite ``score`` (ties: the better objective); None when every
-    finalist diverged. A score of None (read back from JSON) counts as diverged."""
+    """The finalist with the smallest finite ``score`` (ties: the better objective; a trained configuration before
+    the physical layer, which has none); None when every finalist diverged. A score of None (read back from JSON)
+    counts as diverged."""
     finite = [entry for entry in scored if entry["score"] is not None and math.isfinite(float(entry["score"]))]
     if not finite:
         return None
-    return min(finite, key=lambda entry: (float(entry["score"]), float(entry["objective"])))
+    return min(finite, key=lambda entry: (float(entry["score"]), math.inf if entry.get("objective") is None
+                                          else float(entry["objective"])))
+
+
+def score_model(model: Any, maneuvers: dict[str, tuple[Any, np.ndarray]], roles: Any, calibration: Any,
+                maneuvers_config: dict[str, Any] | None, objective: Objective, label: str,
+                progress: Any = None) -> dict[str, Any]:
+    """One candidate open loop over every whole maneuver against the FMU.
+
+    Args:
+        model: a trained (or untrained) neural FMU or hybrid.
+        maneuvers: name -> (:class:`hybridfmu.training.measured.MeasuredManeuver`, the FMU's (T, n_x) baseline).
+        roles, calibration, maneuvers_config: the case roles, its calibration and config ``maneuvers``.
+        objective: loss kind and target weights; label: the candidate's name in the log.
+
+    Returns:
+        ``{"maneuvers": {name: {"ratio", "ratios"}}, "score"}`` (:func:`error_ratio`, :func:`geometric_mean`).
+    """
+    from hybridfmu.training.inference import physical_layer, simulate_neural_fmu
+    from hybridfmu.training.measured import initial_state
+
+    state_names = list(roles.state_names)
+    out: dict[str, Any] = {"maneuvers": {}}
+    for name, (measured, fmu_states) in maneuvers.items():
+        index = [state_names.index(state) for state in measured.target_states]
+        x0 = initial_state(model.fmu.rhs.model, measured.x[0], roles, calibration, name, maneuvers_config)
+        layer = physical_layer(model)
+        if layer is not None:
+            x0 = layer.diagnosed.initial_state(x0, name)  # the physical layer's start, as the evaluation
+        try:
+            states = np.asarray(simulate_neural_fmu(model, measured.time_s, measured.u, x0), dtype=float)
+        except (FloatingPointError, RuntimeError) as err:
+            LOG.warning("candidate %s diverged on %s: %s", label, name, err)
+            states = np.full((measured.time_s.size, len(state_names)), np.nan)
+        ratio, ratios = error_ratio(states[:, index], fmu_states[:, index], measured.targets,
+                                    measured.target_states, objective)
+        out["maneuvers"][name] = {"ratio": ratio, "ratios": ratios}
+        if progress is not None:
+            progress.update(float(measured.time_s[-1] - measured.time_s[0]))
+    out["score"] = geometric_mean([m["ratio"] for m in out["maneuvers"].values()])
+    return out
+
+
+def write_physical_layer_checkpoint(*, plan_path: str | Path, train_arrays_path: str | Path,
+                                    validation_arrays_path: str | Path, statistics_path: str | Path,
+                                    fmu_path: str | Path, calibration_path: str | Path | None,
+                                    model_config: dict[str, Any], diagnosed_path: str | Path,
+                                    checkpoint_path: str | Path) -> Path:
+    """Rule ``physical_layer_checkpoint``: a hybrid search's physical layer as a candidate of the final choice.
+
+    The untrained hybrid of the search's first configuration (its ANN's output exactly zero, FMU gates at 1,
+    delays and effect coefficients at their start), saved as a trial checkpoint (``bracket``, ``rung`` and
+    ``config`` None) that :func:`score_finalists` scores like the trained finalists.
+
+    Raises:
+        ValueError: the untrained model is not its physical layer (``model.ann_output_init`` is not zero).
+    """
+    import torch
+
+    from hybridfmu.io import atomic_path
+    from hybridfmu.training.physical_layer_rollout import untrained_is_physical_layer
+    from hybridfmu.training.plan import plan_entry
+    from hybridfmu.training.trial import CHECKPOINT_FORMAT, file_sha256, trial_model
+
+    plan = read_json(plan_path)
+    entry = plan_entry(plan, plan["brackets"][0]["bracket"], 0, 0)
+    _, _, statistics, model = trial_model(plan, entry, model_config, train_arrays_path, validation_arrays_path,
+                                          statistics_path, fmu_path, calibration_path, diagnosed_path)
+    if not untrained_is_physical_layer(model):
+        raise ValueError("config.model.ann_output_init: the untrained hybrid is not its physical layer (its ANN's "
+                         "output is not zero), so the physical layer cannot be a candidate of the final choice; set "
+                         "ann_output_init: zero")
+    fmu = {"path": str(fmu_path), "sha256": file_sha256(fmu_path),
+           "calibration": str(calibration_path) if calibration_path else None}
+    with atomic_path(checkpoint_path) as tmp:
+        torch.save({"format": CHECKPOINT_FORMAT, "status": "ok", "reason": "the physical layer (ANN at zero)",
+                    "bracket": None, "rung": None, "config": None, "hash": entry["hash"],
+                    "spec": model.spec.to_dict(), "statistics": statistics,
+                    "hyperparameters": entry["hyperparameters"], "trainer": None, "model": model.state_dict(),
+                    "best": None, "validations": [], "fmu": fmu, "mlflow_run_id": None}, tmp)
+    LOG.info("physical layer of search %s (delays %s) saved to %s", plan["search_id"], model.delay_s(),
+             checkpoint_path)
+    return Path(checkpoint_path)
+
+
+def physical_layer_entry(checkpoint_path: str | Path, model: Any) -> dict[str, Any]:
+    """The finalist entry of a physical layer (:func:`write_physical_layer_checkpoint`) loaded as ``model``: the
+    fields a best.json needs (``trial_id`` :data:`PHYSICAL_LAYER_ID`, ``checkpoint``, ``hyperparameters``,
+    ``delay_s``, ``gates``, ``fmu`` ...), without scores."""
+    from hybridfmu.training.trial import load_checkpoint
+
+    checkpoint = load_checkpoint(checkpoint_path)
+    return {"trial_id": PHYSICAL_LAYER_ID, "bracket": None, "config": None, "rung": None, "objective": None,
+            "checkpoint": str(checkpoint_path), "hyperparameters": checkpoint["hyperparameters"],
+            "delay_s": model.delay_s(), "gates": model.gate_values(), "fmu": checkpoint["fmu"], "validation": None,
+            "resource_s": 0.0, "status": "ok", "mlflow_run_id": None}
 
 
 def score_finalists(*, plan_path: str | Path, selection_paths: Sequence[str | Path], top: int,
                     maneuver_paths: dict[str, dict[str, str]], fmu_path: str | Path,
                     calibration_path: str | Path | None, roles: Any, maneuvers_config: dict[str, Any] | None,
-                    scores_path: str | Path, diagnosed_path: str | Path | None = None) -> dict[str, Any]:
+                    scores_path: str | Path, diagnosed_path: str | Path | None = None,
+                    physical_layer_path: str | Path | None = None) -> dict[str, Any]:
     """Run each finalist open loop over every whole maneuver and score it against the FMU.
 
     Args:
@@ -133,18 +239,23 @@ def score_finalists(*, plan_path: str | Path, selection_paths: Sequence[str | Pa
         roles: :class:`hybridfmu.case.CaseRoles`; maneuvers_config: config ``maneuvers`` (initial states).
         scores_path: output JSON.
         diagnosed_path: the diagnosed model under a hybrid's ANN (search "hybrid"), else None.
+        physical_layer_path: for a hybrid's search, its physical layer's checkpoint
+            (:func:`write_physical_layer_checkpoint`): scored too and chosen when no finalist beats it; None: the
+            finalists alone.
 
     Writes ``scores_path``: ``{"maneuvers", "top", "objective", "finalists": [{"trial_id", "bracket",
     "config", "rung", "objective", "objective_rank", "checkpoint", "maneuvers": {name: {"ratio",
     "ratios"}}, "score"}], "chosen"}`` (a diverged finalist's ratios and score are null; ``chosen``: a trial
-    id, or None when every finalist diverged).
+    id, or None when every finalist diverged); with ``physical_layer_path`` the physical layer is the last finalist
+    (trial id :data:`PHYSICAL_LAYER_ID`, with what a best.json needs of it) and ``physical_layer`` holds its
+    ``score`` and the finalists that beat it (``beaten_by``).
     Returns it.
     """
     from hybridfmu.evaluation.evaluate import read_baseline
     from hybridfmu.progress import Progress
-    from hybridfmu.training.inference import load_checkpoint_model, physical_layer, simulate_neural_fmu
+    from hybridfmu.training.inference import load_checkpoint_model
     from hybridfmu.training.losses import objective_from_config
-    from hybridfmu.training.measured import initial_state, load_calibration, read_measured
+    from hybridfmu.training.measured import load_calibration, read_measured
 
     if top < 1:
         raise ValueError(f"config.hpo.selection.top: expected at least 1 finalist, got {top}")
@@ -155,44 +266,49 @@ def score_finalists(*, plan_path: str | Path, selection_paths: Sequence[str | Pa
     calibration = load_calibration(calibration_path)
     finalists = finalist_results(selection_paths, top)
     state_names = list(roles.state_names)
-    maneuvers = {}
+    maneuvers: dict[str, tuple[Any, np.ndarray]] = {}
     for name, paths in maneuver_paths.items():
         measured = read_measured(paths["data"], roles)
         maneuvers[name] = (measured, read_baseline(paths["baseline"], state_names, measured.time_s))
     simulated_s = sum(float(m.time_s[-1] - m.time_s[0]) for m, _ in maneuvers.values())
-    progress = Progress(simulated_s * len(finalists), f"finalists of search {plan['search_id']}",
-                        "simulated s", LOG)
+    candidates = len(finalists) + (physical_layer_path is not None)
+    progress = Progress(simulated_s * candidates, f"finalists of search {plan['search_id']}", "simulated s", LOG)
     scored = []
     for objective_rank, result in enumerate(finalists, start=1):
         model = load_checkpoint_model(result["checkpoint"], fmu_path, dict(calibration.parameters) or None,
                                       diagnosed_path)
         entry = {key: result.get(key) for key in ("trial_id", "bracket", "config", "rung", "objective", "checkpoint")}
         entry["objective_rank"] = objective_rank
-        entry["maneuvers"] = {}
-        for name, (measured, fmu_states) in maneuvers.items():
-            index = [state_names.index(state) for state in measured.target_states]
-            x0 = initial_state(model.fmu.rhs.model, measured.x[0], roles, calibration, name, maneuvers_config)
-            layer = physical_layer(model)
-            if layer is not None:
-                x0 = layer.diagnosed.initial_state(x0, name)  # the physical layer's start, as the evaluation
-            try:
-                states = np.asarray(simulate_neural_fmu(model, measured.time_s, measured.u, x0), dtype=float)
-            except (FloatingPointError, RuntimeError) as err:
-                LOG.warning("finalist %s diverged on %s: %s", entry["trial_id"], name, err)
-                states = np.full((measured.time_s.size, len(state_names)), np.nan)
-            ratio, ratios = error_ratio(states[:, index], fmu_states[:, index], measured.targets,
-                                        measured.target_states, objective)
-            entry["maneuvers"][name] = {"ratio": ratio, "ratios": ratios}
-            progress.update(float(measured.time_s[-1] - measured.time_s[0]))
-        entry["score"] = geometric_mean([m["ratio"] for m in entry["maneuvers"].values()])
+        entry.update(score_model(model, maneuvers, roles, calibration, maneuvers_config, objective,
+                                 entry["trial_id"], progress))
         LOG.info("finalist %s (objective %.4g, rank %d): score %.4g (%s)", entry["trial_id"], entry["objective"],
                  objective_rank, entry["score"],
                  ", ".join(f"{name} {m['ratio']:.4g}" for name, m in entry["maneuvers"].items()))
         scored.append(entry)
+    layer_entry = None
+    if physical_layer_path is not None:
+        if diagnosed_path is None:
+            raise ValueError("score_finalists: the physical layer of a hybrid needs its diagnosed model")
+        model = load_checkpoint_model(physical_layer_path, fmu_path, dict(calibration.parameters) or None,
+                                      diagnosed_path)
+        layer_entry = physical_layer_entry(physical_layer_path, model)
+        layer_entry.update(objective_rank=None, **score_model(model, maneuvers, roles, calibration, maneuvers_config,
+                                                              objective, PHYSICAL_LAYER_ID, progress))
+        LOG.info("physical layer (the FMU + effects, ANN at zero): score %.4g (%s)", layer_entry["score"],
+                 ", ".join(f"{name} {m['ratio']:.4g}" for name, m in layer_entry["maneuvers"].items()))
+        scored.append(layer_entry)
     progress.finish()
     chosen = choose_finalist(scored)
     record = {"maneuvers": list(maneuver_paths), "top": top, "objective": objective.to_dict(),
               "finalists": scored, "chosen": None if chosen is None else chosen["trial_id"]}
+    if layer_entry is not None:
+        record["physical_layer"] = {"score": layer_entry["score"],
+                                    "beaten_by": [entry["trial_id"] for entry in scored if entry is not layer_entry
+                                                  and entry["score"] is not None
+                                                  and float(entry["score"]) < float(layer_entry["score"])]}
+        if chosen is layer_entry:
+            LOG.warning("no trained configuration beats the physical layer over the whole maneuvers %s: the hybrid "
+                        "is its physical layer (the FMU + effects, ANN at zero)", list(maneuver_paths))
     write_json_atomic(scores_path, finite_or_null(record))
     if chosen is None:
         LOG.warning("every finalist diverged over the whole maneuvers; the search falls back to the objective")

@@ -13,6 +13,7 @@ from typing import Any
 from hybridfmu.model.delay import describe_delays
 from hybridfmu.io import atomic_path, read_json, write_json_atomic
 from hybridfmu.training.data import build_maneuver_arrays
+from hybridfmu.training.finalists import PHYSICAL_LAYER_ID
 from hybridfmu.training.hyperband import rank_results, select_survivors
 from hybridfmu.training.plan import search_plan
 from hybridfmu.training.statistics import data_statistics
@@ -276,8 +277,9 @@ def select_best(*, plan_path: str | Path, selection_paths: list[str], best_path:
     if plan.get("tracking"):
         from hybridfmu.tracking.search import finish_search
         finish_search(plan["tracking"], record, summary_path)
-    LOG.info("best: %s (objective %.4g, chosen by %s, delays %s, gates %s)", best["trial_id"], best["objective"],
-             choice["by"], describe_delays(best["delay_s"]), best["gates"])
+    LOG.info("best: %s (objective %s, chosen by %s, delays %s, gates %s)", best["trial_id"],
+             "none" if best["objective"] is None else f"{best['objective']:.4g}", choice["by"],
+             describe_delays(best["delay_s"]), best["gates"])
     return record
 
 
@@ -297,10 +299,15 @@ def finalist_choice(finalists_path: str | Path, ranked: list[dict[str, Any]]) ->
                     scores.get("maneuvers"))
         return ranked[0], {"by": "objective", "maneuvers": scores.get("maneuvers"), "finalists": finalists}
     by_trial = {r["trial_id"]: r for r in ranked}
+    layer = next((f for f in scores["finalists"] if f["trial_id"] == PHYSICAL_LAYER_ID), None)
+    if layer is not None:  # a hybrid's physical layer, chosen when no trained configuration beats it
+        by_trial[PHYSICAL_LAYER_ID] = layer
     if scores["chosen"] not in by_trial:
         raise ValueError(f"{finalists_path}: chosen trial {scores['chosen']!r} is not among the search's last-rung "
                          f"results {sorted(by_trial)}; rerun rule score_finalists")
     chosen = next(f for f in finalists if f["trial_id"] == scores["chosen"])
-    return by_trial[scores["chosen"]], {"by": "maneuvers", "maneuvers": scores["maneuvers"],
-                                         "score": chosen["score"], "objective_rank": chosen["objective_rank"],
-                                         "finalists": finalists}
+    choice = {"by": "maneuvers", "maneuvers": scores["maneuvers"], "score": chosen["score"],
+              "objective_rank": chosen["objective_rank"], "finalists": finalists}
+    if layer is not None:
+        choice["physical_layer"] = scores.get("physical_layer")
+    return by_trial[scores["chosen"]], choice
