@@ -11,7 +11,11 @@
 
 DIAGNOSIS = f"{RESULTS}/diagnosis"
 DIAGNOSED_MODEL = f"{DIAGNOSIS}/diagnosed_model.pkl"  # read by train.smk and evaluate.smk
-DIAGNOSIS_HAS_TEST = any(item["role"] == "test" for item in config["maneuvers"].values())
+# the maneuvers the diagnosis reads: every train and validation maneuver, and the test maneuvers of its held-out
+# check (config.diagnosis.open_loop.test_maneuvers; all when empty): the others stay unseen until the evaluation
+from hybridfmu.diagnosis.settings import diagnosis_maneuvers
+DIAGNOSIS_MANEUVERS = diagnosis_maneuvers(config, CONFIG_FILE)
+DIAGNOSIS_HAS_TEST = any(config["maneuvers"][name]["role"] == "test" for name in DIAGNOSIS_MANEUVERS)
 DIAGNOSIS_FIGURES = ["equation_error", "regions", "candidates", "effects"] + (
     ["waterfall", "open_loop_test", "error_growth"] if DIAGNOSIS_HAS_TEST else [])
 
@@ -24,8 +28,8 @@ DIAGNOSIS_BEST_JSON = [f"{RESULTS}/hpo/best.json"] if DIAGNOSIS_TRAINS_NEURAL_FM
 rule diagnose:
     input:
         fmu=fmu_path(),
-        data=expand(f"{RESULTS}/data/{{maneuver}}.parquet", maneuver=MANEUVERS),
-        segments=expand(f"{RESULTS}/segments/{{maneuver}}.json", maneuver=MANEUVERS),
+        data=expand(f"{RESULTS}/data/{{maneuver}}.parquet", maneuver=DIAGNOSIS_MANEUVERS),
+        segments=expand(f"{RESULTS}/segments/{{maneuver}}.json", maneuver=DIAGNOSIS_MANEUVERS),
         calibration=f"{RESULTS}/calibration/calibration.json",
         best=DIAGNOSIS_BEST_JSON,
     output:
@@ -34,13 +38,14 @@ rule diagnose:
         diagnosed=DIAGNOSED_MODEL,
         figures=expand(f"{DIAGNOSIS}/{{figure}}.png", figure=DIAGNOSIS_FIGURES),
     params:
-        maneuvers=MANEUVERS,
+        maneuvers=DIAGNOSIS_MANEUVERS,
         # what hybridfmu.diagnosis reads: its settings, the master seed, the FMU (interface, parameters), the
-        # roles, the maneuvers' roles and initial states, the model's end stop, the calibrated parameters and
-        # their bounds (recalibrated with the effects when diagnosis.open_loop.refit is on) and, for its MLflow
-        # run, the case, mlflow and results_dir
-        config=config_sections("case", "results_dir", "seed", "mlflow", "fmu", "maneuvers", "signals",
-                               "transforms", "roles", "model", "calibration", "diagnosis"),
+        # roles, the roles and initial states of the maneuvers it reads, the model's end stop, the calibrated
+        # parameters and their bounds (recalibrated with the effects when diagnosis.open_loop.refit is on) and, for
+        # its MLflow run, the case, mlflow and results_dir
+        config={**config_sections("case", "results_dir", "seed", "mlflow", "fmu", "signals", "transforms", "roles",
+                                  "model", "calibration", "diagnosis"),
+                "maneuvers": {name: config["maneuvers"][name] for name in DIAGNOSIS_MANEUVERS}},
     log:
         f"{RESULTS}/logs/diagnose/diagnose.log",
     benchmark:
