@@ -50,6 +50,7 @@ if "bench" in config:
             config={**config_sections("bench", "seed", "signals", "maneuvers"),
                     "fmu": {"parameters": config["fmu"].get("parameters", {})}},
             case=case_sections(),
+            window_length_s=(config.get("evaluation") or {}).get("windows", {}).get("length_s"),
         wildcard_constraints:
             maneuver="|".join(MANEUVERS),
         log:

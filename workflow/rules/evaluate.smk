@@ -57,6 +57,7 @@ rule simulate_best:
         learned=f"{RESULTS}/evaluation/trajectories/{{maneuver}}.learned.json",
     params:
         case=case_sections(),
+        window_length_s=EVAL_CONFIG.get("windows", {}).get("length_s"),
     wildcard_constraints:
         maneuver="|".join(EVAL_MANEUVERS) if EVAL_MANEUVERS else "(?!)",
     threads: 1

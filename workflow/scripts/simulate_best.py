@@ -22,4 +22,5 @@ simulate_best(
     diagnosed_path=snakemake.input.diagnosed,
     hybrid_best_path=snakemake.input.hybrid_best[0] if snakemake.input.hybrid_best else None,
     ceiling_path=snakemake.input.ceiling[0] if snakemake.input.ceiling else None,
+    window_length_s=snakemake.params.window_length_s,
 )

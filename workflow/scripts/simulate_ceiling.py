@@ -5,4 +5,4 @@ from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 write_ceiling(dict(snakemake.params.config), snakemake.wildcards.maneuver, snakemake.input.raw, snakemake.input.data,
-              case_roles(snakemake.params.case), snakemake.output.trajectory)
+              case_roles(snakemake.params.case), snakemake.output.trajectory, snakemake.params.window_length_s)

@@ -114,25 +114,39 @@ def true_plant_open_loop(settings: BenchSettings, k_first: int, duties: np.ndarr
 
 
 def write_ceiling(config: Mapping[str, Any], maneuver: str, raw_path: str | Path, data_path: str | Path,
-                  roles: Any, output_path: str | Path) -> pd.DataFrame:
+                  roles: Any, output_path: str | Path, window_length_s: float | None = None) -> pd.DataFrame:
     """Simulate the true plant over an ingested maneuver and write its trajectory.
 
     Args:
         config: the case config (sections ``bench``, ``seed``, ``fmu``, ``signals``, ``maneuvers``).
         maneuver: the maneuver's name; raw_path, data_path: its bench log and its ingested frame.
         roles: :class:`hybridfmu.case.CaseRoles` (which signal measures which state, the target signals).
-        output_path: Parquet with ``time_s``, ``ceiling_state_<state>`` for each plant state and
-            ``ceiling_<signal>`` for each target signal (model units).
+        output_path: Parquet with ``time_s``, ``ceiling_state_<state>`` for each plant state,
+            ``ceiling_<signal>`` for each target signal (model units) and ``windowed_ceiling_<signal>``: the same
+            over the evaluation's windows, each started from the measured state (:mod:`hybridfmu.evaluation.windows`).
+        window_length_s: config ``evaluation.windows.length_s`` (None: chosen as the evaluation chooses it).
     """
+    from hybridfmu.evaluation.windows import window_samples, windowed_trajectory
+
     settings = parse_bench_settings(config)
     frame = pd.read_parquet(data_path)
     time_s = frame["time_s"].to_numpy(dtype=float)
     channels = sorted({signal["channel"] for signal in config["signals"].values()})
     start_s = grid_start_s(raw_path, channels, (config["maneuvers"].get(maneuver) or {}).get("t_start_s"))
-    x0 = {state: float(frame[roles.states[state]].iloc[0]) for state in STATE_NAMES if state in roles.states}
+    measured = np.column_stack([frame[roles.states[state]].to_numpy(dtype=float) if state in roles.states
+                                else np.full(time_s.size, np.nan) for state in STATE_NAMES])
+    x0 = {state: float(measured[0, i]) for i, state in enumerate(STATE_NAMES) if state in roles.states}
     k_first, duties = applied_duties(raw_path, settings)
     wall = time.perf_counter()
     states = true_plant_open_loop(settings, k_first, duties, start_s, time_s, x0)
+
+    def window(t: np.ndarray, _u: np.ndarray, x: np.ndarray) -> np.ndarray:
+        return true_plant_open_loop(settings, k_first, duties, start_s + float(t[0]), t - t[0],
+                                    dict(zip(STATE_NAMES, x)))
+
+    steps = window_samples(window_length_s, float(np.median(np.diff(time_s))), float(time_s[-1] - time_s[0]))
+    windowed = windowed_trajectory(window, time_s, np.zeros((time_s.size, 0)),
+                                   np.where(np.isnan(measured), states, measured), steps)
     columns: dict[str, np.ndarray] = {"time_s": time_s}
     for i, name in enumerate(STATE_NAMES):
         columns[f"ceiling_state_{name}"] = states[:, i]
@@ -141,6 +155,7 @@ def write_ceiling(config: Mapping[str, Any], maneuver: str, raw_path: str | Path
             raise ValueError(f"config.roles.targets: state {state!r} is not a state of the bench's plant "
                              f"{list(STATE_NAMES)}")
         columns[f"ceiling_{signal}"] = states[:, STATE_NAMES.index(state)]
+        columns[f"windowed_ceiling_{signal}"] = windowed[:, STATE_NAMES.index(state)]
     result = pd.DataFrame(columns)
     write_parquet_atomic(output_path, result)
     errors = ", ".join(f"{signal} MAE {np.mean(np.abs(columns[f'ceiling_{signal}'] - frame[signal])):.4g}"

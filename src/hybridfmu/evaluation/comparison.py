@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from hybridfmu.evaluation.metrics import (improvement_factors, interval_mask, range_tolerance, summary_statistics,
-                                          tolerance_errors, trajectory_errors)
+                                          tolerance_errors, trajectory_errors, windowed_errors)
 from hybridfmu.evaluation.zoom import choose_zoom_intervals, zoom_choices
 
 #: Sources of the saved trajectories: column ``<source>_<signal>`` per target signal (the files also
@@ -47,6 +47,8 @@ class ManeuverRun:
         signals: (n_t,) target signal names (columns of the arrays below).
         data, fmu, neural_fmu: (T, n_t) measured, FMU open loop, neural FMU open loop (model units).
         further: :data:`FURTHER_MODELS` name -> (T, n_t) open loop, for those the case has.
+        windowed: model -> (T, n_t) over windows restarted from the measured state (multiple shooting,
+            :mod:`hybridfmu.evaluation.windows`), for the models the trajectories have them of.
     """
 
     maneuver: str
@@ -56,6 +58,7 @@ class ManeuverRun:
     fmu: np.ndarray
     neural_fmu: np.ndarray
     further: dict[str, np.ndarray] = field(default_factory=dict)
+    windowed: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         expected = (np.shape(self.time_s)[0], len(self.signals))
@@ -74,6 +77,7 @@ class ManeuverRun:
         for name in SOURCES:
             setattr(self, name, checked(name, getattr(self, name)))
         self.further = {name: checked(name, value) for name, value in self.further.items()}
+        self.windowed = {name: checked(f"windowed {name}", value) for name, value in self.windowed.items()}
 
     @property
     def models(self) -> list[str]:
@@ -89,7 +93,10 @@ class ManeuverRun:
         arrays = [frame[[f"{kind}_{signal}" for signal in signals]].to_numpy(dtype=float) for kind in SOURCES]
         further = {name: frame[[f"{name}_{signal}" for signal in signals]].to_numpy(dtype=float)
                    for name in FURTHER_MODELS if all(f"{name}_{signal}" in frame.columns for signal in signals)}
-        return cls(maneuver, frame["time_s"].to_numpy(dtype=float), list(signals), *arrays, further=further)
+        windowed = {name: frame[[f"windowed_{name}_{signal}" for signal in signals]].to_numpy(dtype=float)
+                    for name in MODELS if all(f"windowed_{name}_{signal}" in frame.columns for signal in signals)}
+        return cls(maneuver, frame["time_s"].to_numpy(dtype=float), list(signals), *arrays, further=further,
+                   windowed=windowed)
 
     def values(self, model: str) -> np.ndarray:
         """(T, n_t) of ``model``: one of :attr:`models`."""
@@ -103,6 +110,11 @@ class ManeuverRun:
         """MAE/MSE/RMSE per target signal of ``model`` against the data, over ``mask`` (T,) or everything."""
         sel = slice(None) if mask is None else mask
         return trajectory_errors(self.values(model)[sel], self.data[sel], self.signals)
+
+    def windowed_errors(self, model: str) -> dict[str, float | None]:
+        """MAE/MSE/RMSE per target signal of ``model``'s windowed trajectory against the data, and the share of
+        samples its windows did not reach (:func:`hybridfmu.evaluation.metrics.windowed_errors`)."""
+        return windowed_errors(self.windowed[model], self.data, self.signals)
 
     def tolerance_errors(self, model: str, tolerance: dict[str, float]) -> dict[str, float | int | None]:
         """Share of time ``model`` stays within ``tolerance`` ({signal: model unit}) of the data, and its errors
@@ -158,7 +170,8 @@ def distribution(per_maneuver: dict[str, dict], signals: list[str], models: list
     """Median, min and max over the maneuvers of every model's errors, factors against the FMU (FMU error / model
     error) and in-tolerance metrics: ``{model: {key: {"median", "min", "max", "n"}}}``, keys ``<signal>_mae``,
     ``<signal>_mse``, ``<signal>_mae_factor``, ``<signal>_mse_factor`` (not for the FMU), ``in_tolerance_share``,
-    ``tolerance_exits``, ``<signal>_mae_in_tolerance``."""
+    ``tolerance_exits``, ``<signal>_mae_in_tolerance``, and over the windows restarted from the measured state
+    ``<signal>_mae_windowed`` and ``<signal>_mae_windowed_factor`` (not for the FMU)."""
     out: dict[str, dict] = {}
     entries = list(per_maneuver.values())
     for model in models:
@@ -171,6 +184,14 @@ def distribution(per_maneuver: dict[str, dict], signals: list[str], models: list
                     if model != "fmu":
                         improvement = entry["improvement" if model == "neural_fmu" else f"improvement_{model}"]
                         keys.setdefault(f"{signal}_{measure}_factor", []).append(improvement[f"{signal}_{measure}"])
+            windowed = (entry.get("windowed") or {}).get(model)
+            if windowed:
+                fmu_windowed = entry["windowed"].get("fmu") or {}
+                for signal in signals:
+                    key = f"{signal}_mae"
+                    keys.setdefault(f"{key}_windowed", []).append(windowed[key])
+                    if model != "fmu" and fmu_windowed.get(key) is not None and windowed[key]:
+                        keys.setdefault(f"{key}_windowed_factor", []).append(fmu_windowed[key] / windowed[key])
             tolerance = (entry.get("in_tolerance") or {}).get(model)
             if tolerance:
                 for key in ("in_tolerance_share", "tolerance_exits", *(f"{s}_mae_in_tolerance" for s in signals)):
@@ -234,7 +255,8 @@ def role_metrics(role: str, runs: list[ManeuverRun], zoom_settings: dict, extra:
         trajectories of all maneuvers together (model units), ``improvement`` the FMU error over the neural FMU
         error for each of them; for each further model every maneuver has (``fmu_effects``, ``hybrid``,
         ``ceiling``) its errors and ``improvement_<model>`` likewise; each ``per_maneuver`` entry holds the same
-        for its maneuver and, with a tolerance, ``in_tolerance`` ({model: :func:`tolerance_errors`}); with it
+        for its maneuver and, with a tolerance, ``in_tolerance`` ({model: :func:`tolerance_errors`}), with windowed
+        trajectories ``windowed`` ({model: :func:`hybridfmu.evaluation.metrics.windowed_errors`}); with it
         ``tolerance``; ``distribution`` (:func:`distribution`) the median and range over the maneuvers;
         ``warnings`` (:func:`physics_warnings`) every maneuver where a model is worse than its own physics.
     """
@@ -256,6 +278,8 @@ def role_metrics(role: str, runs: list[ManeuverRun], zoom_settings: dict, extra:
         if tolerance:
             per_maneuver[run.maneuver]["in_tolerance"] = {
                 m: run.tolerance_errors(m, tolerance["signals"]) for m in ("fmu", "neural_fmu", *further)}
+        if run.windowed:
+            per_maneuver[run.maneuver]["windowed"] = {m: run.windowed_errors(m) for m in MODELS if m in run.windowed}
     models = [m for m in MODELS if m in ("fmu", "neural_fmu") or m in further]
     fmu = pooled_errors(runs, "fmu")
     return {"role": role, "maneuvers": [r.maneuver for r in runs], "signals": list(signals),

@@ -23,6 +23,7 @@ import pandas as pd
 from hybridfmu.evaluation.best import best_trial_summary
 from hybridfmu.evaluation.comparison import ManeuverRun, role_metrics, tolerance_settings
 from hybridfmu.evaluation.tracking import log_evaluation_run, resolve_tracking
+from hybridfmu.evaluation.windows import describe_windows, window_samples, windowed_trajectory
 from hybridfmu.io import read_json, write_json_atomic, write_parquet_atomic
 from hybridfmu.model.delay import describe_delays
 from hybridfmu.tracking.mlflow_store import mlflow_key
@@ -46,8 +47,8 @@ def read_baseline(path: str | Path, state_names: list[str], time_s: np.ndarray) 
 
 
 def read_ceiling(path: str | Path, signals: list[str], time_s: np.ndarray) -> dict[str, np.ndarray]:
-    """The ``ceiling_*`` columns (each (T,)) of a ceiling trajectory, checked against the target ``signals`` and the
-    data's grid ``time_s`` (T,)."""
+    """The ``ceiling_*`` and ``windowed_ceiling_*`` columns (each (T,)) of a ceiling trajectory, checked against the
+    target ``signals`` and the data's grid ``time_s`` (T,)."""
     path = Path(path)
     frame = pd.read_parquet(path)
     missing = [name for name in ["time_s", *(f"ceiling_{signal}" for signal in signals)] if name not in frame.columns]
@@ -57,7 +58,8 @@ def read_ceiling(path: str | Path, signals: list[str], time_s: np.ndarray) -> di
     if len(frame) != time_s.size or not np.allclose(frame["time_s"].to_numpy(), time_s, rtol=0, atol=1e-9):
         raise ValueError(f"{path}: time_s does not match the ingested maneuver's grid ({len(frame)} vs "
                          f"{time_s.size} samples); rerun simulate_ceiling")
-    return {name: frame[name].to_numpy(dtype=float) for name in frame.columns if name.startswith("ceiling_")}
+    return {name: frame[name].to_numpy(dtype=float) for name in frame.columns
+            if name.startswith(("ceiling_", "windowed_ceiling_"))}
 
 
 def learned_quantities(model: Any) -> dict[str, Any]:
@@ -89,22 +91,38 @@ def checked_states(states: np.ndarray, time_s: np.ndarray, n_states: int, maneuv
 
 
 def simulate_diagnosed(diagnosed_path: str | Path, fmu_path: str | Path, fmu_parameters: dict[str, float],
-                       time_s: np.ndarray, u: np.ndarray, x0: np.ndarray, maneuver: str) -> np.ndarray:
+                       time_s: np.ndarray, u: np.ndarray, x0: np.ndarray, maneuver: str,
+                       window_steps: int | None = None, x_measured: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, np.ndarray | None]:
     """States (T, n_x) of the FMU plus the diagnosed effects open loop from ``x0`` (n_x,; its unmeasured states
     recalibrated with the effects where the diagnosis did so) with the logged inputs ``u`` (T, n_u)
-    (:meth:`hybridfmu.diagnosis.export.DiagnosedModel.simulate`)."""
+    (:meth:`hybridfmu.diagnosis.export.DiagnosedModel.simulate`); with ``window_steps`` also its windowed
+    trajectory (T, n_x) from the measured states ``x_measured`` (T, n_x; NaN columns: unmeasured, taken from its
+    own open loop), else None."""
     from hybridfmu.diagnosis.export import load_diagnosed
     from hybridfmu.fmu import load_fmu
 
     diagnosed = load_diagnosed(diagnosed_path)
     x0 = diagnosed.initial_state(x0, maneuver)
     start = time.perf_counter()
+    windowed = None
     with load_fmu(fmu_path, parameters=dict(fmu_parameters) or None) as fmu, \
             load_fmu(fmu_path, parameters=dict(fmu_parameters) or None) as helper:
-        states = diagnosed.simulate(fmu, helper, time_s, u, x0)
+        states = checked_states(np.asarray(diagnosed.simulate(fmu, helper, time_s, u, x0), dtype=float),
+                                np.asarray(time_s), len(x0), maneuver, "FMU + effects")
+        if window_steps is not None:
+            windowed = windowed_trajectory(lambda t, v, x: diagnosed.simulate(fmu, helper, t, v, x), time_s, u,
+                                           start_states(x_measured, states), window_steps)
     LOG.info("%s: FMU + %d diagnosed effect(s) (%s) open loop in %.1f s", maneuver, len(diagnosed.terms),
              ", ".join(diagnosed.effects) or "parameters only", time.perf_counter() - start)
-    return checked_states(np.asarray(states, dtype=float), np.asarray(time_s), len(x0), maneuver, "FMU + effects")
+    return states, windowed
+
+
+def start_states(x_measured: np.ndarray, own: np.ndarray) -> np.ndarray:
+    """(T, n_x) states windows start from: the measured ones, and a model's ``own`` open-loop states (T, n_x) where
+    a state is not measured (NaN columns of ``x_measured``)."""
+    x_measured = np.asarray(x_measured, dtype=float)
+    return np.where(np.isnan(x_measured), np.asarray(own, dtype=float), x_measured)
 
 
 def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path: str | Path | None,
@@ -112,7 +130,8 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
                   learned_path: str | Path, roles: Any, maneuvers: dict[str, Any] | None,
                   maneuver: str, diagnosed_path: str | Path | None = None,
                   hybrid_best_path: str | Path | None = None,
-                  ceiling_path: str | Path | None = None) -> dict[str, Any]:
+                  ceiling_path: str | Path | None = None,
+                  window_length_s: float | None = None) -> dict[str, Any]:
     """Simulate the best neural FMU open loop over the whole maneuver; save it beside data and FMU.
 
     Args:
@@ -127,14 +146,20 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
         ceiling_path: the best any model could reach on this maneuver (model ``ceiling``: Parquet with
             ``time_s``, ``ceiling_<signal>`` per target signal and ``ceiling_state_<state>``; for an emulated
             case, the bench's true plant open loop), or None.
+        window_length_s: the windows of the multiple-shooting trajectories (s; config
+            ``evaluation.windows.length_s``); None: the record in
+            :data:`hybridfmu.evaluation.windows.DEFAULT_WINDOWS_PER_RECORD` windows.
 
     Writes ``trajectory_path`` (Parquet: ``time_s``; per target signal ``data_<signal>``, ``fmu_<signal>``,
-    ``neural_fmu_<signal>`` and ``<model>_<signal>`` of the further models; per FMU state ``fmu_state_<state>``,
-    ``neural_fmu_state_<state>``, ``<model>_state_<state>``; model units) and ``learned_path`` (JSON:
+    ``neural_fmu_<signal>`` and ``<model>_<signal>`` of the further models, and ``windowed_<model>_<signal>``
+    of every model over windows restarted from the measured state (:mod:`hybridfmu.evaluation.windows`); per
+    FMU state ``fmu_state_<state>``, ``neural_fmu_state_<state>``, ``<model>_state_<state>``; model units) and ``learned_path`` (JSON:
     ``{"maneuver", "trial_id", "signals", "dt_s", "gates", "x0", "wall_time_s"}``, and ``hybrid``: the
     hybrid's ``{"trial_id", "dt_s", "gates", "effects"}``). Returns the latter.
     """
-    from hybridfmu.training.inference import load_trained_neural_fmu, physical_layer, simulate_neural_fmu
+    from hybridfmu.evaluation.baseline import simulate_fmu_open_loop
+    from hybridfmu.training.inference import (load_trained_neural_fmu, physical_layer, simulate_neural_fmu,
+                                              simulate_neural_fmu_windows)
     from hybridfmu.training.measured import initial_state, load_calibration, read_measured
 
     best = read_json(best_path)
@@ -160,6 +185,14 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
     states = checked_states(states, time_s, len(state_names), maneuver, "neural FMU")
     LOG.info("%s: %.3f s simulated in %.1f s wall time (%.3g s per simulated second)", maneuver, duration_s, wall_s,
              wall_s / max(duration_s, 1e-12))
+    steps = window_samples(window_length_s, model.spec.sample_period_s, duration_s)
+    LOG.info("%s: multiple shooting over %s from the measured state", maneuver,
+             describe_windows(steps, model.spec.sample_period_s, time_s.size))
+    x_fmu = start_states(measured.x, fmu_states)
+    windowed = {
+        "fmu": windowed_trajectory(lambda t, v, x: simulate_fmu_open_loop(model.fmu.rhs.model, t, v, x)[0],
+                                   time_s, measured.u, x_fmu, steps),
+        "neural_fmu": simulate_neural_fmu_windows(model, time_s, measured.u, start_states(measured.x, states), steps)}
     columns: dict[str, np.ndarray] = {"time_s": time_s}
     for k, signal in enumerate(measured.target_signals):
         columns[f"data_{signal}"] = measured.targets[:, k]
@@ -172,8 +205,8 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
               **learned, "x0": dict(zip(state_names, x0.tolist())), "wall_time_s": wall_s}
     further: dict[str, np.ndarray] = {}
     if diagnosed_path is not None:
-        further["fmu_effects"] = simulate_diagnosed(diagnosed_path, fmu_path, calibration.parameters, time_s,
-                                                    measured.u, x0, maneuver)
+        further["fmu_effects"], windowed["fmu_effects"] = simulate_diagnosed(
+            diagnosed_path, fmu_path, calibration.parameters, time_s, measured.u, x0, maneuver, steps, measured.x)
     if hybrid_best_path is not None:
         hybrid = load_trained_neural_fmu(hybrid_best_path, fmu_path, dict(calibration.parameters) or None,
                                          diagnosed_path)
@@ -186,11 +219,17 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
         further["hybrid"] = checked_states(
             np.asarray(simulate_neural_fmu(hybrid, time_s, measured.u, x0_hybrid), dtype=float), time_s,
             len(state_names), maneuver, "hybrid")
+        windowed["hybrid"] = simulate_neural_fmu_windows(hybrid, time_s, measured.u,
+                                                         start_states(measured.x, further["hybrid"]), steps)
     for model_name, model_states in further.items():
         for k, signal in enumerate(measured.target_signals):
             columns[f"{model_name}_{signal}"] = model_states[:, target_index[k]]
         for i, name in enumerate(state_names):
             columns[f"{model_name}_state_{name}"] = model_states[:, i]
+    for model_name, model_states in windowed.items():
+        for k, signal in enumerate(measured.target_signals):
+            columns[f"windowed_{model_name}_{signal}"] = model_states[:, target_index[k]]
+    record["window_steps"] = steps
     if ceiling_path is not None:
         columns.update(read_ceiling(ceiling_path, measured.target_signals, time_s))
     write_parquet_atomic(trajectory_path, pd.DataFrame(columns))

@@ -56,6 +56,21 @@ def trajectory_errors(simulated: np.ndarray, measured: np.ndarray, signals: Sequ
     return errors
 
 
+def windowed_errors(simulated: np.ndarray, measured: np.ndarray, signals: Sequence[str]) -> dict[str, float | None]:
+    """MAE, MSE and RMSE per target signal of a windowed trajectory (:mod:`hybridfmu.evaluation.windows`) over the
+    samples its windows reached (a failed window's samples are NaN), and ``failed_share``: the share of samples
+    without a value. Shapes as :func:`trajectory_errors`; errors None when no window succeeded."""
+    simulated = np.asarray(simulated, dtype=float).reshape(np.shape(simulated)[0], -1)
+    measured = np.asarray(measured, dtype=float).reshape(np.shape(measured)[0], -1)
+    reached = np.all(np.isfinite(simulated), axis=1)
+    out: dict[str, float | None] = {"failed_share": float(1.0 - np.mean(reached))}
+    if not reached.any():
+        out.update({key: None for key in metric_keys(signals)})
+        return out
+    out.update(trajectory_errors(simulated[reached], measured[reached], signals))
+    return out
+
+
 def tolerance_errors(simulated: np.ndarray, measured: np.ndarray, signals: Sequence[str],
                      tolerance: dict[str, float]) -> dict[str, float | int | None]:
     """How long a simulation stays with the measurement, and its errors while it does.

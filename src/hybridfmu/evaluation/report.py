@@ -110,20 +110,24 @@ def spread_text(stats: dict[str, Any] | None, digits: int = 3, percent: bool = F
 
 def distribution_table(metrics_by_role: dict[str, dict]) -> list[str]:
     """Markdown table of every model over the maneuvers of each role: median [min – max] of the factors against
-    the FMU (FMU error / model error) per target signal, of the share of time within the tolerance and of how
+    the FMU (FMU error / model error) per target signal, over the whole record (MAE, MSE) and over windows
+    restarted from the measured state (windowed MAE), of the share of time within the tolerance and of how
     often the model left it; [] when the metrics hold no distribution."""
     lines: list[str] = []
+    measures = (("mae", "MAE"), ("mse", "MSE"), ("mae_windowed", "windowed MAE"))
     for role, metrics in metrics_by_role.items():
         stats = metrics.get("distribution")
         if not stats:
             continue
         signals = _signals_of(metrics)
         if not lines:
-            lines = ["| data | maneuvers | model | " + " | ".join(f"{s} MAE vs FMU | {s} MSE vs FMU" for s in signals)
-                     + " | within tolerance | exits |", "|---|---|---|" + "---|---|" * len(signals) + "---|---|"]
+            lines = ["| data | maneuvers | model | " + " | ".join(f"{s} {text} vs FMU" for s in signals
+                                                                   for _, text in measures)
+                     + " | within tolerance | exits |", "|---|---|---|" + "---|" * (len(measures) * len(signals))
+                     + "---|---|"]
         for model, values in stats.items():
             cells = [spread_text(values.get(f"{s}_{m}_factor"), factor=True) if model != "fmu" else "×1"
-                     for s in signals for m in ("mae", "mse")]
+                     for s in signals for m, _ in measures]
             cells += [spread_text(values.get("in_tolerance_share"), percent=True),
                       spread_text(values.get("tolerance_exits"))]
             lines.append(f"| {role} | {len(metrics.get('maneuvers', []))} | {MODEL_TITLES.get(model, model)} | "
@@ -306,7 +310,9 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
     if spread:
         out += ["## Over the maneuvers", "",
                 "Each model over every maneuver of a role on its own: median [min – max]. A factor is the FMU's "
-                "error over the model's on that maneuver; the ceiling, where the case has one, is the best any "
+                "error over the model's on that maneuver, over the whole record or over short windows each "
+                "started from the measured state (windowed: how accurate a model is while it has not drifted "
+                "away); the ceiling, where the case has one, is the best any "
                 "model could reach in this test (for an emulated case, the true plant open loop from the same "
                 "measured state and logged inputs). " + tolerance_text(metrics_by_role, units), ""] + spread + [""]
     warnings = warning_lines(metrics_by_role)

@@ -101,6 +101,50 @@ def simulate_neural_fmu(model: NeuralFmu, time_s: Any, u: Any, x0: Any) -> np.nd
     return states[0].numpy()
 
 
+def simulate_neural_fmu_windows(model: NeuralFmu, time_s: Any, u: Any, x_start: Any, steps: int,
+                                batch: int = 64) -> np.ndarray:
+    """Multiple shooting: the model over consecutive windows of ``steps`` steps, each from ``x_start`` at its first
+    sample, side by side in batches of ``batch`` windows (:mod:`hybridfmu.evaluation.windows`).
+
+    The inputs are those of the whole record (a hybrid's diagnosed input changes and the learned delays see the
+    samples before a window's start), so a window is the whole-record simulation restarted, nothing else.
+
+    Args:
+        model: a trained neural FMU; time_s: (T,) uniform grid with the model's sample period (s); u: (T, n_u)
+            inputs in FMU order; x_start: (T, n_x) the state a window started at sample k starts from.
+
+    Returns:
+        (T, n_x) float64: each window's states on its samples (its first sample: its start state).
+    """
+    from hybridfmu.evaluation.windows import batched_window_rows
+
+    time_s = np.asarray(time_s, dtype=np.float64)
+    u = np.asarray(u, dtype=np.float64)
+    x_start = np.asarray(x_start, dtype=np.float64)
+    spec = model.spec
+    check_uniform_grid(time_s, "simulate_neural_fmu_windows")
+    if u.shape != (time_s.size, len(spec.input_names)) or x_start.shape != (time_s.size, len(spec.state_names)):
+        raise ValueError(f"simulate_neural_fmu_windows: u {u.shape} and x_start {x_start.shape} must have "
+                         f"{time_s.size} rows of {len(spec.input_names)} inputs / {len(spec.state_names)} states")
+    physics = physical_layer(model)
+    if physics is not None:
+        u = physics.inputs(u, spec.sample_period_s)
+    pad = delay_padding(spec.sample_period_s, spec.delay_min_s, spec.delay_max_s)
+    u_padded = u[np.clip(np.arange(-pad, time_s.size + pad), 0, time_s.size - 1)]  # record sample j at pad + j
+    out = np.full(x_start.shape, np.nan)
+    full, last_steps = batched_window_rows(time_s.size, steps)
+    groups = [(full[i:i + batch], steps) for i in range(0, full.size, batch)]
+    if last_steps:
+        groups.append((np.array([time_s.size - 1 - last_steps]), last_steps))
+    with torch.no_grad():
+        for starts, n_steps in groups:
+            u_seq = np.stack([u_padded[s:s + n_steps + 1 + 2 * pad] for s in starts])
+            states = rollout(model, torch.from_numpy(u_seq), pad, torch.from_numpy(x_start[starts]), n_steps)
+            for row, start in zip(states.numpy(), starts):  # in order: a window's first sample overwrites the
+                out[start:start + n_steps + 1] = row          # last one of the window before (its start state)
+    return out
+
+
 def physical_layer(model: NeuralFmu):
     """The physical layer of a hybrid (``hybridfmu.model.physics.PhysicsModel``), or None for a neural FMU
     around a plain FMU."""
