@@ -1,0 +1,57 @@
+"""The robustness target: each seed's config, and the figures pooled over every (seed, maneuver)."""
+
+import pytest
+import yaml
+
+from hybridfmu.evaluation.robustness import seed_config, summarize, summary_markdown, write_summary
+from hybridfmu.io import write_json_atomic
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_a_seeds_config_writes_elsewhere_and_its_bench_logs_follow():
+    demo = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    changed = seed_config(demo, 5)
+    assert changed["seed"] == 5 and changed["results_dir"] == "results/robustness/seed5"
+    assert changed["maneuvers"]["test_hard"]["raw"] == "results/robustness/seed5/ipb/raw/test_hard.mf4"
+    assert "robustness" not in changed and demo["seed"] == 20261122  # the case's own config is left alone
+    user = {"case": "mine", "results_dir": "out", "seed": 1, "maneuvers": {"a": {"role": "test", "raw": "logs/a.csv"}}}
+    assert seed_config(user, 2)["maneuvers"]["a"]["raw"] == "logs/a.csv"  # a user's logs stay where they are
+
+
+def entry(fmu, neural, effects, hybrid, share):
+    """One maneuver of a metrics file: angle MAE/MSE of each model and the hybrid's in-tolerance share."""
+    errors = {"fmu": fmu, "neural_fmu": neural, "fmu_effects": effects, "hybrid": hybrid}
+    out = {name: {"angle_mae": value, "angle_mse": value ** 2} for name, value in errors.items()}
+    out["improvement"] = {"angle_mae": fmu / neural, "angle_mse": fmu ** 2 / neural ** 2}
+    for name in ("fmu_effects", "hybrid"):
+        out[f"improvement_{name}"] = {"angle_mae": fmu / errors[name], "angle_mse": fmu ** 2 / errors[name] ** 2}
+    out["in_tolerance"] = {"hybrid": {"in_tolerance_share": share}}
+    return out
+
+
+def test_figures_are_pooled_over_every_seed_and_maneuver(tmp_path):
+    seeds = {1: {"signals": ["angle"], "per_maneuver": {"a": entry(10.0, 1.0, 0.1, 0.05, 1.0),
+                                                         "b": entry(10.0, 5.0, 0.2, 0.4, 0.5)}},
+             2: {"signals": ["angle"], "per_maneuver": {"a": entry(8.0, 2.0, 0.1, 0.1, 0.9),
+                                                         "b": entry(8.0, 0.5, 0.2, 0.1, 1.0)}}}
+    summary = summarize(seeds)
+    assert summary["seeds"] == [1, 2] and summary["maneuvers"] == ["a", "b"]
+    hybrid = summary["models"]["hybrid"]["angle_mae_factor"]  # 200, 25, 80, 80
+    assert (hybrid["median"], hybrid["min"], hybrid["max"], hybrid["n"]) == pytest.approx((80.0, 25.0, 200.0, 4))
+    assert summary["models"]["neural_fmu"]["angle_mse_factor"]["max"] == pytest.approx(256.0)
+    assert summary["models"]["hybrid"]["in_tolerance_share"]["median"] == pytest.approx(0.95)
+    assert summary["hybrid_worse_than_fmu_effects"] == [
+        {"seed": 1, "maneuver": "b", "signal": "angle", "hybrid_mae": 0.4, "fmu_effects_mae": 0.2}]
+    text = summary_markdown("demo", summary, {2: 1800.0})
+    assert "| hybrid (FMU + effects + ANN) | ×80 [×25 – ×200] |" in text
+    assert "seed 1 b (angle)" in text and "seed 2 30 min" in text
+    paths = {}
+    for seed, metrics in seeds.items():
+        paths[seed] = tmp_path / f"{seed}.json"
+        write_json_atomic(paths[seed], metrics)
+    written = write_summary("demo", paths, tmp_path / "summary.json", tmp_path / "summary.md")
+    assert written == summary and (tmp_path / "summary.md").read_text() == summary_markdown("demo", summary)
+    with pytest.raises(ValueError, match="no seed"):
+        summarize({})

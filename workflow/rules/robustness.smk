@@ -1,0 +1,49 @@
+# Target `robustness`: the whole case rerun with each master seed of config.robustness.seeds (a nested Snakemake
+# run per seed, outputs under <results_dir>/robustness/seed<seed>/), the case's own seed being its own run; the
+# summary pools the test figures of every (seed, maneuver) (hybridfmu.evaluation.robustness).
+
+ROBUSTNESS_SEEDS = [int(seed) for seed in (config.get("robustness") or {}).get("seeds", [])]
+ROBUSTNESS = f"{RESULTS}/robustness"
+OWN_SEED = int(config.get("seed", 0))
+OTHER_SEEDS = [seed for seed in ROBUSTNESS_SEEDS if seed != OWN_SEED]
+
+if "test" in EVAL_ROLES:
+
+    rule robustness_seed:
+        output:
+            metrics=f"{ROBUSTNESS}/seed{{seed}}/test.json",
+        params:
+            config=dict(config),
+            config_path=lambda wildcards: f"{ROBUSTNESS}/seed{wildcards.seed}/config.yaml",
+            snakefile=workflow.main_snakefile,
+            run_log=lambda wildcards: f"{ROBUSTNESS}/seed{wildcards.seed}/run.log",
+        wildcard_constraints:
+            seed="|".join(map(str, OTHER_SEEDS)) if OTHER_SEEDS else "(?!)",
+        threads: workflow.cores
+        log:
+            f"{RESULTS}/logs/robustness_seed/seed{{seed}}.log",
+        benchmark:
+            f"{RESULTS}/benchmarks/robustness_seed/seed{{seed}}.tsv"
+        script:
+            "../scripts/robustness_seed.py"
+
+    rule robustness_summary:
+        input:
+            own=f"{RESULTS}/metrics/test.json",
+            others=expand(f"{ROBUSTNESS}/seed{{seed}}/test.json", seed=OTHER_SEEDS),
+            benchmarks=expand(f"{RESULTS}/benchmarks/robustness_seed/seed{{seed}}.tsv", seed=OTHER_SEEDS),
+        output:
+            summary=f"{ROBUSTNESS}/summary.json",
+            markdown=f"{ROBUSTNESS}/summary.md",
+        params:
+            case=CASE,
+            own_seed=OWN_SEED,
+            other_seeds=OTHER_SEEDS,
+        log:
+            f"{RESULTS}/logs/robustness_summary/robustness_summary.log",
+        script:
+            "../scripts/robustness_summary.py"
+
+    rule robustness:
+        input:
+            f"{ROBUSTNESS}/summary.json",

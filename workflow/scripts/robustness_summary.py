@@ -1,0 +1,9 @@
+"""Rule robustness_summary: the case's test figures pooled over every (seed, maneuver)."""
+from hybridfmu.evaluation.robustness import seed_wall_times, write_summary
+from hybridfmu.progress import setup_rule_logging
+
+setup_rule_logging(snakemake.log[0])
+paths = {snakemake.params.own_seed: snakemake.input.own,
+         **dict(zip(snakemake.params.other_seeds, snakemake.input.others))}
+write_summary(snakemake.params.case, paths, snakemake.output.summary, snakemake.output.markdown,
+              seed_wall_times(snakemake.input.benchmarks, snakemake.params.other_seeds))
