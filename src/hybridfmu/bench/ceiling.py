@@ -123,10 +123,11 @@ def write_ceiling(config: Mapping[str, Any], maneuver: str, raw_path: str | Path
         roles: :class:`hybridfmu.case.CaseRoles` (which signal measures which state, the target signals).
         output_path: Parquet with ``time_s``, ``ceiling_state_<state>`` for each plant state,
             ``ceiling_<signal>`` for each target signal (model units) and ``windowed_ceiling_<signal>``: the same
-            over the evaluation's windows, each started from the measured state (:mod:`hybridfmu.evaluation.windows`).
+            over the evaluation's windows, each started from the measured state
+            (:mod:`hybridfmu.training.multiple_shooting`).
         window_length_s: config ``evaluation.windows.length_s`` (None: chosen as the evaluation chooses it).
     """
-    from hybridfmu.evaluation.windows import window_samples, windowed_trajectory
+    from hybridfmu.training.multiple_shooting import window_samples, windowed_trajectory
 
     settings = parse_bench_settings(config)
     frame = pd.read_parquet(data_path)

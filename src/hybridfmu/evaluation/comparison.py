@@ -48,7 +48,7 @@ class ManeuverRun:
         data, fmu, neural_fmu: (T, n_t) measured, FMU open loop, neural FMU open loop (model units).
         further: :data:`FURTHER_MODELS` name -> (T, n_t) open loop, for those the case has.
         windowed: model -> (T, n_t) over windows restarted from the measured state (multiple shooting,
-            :mod:`hybridfmu.evaluation.windows`), for the models the trajectories have them of.
+            :mod:`hybridfmu.training.multiple_shooting`), for the models the trajectories have them of.
     """
 
     maneuver: str

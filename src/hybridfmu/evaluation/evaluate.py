@@ -23,7 +23,7 @@ import pandas as pd
 from hybridfmu.evaluation.best import best_trial_summary
 from hybridfmu.evaluation.comparison import ManeuverRun, role_metrics, tolerance_settings
 from hybridfmu.evaluation.tracking import log_evaluation_run, resolve_tracking
-from hybridfmu.evaluation.windows import describe_windows, window_samples, windowed_trajectory
+from hybridfmu.training.multiple_shooting import describe_windows, window_samples, windowed_trajectory
 from hybridfmu.io import read_json, write_json_atomic, write_parquet_atomic
 from hybridfmu.model.delay import describe_delays
 from hybridfmu.tracking.mlflow_store import mlflow_key
@@ -148,12 +148,12 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
             case, the bench's true plant open loop), or None.
         window_length_s: the windows of the multiple-shooting trajectories (s; config
             ``evaluation.windows.length_s``); None: the record in
-            :data:`hybridfmu.evaluation.windows.DEFAULT_WINDOWS_PER_RECORD` windows.
+            :data:`hybridfmu.training.multiple_shooting.DEFAULT_WINDOWS_PER_RECORD` windows.
 
     Writes ``trajectory_path`` (Parquet: ``time_s``; per target signal ``data_<signal>``, ``fmu_<signal>``,
     ``neural_fmu_<signal>`` and ``<model>_<signal>`` of the further models, and ``windowed_<model>_<signal>``
-    of every model over windows restarted from the measured state (:mod:`hybridfmu.evaluation.windows`); per
-    FMU state ``fmu_state_<state>``, ``neural_fmu_state_<state>``, ``<model>_state_<state>``; model units) and ``learned_path`` (JSON:
+    of every model over windows restarted from the measured state
+    (:mod:`hybridfmu.training.multiple_shooting`); per FMU state ``fmu_state_<state>``, ``neural_fmu_state_<state>``, ``<model>_state_<state>``; model units) and ``learned_path`` (JSON:
     ``{"maneuver", "trial_id", "signals", "dt_s", "gates", "x0", "wall_time_s"}``, and ``hybrid``: the
     hybrid's ``{"trial_id", "dt_s", "gates", "effects"}``). Returns the latter.
     """

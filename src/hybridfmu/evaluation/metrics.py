@@ -57,9 +57,9 @@ def trajectory_errors(simulated: np.ndarray, measured: np.ndarray, signals: Sequ
 
 
 def windowed_errors(simulated: np.ndarray, measured: np.ndarray, signals: Sequence[str]) -> dict[str, float | None]:
-    """MAE, MSE and RMSE per target signal of a windowed trajectory (:mod:`hybridfmu.evaluation.windows`) over the
-    samples its windows reached (a failed window's samples are NaN), and ``failed_share``: the share of samples
-    without a value. Shapes as :func:`trajectory_errors`; errors None when no window succeeded."""
+    """MAE, MSE and RMSE per target signal of a windowed trajectory (:mod:`hybridfmu.training.multiple_shooting`)
+    over the samples its windows reached (a failed window's samples are NaN), and ``failed_share``: the share of
+    samples without a value. Shapes as :func:`trajectory_errors`; errors None when no window succeeded."""
     simulated = np.asarray(simulated, dtype=float).reshape(np.shape(simulated)[0], -1)
     measured = np.asarray(measured, dtype=float).reshape(np.shape(measured)[0], -1)
     reached = np.all(np.isfinite(simulated), axis=1)

@@ -12,6 +12,7 @@ from hybridfmu.io import read_json
 from hybridfmu.model.neural_fmu import NeuralFmu
 from hybridfmu.model.spec import NeuralFmuSpec
 from hybridfmu.training.data import check_uniform_grid
+from hybridfmu.training.multiple_shooting import batched_window_rows
 from hybridfmu.training.solver import rollout
 from hybridfmu.training.windows import delay_padding
 
@@ -104,7 +105,7 @@ def simulate_neural_fmu(model: NeuralFmu, time_s: Any, u: Any, x0: Any) -> np.nd
 def simulate_neural_fmu_windows(model: NeuralFmu, time_s: Any, u: Any, x_start: Any, steps: int,
                                 batch: int = 64) -> np.ndarray:
     """Multiple shooting: the model over consecutive windows of ``steps`` steps, each from ``x_start`` at its first
-    sample, side by side in batches of ``batch`` windows (:mod:`hybridfmu.evaluation.windows`).
+    sample, side by side in batches of ``batch`` windows (:mod:`hybridfmu.training.multiple_shooting`).
 
     The inputs are those of the whole record (a hybrid's diagnosed input changes and the learned delays see the
     samples before a window's start), so a window is the whole-record simulation restarted, nothing else.
@@ -116,8 +117,6 @@ def simulate_neural_fmu_windows(model: NeuralFmu, time_s: Any, u: Any, x_start: 
     Returns:
         (T, n_x) float64: each window's states on its samples (its first sample: its start state).
     """
-    from hybridfmu.evaluation.windows import batched_window_rows
-
     time_s = np.asarray(time_s, dtype=np.float64)
     u = np.asarray(u, dtype=np.float64)
     x_start = np.asarray(x_start, dtype=np.float64)

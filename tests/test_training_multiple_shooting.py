@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from hybridfmu.evaluation.windows import (MIN_WINDOW_SAMPLES, batched_window_rows, window_samples, window_starts,
-                                          windowed_trajectory)
+from hybridfmu.training.multiple_shooting import (MIN_WINDOW_SAMPLES, batched_window_rows, window_samples,
+                                                 window_starts, windowed_trajectory)
 from hybridfmu.training.inference import simulate_neural_fmu, simulate_neural_fmu_windows
 from test_training_trainer import H, NumpyPendulum, make_model, pendulum_inputs
 from hybridfmu.training.data import ManeuverArrays
