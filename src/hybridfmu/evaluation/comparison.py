@@ -28,9 +28,6 @@ FURTHER_MODELS = ("fmu_effects", "hybrid", "ceiling")
 #: Every compared model, in the order of the reports.
 MODELS = ("fmu", "fmu_effects", "neural_fmu", "hybrid", "ceiling")
 
-#: The models a user takes away (trained or diagnosed); the ceiling is a yardstick, not one of them.
-CANDIDATE_MODELS = ("fmu_effects", "neural_fmu", "hybrid")
-
 
 def trajectory_columns(signals: list[str]) -> list[str]:
     """Columns of the saved trajectories used here: ``time_s`` and ``<source>_<signal>``."""
