@@ -317,8 +317,8 @@ def test_withheld_cases_follow_the_sections_they_are_derived_from(tmp_path):
 
 def test_the_best_neural_fmu_chosen_over_whole_maneuvers(tiny_run, tmp_path):
     """With hpo.selection the search's finalists run open loop over the whole train and validation maneuvers and
-    select_best takes the one with the smallest error relative to the FMU; the trained rungs are reused. (Last in
-    this module: it changes the tiny run's hpo/best.json.)"""
+    select_best takes the one with the smallest error relative to the FMU; the trained rungs are reused. (Second to
+    last in this module: it changes the tiny run's hpo/best.json, and the last test keeps its choice.)"""
     workdir, results, config, _ = tiny_run
     changed = copy.deepcopy(config)
     _set("hpo", "searches", {"hpo": {"selection": {"maneuvers": ["train", "validation"], "top": 2}}})(changed)
@@ -352,7 +352,8 @@ def test_the_hybrids_physical_layer_competes_in_its_final_choice(tiny_run, tmp_p
     it changes the tiny run's hybrid/best.json.)"""
     workdir, results, config, _ = tiny_run
     changed = copy.deepcopy(config)
-    _set("hpo", "searches", {"hybrid": {"selection": {"maneuvers": ["train", "validation"], "top": 1}}})(changed)
+    _set("hpo", "searches", {"hpo": {"selection": {"maneuvers": ["train", "validation"], "top": 2}},  # as left
+                             "hybrid": {"selection": {"maneuvers": ["train", "validation"], "top": 1}}})(changed)
     configfile = tmp_path / "tiny_hybrid_selection.yaml"
     configfile.write_text(yaml.safe_dump(changed, sort_keys=False))
     best_path = results / "hybrid" / "best.json"

@@ -100,7 +100,7 @@ def spread_text(stats: dict[str, Any] | None, digits: int = 3, percent: bool = F
     if not stats or stats.get("median") is None:
         return "n/a"
     if percent:
-        fmt = lambda v: f"{100.0 * v:.{max(digits - 1, 1)}g} %"  # noqa: E731
+        fmt = lambda v: f"{100.0 * v:.0f} %" if 100.0 * v >= 9.95 else f"{100.0 * v:.1f} %"  # noqa: E731
     else:
         fmt = lambda v: ("×" if factor else "") + _number(float(v), digits)  # noqa: E731
     if stats.get("n", 0) <= 1 or stats["min"] == stats["max"]:
