@@ -23,10 +23,10 @@ import pandas as pd
 from hybridfmu.evaluation.best import best_trial_summary
 from hybridfmu.evaluation.comparison import ManeuverRun, role_metrics, tolerance_settings
 from hybridfmu.evaluation.tracking import log_evaluation_run, resolve_tracking
-from hybridfmu.training.multiple_shooting import describe_windows, window_samples, windowed_trajectory
 from hybridfmu.io import read_json, write_json_atomic, write_parquet_atomic
 from hybridfmu.model.delay import describe_delays
 from hybridfmu.tracking.mlflow_store import mlflow_key
+from hybridfmu.training.multiple_shooting import describe_windows, window_samples, windowed_trajectory
 
 LOG = logging.getLogger(__name__)
 
@@ -153,7 +153,8 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
     Writes ``trajectory_path`` (Parquet: ``time_s``; per target signal ``data_<signal>``, ``fmu_<signal>``,
     ``neural_fmu_<signal>`` and ``<model>_<signal>`` of the further models, and ``windowed_<model>_<signal>``
     of every model over windows restarted from the measured state
-    (:mod:`hybridfmu.training.multiple_shooting`); per FMU state ``fmu_state_<state>``, ``neural_fmu_state_<state>``, ``<model>_state_<state>``; model units) and ``learned_path`` (JSON:
+    (:mod:`hybridfmu.training.multiple_shooting`); per FMU state ``fmu_state_<state>``,
+    ``neural_fmu_state_<state>``, ``<model>_state_<state>``; model units) and ``learned_path`` (JSON:
     ``{"maneuver", "trial_id", "signals", "dt_s", "gates", "x0", "wall_time_s"}``, and ``hybrid``: the
     hybrid's ``{"trial_id", "dt_s", "gates", "effects"}``). Returns the latter.
     """
@@ -192,7 +193,8 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
     windowed = {
         "fmu": windowed_trajectory(lambda t, v, x: simulate_fmu_open_loop(model.fmu.rhs.model, t, v, x)[0],
                                    time_s, measured.u, x_fmu, steps),
-        "neural_fmu": simulate_neural_fmu_windows(model, time_s, measured.u, start_states(measured.x, states), steps)}
+        "neural_fmu": simulate_neural_fmu_windows(model, time_s, measured.u, start_states(measured.x, states),
+                                                  steps)}
     columns: dict[str, np.ndarray] = {"time_s": time_s}
     for k, signal in enumerate(measured.target_signals):
         columns[f"data_{signal}"] = measured.targets[:, k]
