@@ -315,45 +315,13 @@ def test_withheld_cases_follow_the_sections_they_are_derived_from(tmp_path):
         assert planned_rules(output.stdout + output.stderr) == expected, (name, output.stdout[-4000:])
 
 
-def test_the_best_neural_fmu_chosen_over_whole_maneuvers(tiny_run, tmp_path):
-    """With hpo.selection the search's finalists run open loop over the whole train and validation maneuvers and
-    select_best takes the one with the smallest error relative to the FMU; the trained rungs are reused. (Second to
-    last in this module: it changes the tiny run's hpo/best.json, and the last test keeps its choice.)"""
-    workdir, results, config, _ = tiny_run
-    changed = copy.deepcopy(config)
-    _set("hpo", "searches", {"hpo": {"selection": {"maneuvers": ["train", "validation"], "top": 2}}})(changed)
-    configfile = tmp_path / "tiny_selection.yaml"
-    configfile.write_text(yaml.safe_dump(changed, sort_keys=False))
-    best_path = results / "hpo" / "best.json"
-    target = str(best_path.relative_to(workdir))
-    assert planned_rules(snakemake(workdir, configfile, "-n", target).stdout) == {"score_finalists", "select_best"}
-    before = json.loads(best_path.read_text())
-    snakemake(workdir, configfile, target)
-    scores = json.loads((results / "hpo" / "finalists.json").read_text())
-    assert scores["maneuvers"] == [next(name for name, item in config["maneuvers"].items() if item["role"] == role)
-                                   for role in ("train", "validation")]
-    ranked = [entry["trial_id"] for entry in before["ranking"]][:2]
-    assert [f["trial_id"] for f in scores["finalists"]] == ranked
-    finite = [f for f in scores["finalists"] if f["score"] is not None]
-    best = json.loads(best_path.read_text())
-    if finite:
-        chosen = min(finite, key=lambda f: f["score"])
-        assert scores["chosen"] == chosen["trial_id"] == best["trial_id"]
-        assert best["selection"]["by"] == "maneuvers" and best["selection"]["score"] == chosen["score"]
-    else:
-        assert best["selection"]["by"] == "objective" and best["trial_id"] == before["trial_id"]
-    log = (results / "logs" / "score_finalists" / "hpo.log").read_text()
-    assert "finalists of search" in log and "simulated s/s" in log
-
-
 def test_the_hybrids_physical_layer_competes_in_its_final_choice(tiny_run, tmp_path):
     """With a selection for the hybrid's search its physical layer (the FMU + effects, ANN at zero) is scored over
-    the whole maneuvers beside the finalists; the chosen hybrid is never worse than it there. (Last in this module:
-    it changes the tiny run's hybrid/best.json.)"""
+    the whole maneuvers beside the finalists; the chosen hybrid is never worse than it there. (Second to last in
+    this module: it changes the tiny run's hybrid/best.json; the last test needs nothing downstream of it.)"""
     workdir, results, config, _ = tiny_run
     changed = copy.deepcopy(config)
-    _set("hpo", "searches", {"hpo": {"selection": {"maneuvers": ["train", "validation"], "top": 2}},  # as left
-                             "hybrid": {"selection": {"maneuvers": ["train", "validation"], "top": 1}}})(changed)
+    _set("hpo", "searches", {"hybrid": {"selection": {"maneuvers": ["train", "validation"], "top": 1}}})(changed)
     configfile = tmp_path / "tiny_hybrid_selection.yaml"
     configfile.write_text(yaml.safe_dump(changed, sort_keys=False))
     best_path = results / "hybrid" / "best.json"
@@ -380,3 +348,35 @@ def test_the_hybrids_physical_layer_competes_in_its_final_choice(tiny_run, tmp_p
         assert untrained_is_physical_layer(model)
     log = (results / "logs" / "score_finalists" / "hybrid.log").read_text()
     assert "physical layer (the FMU + effects, ANN at zero): score" in log
+
+
+def test_the_best_neural_fmu_chosen_over_whole_maneuvers(tiny_run, tmp_path):
+    """With hpo.selection the search's finalists run open loop over the whole train and validation maneuvers and
+    select_best takes the one with the smallest error relative to the FMU; the trained rungs are reused. (Last in
+    this module: it changes the tiny run's hpo/best.json.)"""
+    workdir, results, config, _ = tiny_run
+    changed = copy.deepcopy(config)
+    _set("hpo", "searches", {"hpo": {"selection": {"maneuvers": ["train", "validation"], "top": 2}}})(changed)
+    configfile = tmp_path / "tiny_selection.yaml"
+    configfile.write_text(yaml.safe_dump(changed, sort_keys=False))
+    best_path = results / "hpo" / "best.json"
+    target = str(best_path.relative_to(workdir))
+    assert planned_rules(snakemake(workdir, configfile, "-n", target).stdout) == {"score_finalists", "select_best"}
+    before = json.loads(best_path.read_text())
+    snakemake(workdir, configfile, target)
+    scores = json.loads((results / "hpo" / "finalists.json").read_text())
+    assert scores["maneuvers"] == [next(name for name, item in config["maneuvers"].items() if item["role"] == role)
+                                   for role in ("train", "validation")]
+    ranked = [entry["trial_id"] for entry in before["ranking"]][:2]
+    assert [f["trial_id"] for f in scores["finalists"]] == ranked
+    finite = [f for f in scores["finalists"] if f["score"] is not None]
+    best = json.loads(best_path.read_text())
+    if finite:
+        chosen = min(finite, key=lambda f: f["score"])
+        assert scores["chosen"] == chosen["trial_id"] == best["trial_id"]
+        assert best["selection"]["by"] == "maneuvers" and best["selection"]["score"] == chosen["score"]
+    else:
+        assert best["selection"]["by"] == "objective" and best["trial_id"] == before["trial_id"]
+    log = (results / "logs" / "score_finalists" / "hpo.log").read_text()
+    assert "finalists of search" in log and "simulated s/s" in log
+

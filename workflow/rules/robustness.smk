@@ -7,6 +7,17 @@ ROBUSTNESS = f"{RESULTS}/robustness"
 OWN_SEED = int(config.get("seed", 0))
 OTHER_SEEDS = [seed for seed in ROBUSTNESS_SEEDS if seed != OWN_SEED]
 
+
+def robustness_cores():
+    """Cores of a seed's nested run: all of this run's (--cores / -j), 1 where none is set (a cluster profile)."""
+    from snakemake.exceptions import WorkflowError
+
+    try:
+        return max(1, int(workflow.cores))
+    except (WorkflowError, TypeError):
+        return 1
+
+
 if "test" in EVAL_ROLES:
 
     rule robustness_seed:
@@ -19,7 +30,7 @@ if "test" in EVAL_ROLES:
             run_log=lambda wildcards: f"{ROBUSTNESS}/seed{wildcards.seed}/run.log",
         wildcard_constraints:
             seed="|".join(map(str, OTHER_SEEDS)) if OTHER_SEEDS else "(?!)",
-        threads: workflow.cores
+        threads: robustness_cores()
         log:
             f"{RESULTS}/logs/robustness_seed/seed{{seed}}.log",
         benchmark:
