@@ -187,11 +187,10 @@ def write_physical_layer_checkpoint(*, plan_path: str | Path, train_arrays_path:
 
     from hybridfmu.io import atomic_path
     from hybridfmu.training.physical_layer_rollout import untrained_is_physical_layer
-    from hybridfmu.training.plan import plan_entry
-    from hybridfmu.training.trial import CHECKPOINT_FORMAT, file_sha256, trial_model
+    from hybridfmu.training.trial import CHECKPOINT_FORMAT, file_sha256, first_configuration, trial_model
 
     plan = read_json(plan_path)
-    entry = plan_entry(plan, plan["brackets"][0]["bracket"], 0, 0)
+    entry = first_configuration(plan)
     _, _, statistics, model = trial_model(plan, entry, model_config, train_arrays_path, validation_arrays_path,
                                           statistics_path, fmu_path, calibration_path, diagnosed_path)
     if not untrained_is_physical_layer(model):

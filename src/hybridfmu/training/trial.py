@@ -196,6 +196,12 @@ def trial_model(plan: dict[str, Any], entry: dict[str, Any], model_config: dict[
     return train, valid, statistics, model
 
 
+def first_configuration(plan: dict[str, Any]) -> dict[str, Any]:
+    """The plan entry of the search's first configuration at rung 0: untrained, a hybrid's is its physical layer
+    (every configuration's is the same)."""
+    return plan_entry(plan, plan["brackets"][0]["bracket"], 0, 0)
+
+
 def physical_layer_sources(fmu_path: str | Path, calibration_path: str | Path | None,
                            diagnosed_path: str | Path | None) -> dict[str, str]:
     """{file role: SHA-256} of the files a hybrid's physical layer is made of (part of its rollout's key)."""
@@ -216,10 +222,9 @@ def run_physical_layer_rollout(*, plan_path: str | Path, train_arrays_path: str 
         ValueError: the search's model is not a hybrid (``model.physics_terms`` is ``none``).
     """
     plan = read_json(plan_path)
-    first = plan["brackets"][0]
-    entry = plan_entry(plan, first["bracket"], 0, 0)
-    _, valid, _, model = trial_model(plan, entry, model_config, train_arrays_path, validation_arrays_path,
-                                     statistics_path, fmu_path, calibration_path, diagnosed_path)
+    _, valid, _, model = trial_model(plan, first_configuration(plan), model_config, train_arrays_path,
+                                     validation_arrays_path, statistics_path, fmu_path, calibration_path,
+                                     diagnosed_path)
     if model.spec.physics_effects is None:
         raise ValueError("config.model.physics_terms is 'none': a neural FMU has no physical layer to roll out")
     started = time.perf_counter()
