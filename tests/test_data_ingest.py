@@ -24,12 +24,19 @@ POLE_PAIRS = 4
 NM_PER_BAR = 0.0125
 
 
+#: The demo's signals that only its closed loop reads (the ECU's references, logged by the bench); the synthetic
+#: logs here carry the measured channels only.
+ECU_REFERENCE_SIGNALS = ("pressure_request", "pressure_mode", "angle_ref", "speed_ff", "accel_ff", "speed_limit",
+                         "current_limit")
+
+
 def case_config(**sections) -> dict:
     """The demo case's data sections (IPBMotor's interface from its C sources), validated, with overrides."""
     demo = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
     config = {key: copy.deepcopy(demo[key]) for key in ("case", "fmu", "maneuvers", "signals", "transforms",
                                                          "roles", "ingest")}
     config["maneuvers"] = {"run": {"role": "train", "raw": "run.mf4"}}
+    config["signals"] = {name: entry for name, entry in config["signals"].items() if name not in ECU_REFERENCE_SIGNALS}
     config.update(copy.deepcopy(sections))
     return validate_case_config(config)
 

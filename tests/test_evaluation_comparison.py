@@ -179,3 +179,46 @@ def test_in_tolerance_metrics_distributions_and_warnings_by_hand():
                                                                                  data[:, 1], data[:, 1])])
     with pytest.raises(ValueError, match=r"config.evaluation.tolerance.signals: \['torque'\]"):
         tolerance_settings({"signals": {"torque": 1.0}}, SIGNALS, runs)
+
+
+def test_closed_loop_errors_factors_and_warnings_by_hand(tmp_path):
+    """Closed-loop trajectories: errors per model, factors against the FMU's closed loop, median over the maneuvers,
+    a model worse than its own physics in closed loop is named; read back from the saved frames."""
+    import pandas as pd
+
+    from hybridfmu.evaluation.evaluate import read_closed_loop
+    from hybridfmu.evaluation.report import distribution_table
+
+    t = np.linspace(0.0, 1.0, 11)
+    data = np.column_stack([np.linspace(0, 2, 11), np.full(11, 2.0)])
+    runs = []
+    for name, hybrid_error in (("a", 0.01), ("b", 0.2), ("c", 0.04)):
+        closed = {"fmu": data + 0.1, "neural_fmu": data + 0.05, "fmu_effects": data + 0.02,
+                  "hybrid": data + hybrid_error}
+        runs.append(ManeuverRun(name, t, SIGNALS, data, data + 1.0, data + 0.5, closed_loop=closed,
+                                further={"fmu_effects": data + 0.3, "hybrid": data + 0.3}))
+    metrics = role_metrics("test", runs, ZOOM, {})
+    assert metrics["per_maneuver"]["a"]["closed_loop"]["hybrid"]["angle_mae"] == pytest.approx(0.01)
+    factor = metrics["distribution"]["hybrid"]["angle_mae_closed_loop_factor"]  # 0.1 over 0.01, 0.2, 0.04
+    assert (factor["median"], factor["min"], factor["max"]) == pytest.approx((2.5, 0.5, 10.0))
+    assert metrics["distribution"]["neural_fmu"]["speed_mae_closed_loop_factor"]["median"] == pytest.approx(2.0)
+    closed_warnings = [w for w in metrics["warnings"] if "closed-loop" in w]
+    assert closed_warnings == metrics["warnings"] and len(closed_warnings) == 4  # b and c: 0.2, 0.04 > 0.02
+    assert closed_warnings[0].startswith("b: hybrid is worse than fmu_effects, its own physics, in closed-loop angle "
+                                         "MAE (0.2 against 0.02")
+    assert "closed-loop MAE vs FMU" in distribution_table({"test": metrics})[0]
+    assert "closed-loop" not in distribution_table({"test": role_metrics("test", [
+        ManeuverRun("a", t, SIGNALS, data, data + 1.0, data + 0.5)], ZOOM, {})})[0]
+    # the rule's files: one per model, checked against the maneuver's grid
+    paths = []
+    for kind in ("fmu", "hybrid"):
+        path = tmp_path / f"{kind}.parquet"
+        pd.DataFrame({"time_s": t, **{f"closed_loop_{kind}_{s}": runs[0].closed_loop[kind][:, k]
+                                      for k, s in enumerate(SIGNALS)}}).to_parquet(path)
+        paths.append(path)
+    columns = read_closed_loop(paths, ["fmu", "hybrid"], SIGNALS, t)
+    np.testing.assert_array_equal(columns["closed_loop_hybrid_angle"], data[:, 0] + 0.01)
+    with pytest.raises(ValueError, match=r"fmu.parquet: time_s does not match the maneuver.s grid"):
+        read_closed_loop(paths, ["fmu", "hybrid"], SIGNALS, t[:-1])
+    with pytest.raises(ValueError, match=r"fmu.parquet: column\(s\) \['closed_loop_neural_fmu_angle'"):
+        read_closed_loop(paths[:1], ["neural_fmu"], SIGNALS, t)

@@ -21,7 +21,7 @@ DEMO = REPO / "config" / "config.yaml"
 #: Rules that may read a held-out maneuver's files: the bench (the emulated world and its own spread check), the
 #: data preparation of every maneuver, and the evaluation after the models are chosen.
 EVALUATION_SIDE = {"emulate_bench", "check_bench_spread", "ingest", "select_segments", "simulate_baseline",
-                   "simulate_ceiling", "simulate_best", "evaluate", "plot", "report", "summary", "all"}
+                   "simulate_ceiling", "simulate_best", "simulate_closed_loop", "evaluate", "plot", "report", "summary", "all"}
 
 
 def dry_run_inputs(workdir: Path) -> list[tuple[str, list[str]]]:
@@ -53,7 +53,7 @@ def test_held_out_maneuvers_are_read_by_no_rule_before_the_evaluation(tmp_path):
                          "|".join(map(re.escape, unseen)) + r")\.")
     readers = {rule for rule, inputs in jobs for path in inputs if pattern.search(path)}
     assert readers and readers <= EVALUATION_SIDE, sorted(readers - EVALUATION_SIDE)
-    assert {"simulate_best", "evaluate"} <= readers  # the check sees the evaluation read them
+    assert {"simulate_best", "simulate_closed_loop", "evaluate"} <= readers  # the check sees the evaluation read them
 
 
 def test_the_held_out_check_names_test_maneuvers_only():

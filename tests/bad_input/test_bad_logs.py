@@ -35,11 +35,17 @@ DEMO = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
 RATE_HZ = 10_000.0
 DURATION_S = 0.5
 
+#: The demo's signals that only its closed loop reads (the ECU's references, logged by the bench); the synthetic
+#: logs here carry the measured channels only.
+ECU_REFERENCE_SIGNALS = ("pressure_request", "pressure_mode", "angle_ref", "speed_ff", "accel_ff", "speed_limit",
+                         "current_limit")
+
 
 def demo_config(**signal_changes) -> dict:
     """The demo case's data sections (IPBMotor from its C sources), one maneuver 'run', signal entries changed."""
     config = {key: copy.deepcopy(DEMO[key]) for key in ("case", "fmu", "signals", "transforms", "roles", "ingest")}
     config["maneuvers"] = {"run": {"role": "train", "raw": "run.mf4"}}
+    config["signals"] = {name: entry for name, entry in config["signals"].items() if name not in ECU_REFERENCE_SIGNALS}
     for name, change in signal_changes.items():
         config["signals"][name].update(change)
     return validate_case_config(config)

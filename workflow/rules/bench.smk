@@ -47,7 +47,7 @@ if "bench" in config:
         output:
             trajectory=f"{RESULTS}/evaluation/ceiling/{{maneuver}}.parquet",
         params:
-            config={**config_sections("bench", "seed", "signals", "maneuvers"),
+            config={**config_sections("bench", "seed", "signals", "maneuvers", "closed_loop"),
                     "fmu": {"parameters": config["fmu"].get("parameters", {})}},
             case=case_sections(),
             window_length_s=(config.get("evaluation") or {}).get("windows", {}).get("length_s"),

@@ -36,6 +36,10 @@ MANEUVERS = list(config["maneuvers"])
 # a hybrid (model.physics_terms): a second search (train.smk) and a fourth model in the evaluation
 from hybridfmu.model.settings import uses_physics
 HYBRID = uses_physics(config.get("model") or {})
+# the hybrid search's physical layer (ANN at zero): rolled out once for its rung 0, a candidate of its final choice
+# (train.smk), and the FMU + diagnosed effects of the closed-loop evaluation (evaluate.smk)
+PHYSICAL_LAYER_ROLLOUT = f"{RESULTS}/hybrid/physical_layer_rollout.pt"
+PHYSICAL_LAYER_CHECKPOINT = f"{RESULTS}/hybrid/physical_layer.pt"
 # a hybrid whose delays start at the time-offset stage's estimates gets its own, on its physical layer (rule
 # hybrid_time_offset in train.smk; the report and the summary show them beside its delays)
 from hybridfmu.data.settings import section_settings as _section_settings

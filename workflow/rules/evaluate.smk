@@ -69,11 +69,48 @@ rule simulate_best:
         "../scripts/simulate_best.py"
 
 
+# Closed loop (config closed_loop: the case's control software): each model driven by the controller over all
+# evaluated maneuvers side by side, one job per model (hybridfmu.evaluation.closed_loop).
+CLOSED_LOOP = bool((config.get("closed_loop") or {}).get("controller"))
+CLOSED_LOOP_MODELS = (["fmu", "neural_fmu"] + (["fmu_effects", "hybrid"] if HYBRID else [])) if CLOSED_LOOP else []
+CLOSED_LOOP_DIR = f"{RESULTS}/evaluation/closed_loop"
+
+if CLOSED_LOOP:
+
+    rule simulate_closed_loop:
+        input:
+            best=f"{RESULTS}/hpo/best.json",
+            fmu=fmu_path(),
+            calibration=CALIBRATION_JSON,
+            data=expand(f"{RESULTS}/data/{{maneuver}}.parquet", maneuver=EVAL_MANEUVERS),
+            diagnosed=[DIAGNOSED_MODEL] if HYBRID else [],
+            hybrid_best=[f"{RESULTS}/hybrid/best.json"] if HYBRID else [],
+            physical_layer=[PHYSICAL_LAYER_CHECKPOINT] if HYBRID else [],
+        output:
+            trajectories=expand(f"{CLOSED_LOOP_DIR}/{{{{model}}}}/{{maneuver}}.parquet", maneuver=EVAL_MANEUVERS),
+        params:
+            case=case_sections(),
+            maneuvers=EVAL_MANEUVERS,
+            controller_config={**config_sections("bench", "seed", "closed_loop"),
+                               "fmu": {"parameters": config["fmu"].get("parameters", {})}},
+        wildcard_constraints:
+            model="|".join(CLOSED_LOOP_MODELS),
+        threads: 1
+        log:
+            f"{RESULTS}/logs/simulate_closed_loop/{{model}}.log",
+        benchmark:
+            f"{RESULTS}/benchmarks/simulate_closed_loop/{{model}}.tsv"
+        script:
+            "../scripts/simulate_closed_loop.py"
+
+
 rule evaluate:
     input:
         best=f"{RESULTS}/hpo/best.json",
         trajectories=expand(f"{RESULTS}/evaluation/trajectories/{{maneuver}}.parquet", maneuver=EVAL_MANEUVERS),
         learned=expand(f"{RESULTS}/evaluation/trajectories/{{maneuver}}.learned.json", maneuver=EVAL_MANEUVERS),
+        closed_loop=expand(f"{CLOSED_LOOP_DIR}/{{model}}/{{maneuver}}.parquet", model=CLOSED_LOOP_MODELS,
+                           maneuver=EVAL_MANEUVERS),
     output:
         metrics=expand(f"{RESULTS}/metrics/{{role}}.json", role=EVAL_ROLES),
         run=f"{RESULTS}/evaluation/mlflow_run.json",
@@ -81,6 +118,7 @@ rule evaluate:
         maneuvers={name: config["maneuvers"][name]["role"] for name in EVAL_MANEUVERS},
         zoom=EVAL_CONFIG.get("zoom", {}),
         tolerance=EVAL_CONFIG.get("tolerance", {}),
+        closed_loop_models=CLOSED_LOOP_MODELS,
         mlflow=mlflow_destination(),
         results_dir=config.get("results_dir", "results"),
         case=CASE,

@@ -161,8 +161,6 @@ def shared_rollout(wildcards):
     return [PHYSICAL_LAYER_ROLLOUT] if wildcards.search == "hybrid" and int(wildcards.rung) == 0 else []
 
 
-PHYSICAL_LAYER_ROLLOUT = f"{RESULTS}/hybrid/physical_layer_rollout.pt"
-PHYSICAL_LAYER_CHECKPOINT = f"{RESULTS}/hybrid/physical_layer.pt"
 if HYBRID:
 
     rule physical_layer_rollout:

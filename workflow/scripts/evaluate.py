@@ -13,6 +13,8 @@ run_evaluation(
     run_path=snakemake.output.run,
     zoom_settings=snakemake.params.zoom,
     tolerance=snakemake.params.tolerance,
+    closed_loop_paths=list(snakemake.input.closed_loop),
+    closed_loop_models=list(snakemake.params.closed_loop_models),
     mlflow_config=snakemake.params.mlflow,
     results_dir=snakemake.params.results_dir,
     case=snakemake.params.case,

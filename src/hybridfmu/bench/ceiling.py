@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from ..data.readers import read_mdf
+from ..evaluation.closed_loop import closed_loop_settings, make_controller
 from ..io import write_parquet_atomic
 from .plant import Plant
 from .settings import BenchSettings, parse_bench_settings
@@ -113,6 +114,52 @@ def true_plant_open_loop(settings: BenchSettings, k_first: int, duties: np.ndarr
     return np.column_stack([np.interp(query, times_abs, states_arr[:, i]) for i in range(len(STATE_NAMES))])
 
 
+def true_plant_closed_loop(settings: BenchSettings, controller: Any, start_s: float, period_s: float,
+                           x0: Mapping[str, float], first_duties: np.ndarray, signals: Mapping[str, np.ndarray],
+                           outputs: Mapping[str, str]) -> np.ndarray:
+    """The true plant driven by the case's controller from ``x0``, as the closed-loop evaluation drives the models.
+
+    Per grid sample k (absolute time ``start_s + k period_s``): the controller reads the plant's states and the
+    logged ``signals`` at sample k; the plant advances one period with the controller's outputs of the sample
+    before (the logged ``first_duties`` at sample 0). The plant's own hydraulics and supply act (no logged load).
+
+    Args:
+        settings: the bench's settings; controller: a fresh instance of the case's controller.
+        start_s: absolute time (s) of the grid's first sample; period_s: the grid's sample period (s).
+        x0: initial state by :data:`STATE_NAMES`; first_duties: (3,) the logged duties (0..1) at sample 0.
+        signals: the controller's signal name -> (T,) logged values (model units).
+        outputs: the controller's output name -> FMU input (``d_a``, ``d_b``, ``d_c``).
+
+    Returns:
+        (T, 4) states in :data:`STATE_NAMES` order on the grid.
+    """
+    if sorted(outputs.values()) != ["d_a", "d_b", "d_c"]:
+        raise ValueError(f"config.closed_loop.outputs: the bench's plant takes the duties d_a, d_b, d_c from a "
+                         f"controller, got {sorted(outputs.values())}")
+    plant = Plant(settings.true_parameters, settings.true_curve(), settings.effects, settings.supply, period_s,
+                  settings.substeps, settings.rest_angle_rad)
+    theta_min, theta_max = float(settings.true_parameters["theta_min"]), float(settings.true_parameters["theta_max"])
+    plant.i_d, plant.i_q = float(x0.get("i_d", 0.0)), float(x0.get("i_q", 0.0))
+    plant.theta = min(max(float(x0.get("theta", settings.rest_angle_rad)), theta_min), theta_max)
+    plant.omega = float(x0.get("omega", 0.0))
+    n = len(next(iter(signals.values())))
+    rows = [dict(zip(signals, values)) for values in zip(*(np.asarray(v, dtype=float).tolist()
+                                                          for v in signals.values()))]
+    by_input = {name: output for output, name in outputs.items()}
+    applied = [float(value) for value in first_duties]
+    states = np.empty((n, len(STATE_NAMES)))
+    controller.reset(dict(zip(STATE_NAMES, (plant.i_d, plant.i_q, plant.theta, plant.omega))), rows[0])
+    for k in range(n):
+        x = (plant.i_d, plant.i_q, plant.theta, plant.omega)
+        states[k] = x
+        if k == n - 1:
+            break
+        command = controller.step(dict(zip(STATE_NAMES, x)), rows[k])
+        plant.advance(applied[0], applied[1], applied[2], start_s + k * period_s)
+        applied = [float(command[by_input[name]]) for name in ("d_a", "d_b", "d_c")]
+    return states
+
+
 def write_ceiling(config: Mapping[str, Any], maneuver: str, raw_path: str | Path, data_path: str | Path,
                   roles: Any, output_path: str | Path, window_length_s: float | None = None) -> pd.DataFrame:
     """Simulate the true plant over an ingested maneuver and write its trajectory.
@@ -124,7 +171,9 @@ def write_ceiling(config: Mapping[str, Any], maneuver: str, raw_path: str | Path
         output_path: Parquet with ``time_s``, ``ceiling_state_<state>`` for each plant state,
             ``ceiling_<signal>`` for each target signal (model units) and ``windowed_ceiling_<signal>``: the same
             over the evaluation's windows, each started from the measured state
-            (:mod:`hybridfmu.training.multiple_shooting`).
+            (:mod:`hybridfmu.training.multiple_shooting`); with ``config.closed_loop``, also
+            ``closed_loop_ceiling_<signal>``: the true plant driven by the case's controller
+            (:func:`true_plant_closed_loop`).
         window_length_s: config ``evaluation.windows.length_s`` (None: chosen as the evaluation chooses it).
     """
     from hybridfmu.training.multiple_shooting import window_samples, windowed_trajectory
@@ -157,6 +206,15 @@ def write_ceiling(config: Mapping[str, Any], maneuver: str, raw_path: str | Path
                              f"{list(STATE_NAMES)}")
         columns[f"ceiling_{signal}"] = states[:, STATE_NAMES.index(state)]
         columns[f"windowed_ceiling_{signal}"] = windowed[:, STATE_NAMES.index(state)]
+    closed_loop = closed_loop_settings(config, roles)
+    if closed_loop is not None:
+        period_s = float(np.median(np.diff(time_s)))
+        duties = frame[[roles.inputs[name] for name in ("d_a", "d_b", "d_c")]].to_numpy(dtype=float)[0]
+        signals = {name: frame[signal].to_numpy(dtype=float) for name, signal in closed_loop.signals.items()}
+        closed = true_plant_closed_loop(settings, make_controller(closed_loop, config, period_s), start_s, period_s,
+                                        x0, duties, signals, closed_loop.outputs)
+        for state, signal in zip(roles.target_states, roles.target_signals):
+            columns[f"closed_loop_ceiling_{signal}"] = closed[:, STATE_NAMES.index(state)]
     result = pd.DataFrame(columns)
     write_parquet_atomic(output_path, result)
     errors = ", ".join(f"{signal} MAE {np.mean(np.abs(columns[f'ceiling_{signal}'] - frame[signal])):.4g}"

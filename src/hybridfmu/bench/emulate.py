@@ -51,6 +51,19 @@ CHANNELS: dict[str, tuple[str, str]] = {
     "Sply_UDc": ("V", "inverter supply voltage"),
 }
 
+#: The ECU's references, as its measurement interface records them every control period (the setpoints a
+#: controller declared for closed-loop simulation reads): name -> (unit, comment, field of ``References``, factor
+#: from the field's unit to the channel's).
+REFERENCE_CHANNELS: dict[str, tuple[str, str, str, float]] = {
+    "BrkCtl_PressureReq": ("bar", "brake pressure request", "pressure_ref_bar", 1.0),
+    "BrkCtl_PressureMode": ("-", "1 while the pressure request is active, 0 in position mode", "pressure_mode", 1.0),
+    "MotCtl_AngleRef": ("deg", "rotor angle reference of the position loop", "theta_ref_rad", RAD_TO_DEG),
+    "MotCtl_SpeedFf": ("rpm", "speed feed-forward of the motion profile", "omega_ff_rad_s", RAD_S_TO_RPM),
+    "MotCtl_AccelFf": ("rad/s^2", "acceleration feed-forward of the motion profile", "alpha_ff_rad_s2", 1.0),
+    "MotCtl_SpeedLim": ("rpm", "speed limit in force", "speed_limit_rad_s", RAD_S_TO_RPM),
+    "MotCtl_CurrentLim": ("A", "q-current limit in force", "current_limit_a", 1.0),
+}
+
 
 @dataclass
 class BenchRun:
@@ -222,6 +235,8 @@ def run_maneuver(settings: BenchSettings, maneuver: str, duration_s: float | Non
         "MotCur_IPhC": np.asarray(log_ic),
         "Hyd_Pressure": np.asarray(log_p),
         "Sply_UDc": np.asarray(log_u),
+        **{name: factor * np.asarray(getattr(refs, field), dtype=float)
+           for name, (_, _, field, factor) in REFERENCE_CHANNELS.items()},
     }
     truth = {
         "theta_rad": np.asarray(tr_theta), "omega_rad_s": np.asarray(tr_omega), "i_d_a": np.asarray(tr_id),
@@ -236,8 +251,11 @@ def run_maneuver(settings: BenchSettings, maneuver: str, duration_s: float | Non
 
 def channel_groups(run: BenchRun, settings: BenchSettings) -> list[ChannelGroup]:
     """Group the logged channels by time base, as the measurement tool records them."""
+    described = {**CHANNELS, **{name: (unit, comment) for name, (unit, comment, _, _) in REFERENCE_CHANNELS.items()}}
+
     def group(comment: str, timestamps: np.ndarray, names: list[str]) -> ChannelGroup:
-        return ChannelGroup(comment, timestamps, [Channel(name, run.logged[name], *CHANNELS[name]) for name in names])
+        return ChannelGroup(comment, timestamps, [Channel(name, run.logged[name], *described[name])
+                                                  for name in names])
 
     fast = f"{settings.pwm_frequency_hz:g} Hz"
     slow = f"{settings.sensors.slow_rate_hz:g} Hz"
@@ -247,6 +265,7 @@ def channel_groups(run: BenchRun, settings: BenchSettings) -> list[ChannelGroup]
         group(f"PWM duty cycles, {fast} raster", run.duty_time_s, ["MotCtl_DutyA", "MotCtl_DutyB", "MotCtl_DutyC"]),
         group(f"brake pressure, {slow} raster", run.slow_time_s, ["Hyd_Pressure"]),
         group(f"supply voltage, {slow} raster", run.slow_time_s, ["Sply_UDc"]),
+        group(f"ECU references, {fast} raster", run.time_s, list(REFERENCE_CHANNELS)),
     ]
 
 
@@ -353,7 +372,7 @@ def emulate_bench(config: Mapping[str, Any], maneuver: str, mdf_path: str | Path
                 [effect.name for effect in settings.effects], settings.true_parameters)
     run = run_maneuver(settings, maneuver, duration_s)
     description = (f"Test-bench recording, maneuver {maneuver}, PWM {settings.pwm_frequency_hz:g} Hz; "
-                   f"{len(CHANNELS)} channels in 4 groups with their own time bases")
+                   f"{len(CHANNELS) + len(REFERENCE_CHANNELS)} channels in 5 groups with their own time bases")
     write_mdf4(mdf_path, channel_groups(run, settings), description)
     truth = ground_truth(run, settings, planned)
     write_json_atomic(truth_path, truth)

@@ -46,6 +46,8 @@ class ManeuverRun:
         further: :data:`FURTHER_MODELS` name -> (T, n_t) open loop, for those the case has.
         windowed: model -> (T, n_t) over windows restarted from the measured state (multiple shooting,
             :mod:`hybridfmu.training.multiple_shooting`), for the models the trajectories have them of.
+        closed_loop: model -> (T, n_t) driven by the case's controller (:mod:`hybridfmu.evaluation.closed_loop`),
+            for the models the trajectories have them of.
     """
 
     maneuver: str
@@ -56,6 +58,7 @@ class ManeuverRun:
     neural_fmu: np.ndarray
     further: dict[str, np.ndarray] = field(default_factory=dict)
     windowed: dict[str, np.ndarray] = field(default_factory=dict)
+    closed_loop: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         expected = (np.shape(self.time_s)[0], len(self.signals))
@@ -75,6 +78,7 @@ class ManeuverRun:
             setattr(self, name, checked(name, getattr(self, name)))
         self.further = {name: checked(name, value) for name, value in self.further.items()}
         self.windowed = {name: checked(f"windowed {name}", value) for name, value in self.windowed.items()}
+        self.closed_loop = {name: checked(f"closed-loop {name}", value) for name, value in self.closed_loop.items()}
 
     @property
     def models(self) -> list[str]:
@@ -90,10 +94,12 @@ class ManeuverRun:
         arrays = [frame[[f"{kind}_{signal}" for signal in signals]].to_numpy(dtype=float) for kind in SOURCES]
         further = {name: frame[[f"{name}_{signal}" for signal in signals]].to_numpy(dtype=float)
                    for name in FURTHER_MODELS if all(f"{name}_{signal}" in frame.columns for signal in signals)}
-        windowed = {name: frame[[f"windowed_{name}_{signal}" for signal in signals]].to_numpy(dtype=float)
-                    for name in MODELS if all(f"windowed_{name}_{signal}" in frame.columns for signal in signals)}
+        windowed, closed_loop = (
+            {name: frame[[f"{prefix}_{name}_{signal}" for signal in signals]].to_numpy(dtype=float)
+             for name in MODELS if all(f"{prefix}_{name}_{signal}" in frame.columns for signal in signals)}
+            for prefix in ("windowed", "closed_loop"))
         return cls(maneuver, frame["time_s"].to_numpy(dtype=float), list(signals), *arrays, further=further,
-                   windowed=windowed)
+                   windowed=windowed, closed_loop=closed_loop)
 
     def values(self, model: str) -> np.ndarray:
         """(T, n_t) of ``model``: one of :attr:`models`."""
@@ -112,6 +118,10 @@ class ManeuverRun:
         """MAE/MSE/RMSE per target signal of ``model``'s windowed trajectory against the data, and the share of
         samples its windows did not reach (:func:`hybridfmu.evaluation.metrics.windowed_errors`)."""
         return windowed_errors(self.windowed[model], self.data, self.signals)
+
+    def closed_loop_errors(self, model: str) -> dict[str, float]:
+        """MAE/MSE/RMSE per target signal of ``model`` driven by the case's controller, against the data."""
+        return trajectory_errors(self.closed_loop[model], self.data, self.signals)
 
     def tolerance_errors(self, model: str, tolerance: dict[str, float]) -> dict[str, float | int | None]:
         """Share of time ``model`` stays within ``tolerance`` ({signal: model unit}) of the data, and its errors
@@ -147,19 +157,21 @@ def tolerance_settings(settings: dict[str, Any] | None, signals: list[str],
 
 
 def physics_warnings(per_maneuver: dict[str, dict], signals: list[str]) -> list[str]:
-    """One line per maneuver, model and target signal where a model is worse (whole-record MAE) than the physics
-    it is built on (:data:`OWN_PHYSICS`): a trained model worse than its own physics is a bug to look into."""
+    """One line per maneuver, model and target signal where a model is worse (whole-record MAE, open loop and, where
+    simulated, closed loop) than the physics it is built on (:data:`OWN_PHYSICS`): a trained model worse than its
+    own physics is a bug to look into."""
     lines = []
     for maneuver, entry in per_maneuver.items():
-        for model, physics in OWN_PHYSICS.items():
-            if model not in entry or physics not in entry:
-                continue
-            for signal in signals:
-                key = f"{signal}_mae"
-                worse, base = float(entry[model][key]), float(entry[physics][key])
-                if worse > base:
-                    lines.append(f"{maneuver}: {model} is worse than {physics}, its own physics, in {signal} MAE "
-                                 f"({worse:.4g} against {base:.4g}, x{base / worse:.3g})")
+        for where, errors in (("", entry), ("closed-loop ", entry.get("closed_loop") or {})):
+            for model, physics in OWN_PHYSICS.items():
+                if model not in errors or physics not in errors:
+                    continue
+                for signal in signals:
+                    key = f"{signal}_mae"
+                    worse, base = float(errors[model][key]), float(errors[physics][key])
+                    if worse > base:
+                        lines.append(f"{maneuver}: {model} is worse than {physics}, its own physics, in {where}"
+                                     f"{signal} MAE ({worse:.4g} against {base:.4g}, x{base / worse:.3g})")
     return lines
 
 
@@ -167,8 +179,9 @@ def distribution(per_maneuver: dict[str, dict], signals: list[str], models: list
     """Median, min and max over the maneuvers of every model's errors, factors against the FMU (FMU error / model
     error) and in-tolerance metrics: ``{model: {key: {"median", "min", "max", "n"}}}``, keys ``<signal>_mae``,
     ``<signal>_mse``, ``<signal>_mae_factor``, ``<signal>_mse_factor`` (not for the FMU), ``in_tolerance_share``,
-    ``tolerance_exits``, ``<signal>_mae_in_tolerance``, and over the windows restarted from the measured state
-    ``<signal>_mae_windowed`` and ``<signal>_mae_windowed_factor`` (not for the FMU)."""
+    ``tolerance_exits``, ``<signal>_mae_in_tolerance``, over the windows restarted from the measured state
+    ``<signal>_mae_windowed`` and ``<signal>_mae_windowed_factor`` (not for the FMU), and driven by the case's
+    controller ``<signal>_mae_closed_loop`` and ``<signal>_mae_closed_loop_factor`` (not for the FMU)."""
     out: dict[str, dict] = {}
     entries = list(per_maneuver.values())
     for model in models:
@@ -181,14 +194,16 @@ def distribution(per_maneuver: dict[str, dict], signals: list[str], models: list
                     if model != "fmu":
                         improvement = entry["improvement" if model == "neural_fmu" else f"improvement_{model}"]
                         keys.setdefault(f"{signal}_{measure}_factor", []).append(improvement[f"{signal}_{measure}"])
-            windowed = (entry.get("windowed") or {}).get(model)
-            if windowed:
-                fmu_windowed = entry["windowed"].get("fmu") or {}
+            for kind in ("windowed", "closed_loop"):
+                errors_of_kind = (entry.get(kind) or {}).get(model)
+                if not errors_of_kind:
+                    continue
+                fmu_of_kind = entry[kind].get("fmu") or {}
                 for signal in signals:
                     key = f"{signal}_mae"
-                    keys.setdefault(f"{key}_windowed", []).append(windowed[key])
-                    if model != "fmu" and fmu_windowed.get(key) is not None and windowed[key]:
-                        keys.setdefault(f"{key}_windowed_factor", []).append(fmu_windowed[key] / windowed[key])
+                    keys.setdefault(f"{key}_{kind}", []).append(errors_of_kind[key])
+                    if model != "fmu" and fmu_of_kind.get(key) is not None and errors_of_kind[key]:
+                        keys.setdefault(f"{key}_{kind}_factor", []).append(fmu_of_kind[key] / errors_of_kind[key])
             tolerance = (entry.get("in_tolerance") or {}).get(model)
             if tolerance:
                 for key in ("in_tolerance_share", "tolerance_exits", *(f"{s}_mae_in_tolerance" for s in signals)):
@@ -253,7 +268,8 @@ def role_metrics(role: str, runs: list[ManeuverRun], zoom_settings: dict, extra:
         error for each of them; for each further model every maneuver has (``fmu_effects``, ``hybrid``,
         ``ceiling``) its errors and ``improvement_<model>`` likewise; each ``per_maneuver`` entry holds the same
         for its maneuver and, with a tolerance, ``in_tolerance`` ({model: :func:`tolerance_errors`}), with windowed
-        trajectories ``windowed`` ({model: :func:`hybridfmu.evaluation.metrics.windowed_errors`}); with it
+        trajectories ``windowed`` ({model: :func:`hybridfmu.evaluation.metrics.windowed_errors`}), with closed-loop
+        trajectories ``closed_loop`` ({model: its MAE/MSE/RMSE per target signal}); with it
         ``tolerance``; ``distribution`` (:func:`distribution`) the median and range over the maneuvers;
         ``warnings`` (:func:`physics_warnings`) every maneuver where a model is worse than its own physics.
     """
@@ -277,6 +293,9 @@ def role_metrics(role: str, runs: list[ManeuverRun], zoom_settings: dict, extra:
                 m: run.tolerance_errors(m, tolerance["signals"]) for m in ("fmu", "neural_fmu", *further)}
         if run.windowed:
             per_maneuver[run.maneuver]["windowed"] = {m: run.windowed_errors(m) for m in MODELS if m in run.windowed}
+        if run.closed_loop:
+            per_maneuver[run.maneuver]["closed_loop"] = {m: run.closed_loop_errors(m) for m in MODELS
+                                                         if m in run.closed_loop}
     models = [m for m in MODELS if m in ("fmu", "neural_fmu") or m in further]
     fmu = pooled_errors(runs, "fmu")
     return {"role": role, "maneuvers": [r.maneuver for r in runs], "signals": list(signals),

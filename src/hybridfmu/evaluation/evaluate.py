@@ -47,8 +47,8 @@ def read_baseline(path: str | Path, state_names: list[str], time_s: np.ndarray) 
 
 
 def read_ceiling(path: str | Path, signals: list[str], time_s: np.ndarray) -> dict[str, np.ndarray]:
-    """The ``ceiling_*`` and ``windowed_ceiling_*`` columns (each (T,)) of a ceiling trajectory, checked against the
-    target ``signals`` and the data's grid ``time_s`` (T,)."""
+    """The ``ceiling_*``, ``windowed_ceiling_*`` and ``closed_loop_ceiling_*`` columns (each (T,)) of a ceiling
+    trajectory, checked against the target ``signals`` and the data's grid ``time_s`` (T,)."""
     path = Path(path)
     frame = pd.read_parquet(path)
     missing = [name for name in ["time_s", *(f"ceiling_{signal}" for signal in signals)] if name not in frame.columns]
@@ -59,7 +59,26 @@ def read_ceiling(path: str | Path, signals: list[str], time_s: np.ndarray) -> di
         raise ValueError(f"{path}: time_s does not match the ingested maneuver's grid ({len(frame)} vs "
                          f"{time_s.size} samples); rerun simulate_ceiling")
     return {name: frame[name].to_numpy(dtype=float) for name in frame.columns
-            if name.startswith(("ceiling_", "windowed_ceiling_"))}
+            if name.startswith(("ceiling_", "windowed_ceiling_", "closed_loop_ceiling_"))}
+
+
+def read_closed_loop(paths: list[str | Path], model_kinds: list[str], signals: list[str],
+                     time_s: np.ndarray) -> dict[str, np.ndarray]:
+    """The ``closed_loop_<model>_<signal>`` columns (each (T,)) of one maneuver's closed-loop trajectories, one file
+    per model of ``model_kinds`` (rule ``simulate_closed_loop``), checked against the data's grid ``time_s`` (T,)."""
+    columns: dict[str, np.ndarray] = {}
+    for path, kind in zip(paths, model_kinds):
+        frame = pd.read_parquet(path)
+        wanted = [f"closed_loop_{kind}_{signal}" for signal in signals]
+        missing = [name for name in ["time_s", *wanted] if name not in frame.columns]
+        if missing:
+            raise ValueError(f"{path}: column(s) {missing} missing; expected the closed-loop trajectory of {kind} "
+                             "(rule simulate_closed_loop)")
+        if len(frame) != time_s.size or not np.allclose(frame["time_s"].to_numpy(), time_s, rtol=0, atol=1e-9):
+            raise ValueError(f"{path}: time_s does not match the maneuver's grid ({len(frame)} vs {time_s.size} "
+                             "samples); rerun simulate_closed_loop")
+        columns.update({name: frame[name].to_numpy(dtype=float) for name in wanted})
+    return columns
 
 
 def learned_quantities(model: Any) -> dict[str, Any]:
@@ -242,7 +261,9 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
 def run_evaluation(best_path: str | Path, trajectory_paths: list[str], learned_paths: list[str],
                    maneuver_roles: dict[str, str], metrics_paths: list[str], run_path: str | Path,
                    zoom_settings: dict[str, Any], mlflow_config: dict[str, Any] | None, results_dir: str | Path,
-                   case: str, tolerance: dict[str, Any] | None = None) -> dict[str, dict]:
+                   case: str, tolerance: dict[str, Any] | None = None,
+                   closed_loop_paths: list[str] | None = None,
+                   closed_loop_models: list[str] | None = None) -> dict[str, dict]:
     """Errors of the FMU and the best neural FMU on every validation and test maneuver, and the MLflow run.
 
     Args:
@@ -256,6 +277,8 @@ def run_evaluation(best_path: str | Path, trajectory_paths: list[str], learned_p
         mlflow_config, results_dir, case: config ``mlflow``; where the default store lies; default experiment.
         tolerance: config ``evaluation.tolerance`` (the in-tolerance metrics; defaults chosen from the validation
             maneuvers' data).
+        closed_loop_paths, closed_loop_models: the closed-loop trajectories (rule ``simulate_closed_loop``), model by
+            model and within a model maneuver by maneuver in the order of ``maneuver_roles``; None: open loop only.
 
     Returns:
         Metrics per role.
@@ -280,8 +303,17 @@ def run_evaluation(best_path: str | Path, trajectory_paths: list[str], learned_p
             raise ValueError(f"{path}: target signals {record.get('signals')} differ from {signals} (or none); "
                              "rerun simulate_best")
     runs_by_role: dict[str, list[ManeuverRun]] = {}
-    for name, path in zip(maneuvers, trajectory_paths):
-        run = ManeuverRun.from_frame(pd.read_parquet(path), name, signals, str(path))
+    kinds = list(closed_loop_models or [])
+    closed_paths = list(closed_loop_paths or [])
+    if len(closed_paths) != len(kinds) * len(maneuvers):
+        raise ValueError(f"evaluate: {len(closed_paths)} closed-loop trajectories for {len(kinds)} model(s) and "
+                         f"{len(maneuvers)} maneuvers")
+    for index, (name, path) in enumerate(zip(maneuvers, trajectory_paths)):
+        frame = pd.read_parquet(path)
+        if kinds:
+            frame = frame.assign(**read_closed_loop(closed_paths[index::len(maneuvers)], kinds, signals,
+                                                    frame["time_s"].to_numpy(dtype=float)))
+        run = ManeuverRun.from_frame(frame, name, signals, str(path))
         runs_by_role.setdefault(maneuver_roles[name], []).append(run)
     extra = {"dt_s": learned[0]["dt_s"], "gates": learned[0]["gates"], "best_trial": summary}
     if learned[0].get("delay_bounds_s"):

@@ -110,11 +110,15 @@ def spread_text(stats: dict[str, Any] | None, digits: int = 3, percent: bool = F
 
 def distribution_table(metrics_by_role: dict[str, dict]) -> list[str]:
     """Markdown table of every model over the maneuvers of each role: median [min – max] of the factors against
-    the FMU (FMU error / model error) per target signal, over the whole record (MAE, MSE) and over windows
-    restarted from the measured state (windowed MAE), of the share of time within the tolerance and of how
-    often the model left it; [] when the metrics hold no distribution."""
+    the FMU (FMU error / model error) per target signal, over the whole record (MAE, MSE), over windows
+    restarted from the measured state (windowed MAE) and, where the case has a controller, driven by it (closed-loop
+    MAE), of the share of time within the tolerance and of how often the model left it; [] when the metrics hold no
+    distribution."""
     lines: list[str] = []
-    measures = (("mae", "MAE"), ("mse", "MSE"), ("mae_windowed", "windowed MAE"))
+    measures = [("mae", "MAE"), ("mse", "MSE"), ("mae_windowed", "windowed MAE")]
+    if any(key.endswith("_mae_closed_loop_factor") for metrics in metrics_by_role.values()
+           for values in (metrics.get("distribution") or {}).values() for key in values):
+        measures.append(("mae_closed_loop", "closed-loop MAE"))
     for role, metrics in metrics_by_role.items():
         stats = metrics.get("distribution")
         if not stats:
@@ -312,9 +316,12 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
                 "Each model over every maneuver of a role on its own: median [min – max]. A factor is the FMU's "
                 "error over the model's on that maneuver, over the whole record or over short windows each "
                 "started from the measured state (windowed: how accurate a model is while it has not drifted "
-                "away); the ceiling, where the case has one, is the best any "
-                "model could reach in this test (for an emulated case, the true plant open loop from the same "
-                "measured state and logged inputs). " + tolerance_text(metrics_by_role, units), ""] + spread + [""]
+                "away); closed loop, where the case declares its control software: the software drives each model "
+                "from the logged setpoints, as in a software-in-the-loop test, and the model's response is compared "
+                "with the measured one; the ceiling, where the case has one, is the best any "
+                "model could reach in this test (for an emulated case, the true plant from the same "
+                "measured state, driven by the logged inputs or by the same control software). "
+                + tolerance_text(metrics_by_role, units), ""] + spread + [""]
     warnings = warning_lines(metrics_by_role)
     out += ["## Warnings", ""] + (warnings or ["- none: no model is worse than its own physics on any maneuver "
                                                "(whole-record MAE of every target signal)."]) + [""]

@@ -93,7 +93,8 @@ def summarize(metrics_by_seed: Mapping[int, Mapping[str, Any]]) -> dict[str, Any
 
     Returns:
         ``{"seeds", "maneuvers", "signals", "models": {model: {"<signal>_<measure>_factor": {"median", "min",
-        "max", "n"}, "in_tolerance_share": ..., "<signal>_mae_windowed_factor": ...}}, "hybrid_worse_than_fmu_effects":
+        "max", "n"}, "in_tolerance_share": ..., "<signal>_mae_windowed_factor": ..., "<signal>_mae_closed_loop_factor":
+        ...}}, "hybrid_worse_than_fmu_effects":
         [{"seed", "maneuver", "signal", "hybrid_mae", "fmu_effects_mae"}]}`` over every (seed, maneuver); a factor is
         the FMU's error over the model's on that maneuver.
     """
@@ -117,10 +118,11 @@ def summarize(metrics_by_seed: Mapping[int, Mapping[str, Any]]) -> dict[str, Any
                 for signal in signals:
                     for measure in ("mae", "mse"):
                         target.setdefault(f"{signal}_{measure}_factor", []).append(improvement[f"{signal}_{measure}"])
-                    windowed = (entry.get("windowed") or {})
-                    if model in windowed and "fmu" in windowed and windowed[model].get(f"{signal}_mae"):
-                        target.setdefault(f"{signal}_mae_windowed_factor", []).append(
-                            windowed["fmu"][f"{signal}_mae"] / windowed[model][f"{signal}_mae"])
+                    for kind in ("windowed", "closed_loop"):
+                        errors = entry.get(kind) or {}
+                        if model in errors and "fmu" in errors and errors[model].get(f"{signal}_mae"):
+                            target.setdefault(f"{signal}_mae_{kind}_factor", []).append(
+                                errors["fmu"][f"{signal}_mae"] / errors[model][f"{signal}_mae"])
                 tolerance = (entry.get("in_tolerance") or {}).get(model)
                 if tolerance:
                     target.setdefault("in_tolerance_share", []).append(tolerance["in_tolerance_share"])
@@ -143,6 +145,8 @@ def summary_markdown(case: str, summary: Mapping[str, Any], wall_s: Mapping[int,
     measures = [(f"{s}_mae_factor", f"{s} MAE vs FMU") for s in signals] + \
                [(f"{s}_mse_factor", f"{s} MSE vs FMU") for s in signals] + \
                [(f"{s}_mae_windowed_factor", f"{s} windowed MAE vs FMU") for s in signals]
+    if any(f"{s}_mae_closed_loop_factor" in stats for stats in summary["models"].values() for s in signals):
+        measures += [(f"{s}_mae_closed_loop_factor", f"{s} closed-loop MAE vs FMU") for s in signals]
     lines = [f"Case `{case}` over {len(summary['seeds'])} seeds ({', '.join(map(str, summary['seeds']))}) and "
              f"{len(summary['maneuvers'])} test maneuvers, every (seed, maneuver) on its own: median [min – max] "
              f"(`snakemake -j2 robustness`, `{{results}}/{case}/robustness/summary.json`).", "",

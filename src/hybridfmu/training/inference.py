@@ -144,6 +144,42 @@ def simulate_neural_fmu_windows(model: NeuralFmu, time_s: Any, u: Any, x_start: 
     return out
 
 
+def held_input_step(model: NeuralFmu, u: Any, x: Any) -> np.ndarray:
+    """One solver step of the model's sample period from ``x`` with the inputs ``u`` held over the step.
+
+    The closed loop's step (:mod:`hybridfmu.evaluation.closed_loop`): a controller's outputs are applied as it
+    writes them, held over the period, so the learned input delays see constant inputs (no delay acts) and a
+    hybrid's diagnosed input changes act on the held values (time shifts and lags vanish, dead zones and gains
+    stay).
+
+    Args:
+        model: a trained neural FMU or hybrid; u: (B, n_u) inputs in FMU order; x: (B, n_x) states.
+
+    Returns:
+        (B, n_x) float64 states one sample period later (the solver and end stop of ``model.spec``).
+    """
+    u = np.asarray(u, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    spec = model.spec
+    physics = physical_layer(model)
+    if physics is not None:  # each row held: a constant sequence of its own (rows are different records)
+        u = np.stack([physics.inputs(np.repeat(row[None], 3, axis=0), spec.sample_period_s)[1] for row in u])
+    pad = delay_padding(spec.sample_period_s, spec.delay_min_s, spec.delay_max_s)
+    u_seq = torch.from_numpy(np.ascontiguousarray(np.repeat(u[:, None, :], 2 * pad + 2, axis=1)))
+    with torch.no_grad():
+        states = rollout(model, u_seq, pad, torch.from_numpy(np.ascontiguousarray(x)), 1)
+    return states[:, 1].numpy()
+
+
+def without_ann(model: NeuralFmu) -> NeuralFmu:
+    """``model`` with its ANN gates closed and its FMU gates at 1 (in place; returned): what is left is the model's
+    physics (the FMU with the model's calibration, or a hybrid's physical layer with its trained coefficients)."""
+    with torch.no_grad():
+        model.gates.g_A.zero_()
+        model.gates.g_F.fill_(1.0)
+    return model
+
+
 def physical_layer(model: NeuralFmu):
     """The physical layer of a hybrid (``hybridfmu.model.physics.PhysicsModel``), or None for a neural FMU
     around a plain FMU."""
