@@ -29,6 +29,10 @@ def test_ingest_and_select_segments_rules(tmp_path):
     case["maneuvers"]["run2"].update(t_start_s=2.0, t_end_s=2.5)
     case["maneuvers"]["run3"].update(t_start_s=2.5, t_end_s=3.5)
     case.pop("bench", None)  # a user's case: its own logs, no emulated bench
+    case.pop("closed_loop")  # ... and no ECU references in them
+    case["signals"] = {name: entry for name, entry in case["signals"].items()
+                       if not entry["channel"].startswith(("BrkCtl_", "MotCtl_AngleRef", "MotCtl_SpeedFf",
+                                                           "MotCtl_AccelFf", "MotCtl_SpeedLim", "MotCtl_CurrentLim"))}
     case["diagnosis"]["open_loop"].pop("test_maneuvers")  # the demo's held-out check names the demo's maneuver
     config_path = tmp_path / "case.yaml"
     config_path.write_text(yaml.safe_dump(case))

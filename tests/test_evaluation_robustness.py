@@ -53,5 +53,12 @@ def test_figures_are_pooled_over_every_seed_and_maneuver(tmp_path):
         write_json_atomic(paths[seed], metrics)
     written = write_summary("demo", paths, tmp_path / "summary.json", tmp_path / "summary.md")
     assert written == summary and (tmp_path / "summary.md").read_text() == summary_markdown("demo", summary)
+    assert "closed-loop" not in text  # no seed has closed-loop errors
+    for metrics in seeds.values():  # closed loop: the FMU's error over the model's, each driven by the controller
+        for maneuver in metrics["per_maneuver"].values():
+            maneuver["closed_loop"] = {"fmu": {"angle_mae": 0.02}, "hybrid": {"angle_mae": 0.005}}
+    closed = summarize(seeds)["models"]["hybrid"]["angle_mae_closed_loop_factor"]
+    assert (closed["median"], closed["n"]) == pytest.approx((4.0, 4))
+    assert "| angle closed-loop MAE vs FMU |" in summary_markdown("demo", summarize(seeds))
     with pytest.raises(ValueError, match="no seed"):
         summarize({})
