@@ -1,5 +1,6 @@
 """The README's measured figures: rendered from a run's metrics and diagnosis, copied between markers."""
 
+import numpy as np
 import pytest
 
 from hybridfmu.evaluation.summary import case_summary, replace_block, update_readme
@@ -123,3 +124,21 @@ def test_check_names_a_block_edited_by_hand_and_changes_nothing(tmp_path, capsys
     (other_case / "summary.md").write_text("x\n")
     with pytest.raises(ValueError, match="measured:ipb"):
         check_readme(readme, [other_case])
+
+
+def test_summary_tables_the_closed_loop_errors_when_the_metrics_have_them():
+    from hybridfmu.evaluation.comparison import ManeuverRun, role_metrics
+
+    t = np.linspace(0.0, 1.0, 11)
+    data = np.column_stack([np.linspace(0, 2, 11), np.full(11, 2.0)])
+    runs = [ManeuverRun(name, t, ["angle", "speed"], data, data + 1.0, data + 0.5,
+                        closed_loop={"fmu": data + 0.01, "neural_fmu": data + offset})
+            for name, offset in (("a", 0.002), ("b", 0.004))]
+    metrics = role_metrics("test", runs, {"length_s": 0.5}, {})
+    text = case_summary("demo", metrics, None, {"angle": "rad", "speed": "rad/s"})
+    assert "and in closed loop (driven by the case's control software" in text
+    assert "| model | angle closed-loop MAE (rad) | speed closed-loop MAE (rad/s) |" in text
+    assert "| neural FMU | 0.003 [0.002 – 0.004] | 0.003 [0.002 – 0.004] |" in text
+    open_only = role_metrics("test", [ManeuverRun("a", t, ["angle", "speed"], data, data + 1.0, data + 0.5)],
+                             {"length_s": 0.5}, {})
+    assert "closed" not in case_summary("demo", open_only, None, {"angle": "rad", "speed": "rad/s"})

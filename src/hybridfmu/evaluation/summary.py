@@ -67,9 +67,15 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
     spread = distribution_table({"test": test_metrics})
     if spread:
         warnings = warning_lines({"test": test_metrics})
+        closed = closed_loop_table(test_metrics, units)
         lines += [f"Case `{case}`, {len(maneuvers)} test maneuver(s) ({', '.join(maneuvers)}), each open loop over "
-                  "its whole record from the measured initial state; median [min – max] over them. "
+                  "its whole record from the measured initial state"
+                  + (" and in closed loop (driven by the case's control software from the logged setpoints)"
+                     if closed else "") + "; median [min – max] over them. "
                   + tolerance_text({"test": test_metrics}, units), ""] + spread + [""]
+        if closed:
+            lines += ["Closed loop, each model's error against the measurement (median [min – max] over the "
+                      "maneuvers):", ""] + closed + [""]
         lines += (warnings or ["No model is worse than its own physics on any test maneuver."]) + [""]
         lines += ["All test maneuvers together:", ""]
     else:
@@ -94,6 +100,24 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
                          f"{_factor(fmu.get(f'{signal}_mae'), mae)} | "
                          f"{_factor(_square(fmu.get(f'{signal}_rmse')), _square(rmse))} |")
     return "\n".join(lines) + "\n"
+
+
+def closed_loop_table(metrics: dict[str, Any], units: dict[str, str]) -> list[str]:
+    """Markdown table of each model's closed-loop MAE per target signal over a role's maneuvers (median [min – max],
+    model units), or [] when the metrics have no closed loop."""
+    from hybridfmu.evaluation.report import MODEL_TITLES, spread_text
+
+    stats = metrics.get("distribution") or {}
+    signals = list(metrics.get("signals") or [])
+    models = [m for m, values in stats.items() if any(f"{s}_mae_closed_loop" in values for s in signals)]
+    if not models:
+        return []
+    lines = ["| model | " + " | ".join(f"{s} closed-loop MAE ({units.get(s, '')})".replace(" ()", "")
+                                     for s in signals) + " |", "|---|" + "---|" * len(signals)]
+    for model in models:
+        lines.append(f"| {MODEL_TITLES.get(model, model)} | "
+                     + " | ".join(spread_text(stats[model].get(f"{s}_mae_closed_loop")) for s in signals) + " |")
+    return lines
 
 
 def write_case_summary(out_path: str | Path, case: str, test_metrics_path: str | Path,
