@@ -83,9 +83,11 @@ if CLOSED_LOOP:
             fmu=fmu_path(),
             calibration=CALIBRATION_JSON,
             data=expand(f"{RESULTS}/data/{{maneuver}}.parquet", maneuver=EVAL_MANEUVERS),
-            diagnosed=[DIAGNOSED_MODEL] if HYBRID else [],
-            hybrid_best=[f"{RESULTS}/hybrid/best.json"] if HYBRID else [],
-            physical_layer=[PHYSICAL_LAYER_CHECKPOINT] if HYBRID else [],
+            # each model's own files only: the FMU's, the neural FMU's and the physical layer's jobs run while the
+            # hybrid's search still trains
+            diagnosed=lambda wildcards: [DIAGNOSED_MODEL] if wildcards.model in ("fmu_effects", "hybrid") else [],
+            hybrid_best=lambda wildcards: [f"{RESULTS}/hybrid/best.json"] if wildcards.model == "hybrid" else [],
+            physical_layer=lambda wildcards: [PHYSICAL_LAYER_CHECKPOINT] if wildcards.model == "fmu_effects" else [],
         output:
             trajectories=expand(f"{CLOSED_LOOP_DIR}/{{{{model}}}}/{{maneuver}}.parquet", maneuver=EVAL_MANEUVERS),
         params:
