@@ -69,6 +69,18 @@ def grid_start_s(raw_path: str | Path, channels: list[str], t_start_s: float | N
     return start
 
 
+def started_plant(settings: BenchSettings, period_s: float, x0: Mapping[str, float]) -> Plant:
+    """The bench's true plant with PWM period ``period_s`` (s), started from ``x0`` by :data:`STATE_NAMES` (A, A,
+    rad, rad/s; a missing state at 0, the angle at the rest angle, clipped to the end stops)."""
+    plant = Plant(settings.true_parameters, settings.true_curve(), settings.effects, settings.supply, period_s,
+                  settings.substeps, settings.rest_angle_rad)
+    theta_min, theta_max = float(settings.true_parameters["theta_min"]), float(settings.true_parameters["theta_max"])
+    plant.i_d, plant.i_q = float(x0.get("i_d", 0.0)), float(x0.get("i_q", 0.0))
+    plant.theta = min(max(float(x0.get("theta", settings.rest_angle_rad)), theta_min), theta_max)
+    plant.omega = float(x0.get("omega", 0.0))
+    return plant
+
+
 def true_plant_open_loop(settings: BenchSettings, k_first: int, duties: np.ndarray, start_s: float,
                          time_s: np.ndarray, x0: Mapping[str, float]) -> np.ndarray:
     """The true plant open loop from ``x0`` at absolute time ``start_s`` over the grid ``time_s``.
@@ -85,12 +97,7 @@ def true_plant_open_loop(settings: BenchSettings, k_first: int, duties: np.ndarr
         instants (as the ingestion interpolates the logged angle).
     """
     period_s = settings.period_s
-    plant = Plant(settings.true_parameters, settings.true_curve(), settings.effects, settings.supply, period_s,
-                  settings.substeps, settings.rest_angle_rad)
-    theta_min, theta_max = float(settings.true_parameters["theta_min"]), float(settings.true_parameters["theta_max"])
-    plant.i_d, plant.i_q = float(x0.get("i_d", 0.0)), float(x0.get("i_q", 0.0))
-    plant.theta = min(max(float(x0.get("theta", settings.rest_angle_rad)), theta_min), theta_max)
-    plant.omega = float(x0.get("omega", 0.0))
+    plant = started_plant(settings, period_s, x0)
     end_s = start_s + float(time_s[-1])
     k = int(math.floor(start_s / period_s + 1e-9))
     k_last = int(math.ceil(end_s / period_s - 1e-9))
@@ -136,12 +143,7 @@ def true_plant_closed_loop(settings: BenchSettings, controller: Any, start_s: fl
     if sorted(outputs.values()) != ["d_a", "d_b", "d_c"]:
         raise ValueError(f"config.closed_loop.outputs: the bench's plant takes the duties d_a, d_b, d_c from a "
                          f"controller, got {sorted(outputs.values())}")
-    plant = Plant(settings.true_parameters, settings.true_curve(), settings.effects, settings.supply, period_s,
-                  settings.substeps, settings.rest_angle_rad)
-    theta_min, theta_max = float(settings.true_parameters["theta_min"]), float(settings.true_parameters["theta_max"])
-    plant.i_d, plant.i_q = float(x0.get("i_d", 0.0)), float(x0.get("i_q", 0.0))
-    plant.theta = min(max(float(x0.get("theta", settings.rest_angle_rad)), theta_min), theta_max)
-    plant.omega = float(x0.get("omega", 0.0))
+    plant = started_plant(settings, period_s, x0)
     n = len(next(iter(signals.values())))
     rows = [dict(zip(signals, values)) for values in zip(*(np.asarray(v, dtype=float).tolist()
                                                           for v in signals.values()))]
