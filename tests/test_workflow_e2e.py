@@ -140,6 +140,15 @@ def test_every_stage_writes_its_outputs(tiny_run):
     assert "| coefficient | diagnosed | trained | change |" in report
     assert any(key.startswith("hybrid.coefficient.") for key in logged.data.params)
     assert {a.path for a in client.list_artifacts(run["run_id"])} >= {"figures", "metrics", "report.md"}
+    # the trained neural FMU beside the diagnosis, written after it and logged to its MLflow run
+    comparison = json.loads((results / "diagnosis" / "neural_fmu.json").read_text())
+    assert comparison["correction"]["equations"] and comparison["open_loop"]["gap"] > 0
+    assert set(comparison["diagnosis_open_loop"]) == {"FMU", "FMU + effects"}
+    markdown = (results / "diagnosis" / "neural_fmu.md").read_text()
+    assert "## What the ANN learned" in markdown and "| neural FMU |" in markdown
+    diagnosis_run = json.loads((results / "diagnosis" / "diagnosis.json").read_text())["mlflow_run_id"]
+    assert "neural_fmu/gap" in client.get_run(diagnosis_run).data.metrics
+    assert "diagnosis/neural_fmu.md" in {a.path for a in client.list_artifacts(diagnosis_run, "diagnosis")}
 
 
 @pytest.mark.xfail(strict=True, reason="the tiny search's best neural FMU drifts away on the test maneuver "
@@ -202,13 +211,14 @@ def test_snakemake_report(tiny_run):
 ALL_RULES = {"build_fmu", "emulate_bench", "check_bench_spread", "ingest", "select_segments", "calibrate",
              "simulate_baseline", "time_offset", "hpo_prepare", "hpo_plan", "train_rung", "select_rung",
              "select_best", "simulate_best", "evaluate", "plot", "report", "diagnose", "summary",
-             "physical_layer_rollout", "simulate_ceiling"}
+             "physical_layer_rollout", "simulate_ceiling", "compare_neural_fmu"}
 FROM_EMULATION = ALL_RULES - {"build_fmu"}
 FROM_INGEST = FROM_EMULATION - {"emulate_bench", "check_bench_spread"}
 FROM_CALIBRATION = FROM_INGEST - {"ingest", "select_segments", "simulate_ceiling"}  # the true plant: no calibration
+# the diagnosis never waits for a search: only the comparison with the neural FMU follows it
 FROM_SEARCH = {"hpo_plan", "train_rung", "select_rung", "select_best", "simulate_best", "evaluate", "plot",
-               "report", "diagnose", "summary", "physical_layer_rollout"}
-FROM_SEGMENTS = {"select_segments", "hpo_prepare"} | FROM_SEARCH
+               "report", "summary", "physical_layer_rollout", "compare_neural_fmu"}
+FROM_SEGMENTS = {"select_segments", "hpo_prepare", "diagnose"} | FROM_SEARCH
 
 
 def _rename_results(config, case, results_dir):
@@ -246,7 +256,7 @@ SECTION_CHANGES = {
     "ingest": (_set("ingest", "max_gap_s", 0.02), FROM_INGEST),
     "segments": (_set("segments", "relative", 0.06), FROM_SEGMENTS),
     "calibration": (_set("calibration", "max_iterations", 40), FROM_CALIBRATION),
-    "model": (_set("model", "input_delay", "scale_s", 0.0002), FROM_SEARCH),
+    "model": (_set("model", "input_delay", "scale_s", 0.0002), FROM_SEARCH | {"diagnose"}),  # its end stop
     "training": (_set("training", "batch_windows", 3), FROM_SEARCH),
     "hpo": (_set("hpo", "max_resource_s", 0.1), FROM_SEARCH),
     "evaluation.zoom": (_set("evaluation", "zoom", "length_s", "angle", 0.8), {"evaluate", "plot", "report", "summary"}),
@@ -257,11 +267,11 @@ SECTION_CHANGES = {
     # the diagnosed model is the hybrid's physical layer and a model of the evaluation
     "diagnosis": (_set("diagnosis", "selection", "bootstrap_samples", 21),
                   {"diagnose", "physical_layer_rollout", "train_rung", "select_rung", "select_best", "simulate_best",
-                   "evaluate", "plot", "report", "summary"}),
+                   "evaluate", "plot", "report", "summary", "compare_neural_fmu"}),
     # the final choice over whole maneuvers is no part of the plan: the search's trained rungs stay
     "hpo.selection": (_set("hpo", "searches", {"hpo": {"selection": {"maneuvers": ["train", "validation"]}}}),
                       {"score_finalists", "select_best", "simulate_best", "evaluate", "plot", "report", "summary",
-                       "diagnose", "physical_layer_rollout", "train_rung", "select_rung"}),
+                       "compare_neural_fmu"}),
     "withheld": (_set("withheld", "duration_s", 5.0), set()),  # the `withheld` target only
     "bench": (_set("bench", "effects", "inertia_mismatch", "scale", 1.07), FROM_EMULATION),
 }

@@ -3,11 +3,11 @@
 # case's roles, with parameters and uncertainty) and how far it shrinks on the test maneuver once the
 # effects are added to the calibrated FMU ({RESULTS}/calibration/calibration.json: parameters and
 # unmeasured initial states).
-# A case that trains a neural FMU (a `training` or `hpo` section) has the search's best model
-# {RESULTS}/hpo/best.json as an input, so the diagnosis always compares with it and runs once after
-# the search; a case without one is diagnosed without the comparison. The model the held-out check ends
-# with (FMU + effects) is saved as diagnosed_model.pkl: the evaluation simulates it, and a hybrid
-# (model.physics_terms, search "hybrid" in train.smk) trains its ANN on top of it.
+# The diagnosis never waits for a search: it reads the FMU, its calibration and the logs only. The model the
+# held-out check ends with (FMU + effects) is saved as diagnosed_model.pkl: the evaluation simulates it, and a
+# hybrid (model.physics_terms, search "hybrid" in train.smk) trains its ANN on top of it. A case that trains a
+# neural FMU (a `training` or `hpo` section) compares the search's best model with the diagnosis afterwards
+# (rule compare_neural_fmu: what the ANN learned against the diagnosed effects, diagnosis/neural_fmu.md).
 
 DIAGNOSIS = f"{RESULTS}/diagnosis"
 DIAGNOSED_MODEL = f"{DIAGNOSIS}/diagnosed_model.pkl"  # read by train.smk and evaluate.smk
@@ -20,9 +20,17 @@ DIAGNOSIS_FIGURES = ["equation_error", "regions", "candidates", "effects"] + (
     ["waterfall", "open_loop_test", "error_growth"] if DIAGNOSIS_HAS_TEST else [])
 
 
-DIAGNOSIS_TRAINS_NEURAL_FMU = "training" in config or "hpo" in config
 # decided from the config alone (never from existing files), so the DAG is the same on every invocation
-DIAGNOSIS_BEST_JSON = [f"{RESULTS}/hpo/best.json"] if DIAGNOSIS_TRAINS_NEURAL_FMU else []
+DIAGNOSIS_COMPARES_NEURAL_FMU = ("training" in config or "hpo" in config) and \
+    (config.get("diagnosis") or {}).get("neural_fmu", True)
+
+# what hybridfmu.diagnosis reads: its settings, the master seed, the FMU (interface, parameters), the roles, the
+# roles and initial states of the maneuvers it reads, the model's end stop, the calibrated parameters and their
+# bounds (recalibrated with the effects when diagnosis.open_loop.refit is on) and, for its MLflow run, the case,
+# mlflow and results_dir
+DIAGNOSIS_CONFIG = {**config_sections("case", "results_dir", "seed", "mlflow", "fmu", "signals", "transforms", "roles",
+                                      "model", "calibration", "diagnosis"),
+                    "maneuvers": {name: config["maneuvers"][name] for name in DIAGNOSIS_MANEUVERS}}
 
 
 rule diagnose:
@@ -31,7 +39,6 @@ rule diagnose:
         data=expand(f"{RESULTS}/data/{{maneuver}}.parquet", maneuver=DIAGNOSIS_MANEUVERS),
         segments=expand(f"{RESULTS}/segments/{{maneuver}}.json", maneuver=DIAGNOSIS_MANEUVERS),
         calibration=f"{RESULTS}/calibration/calibration.json",
-        best=DIAGNOSIS_BEST_JSON,
     output:
         json=f"{DIAGNOSIS}/diagnosis.json",
         report=f"{DIAGNOSIS}/report.md",
@@ -39,13 +46,7 @@ rule diagnose:
         figures=expand(f"{DIAGNOSIS}/{{figure}}.png", figure=DIAGNOSIS_FIGURES),
     params:
         maneuvers=DIAGNOSIS_MANEUVERS,
-        # what hybridfmu.diagnosis reads: its settings, the master seed, the FMU (interface, parameters), the
-        # roles, the roles and initial states of the maneuvers it reads, the model's end stop, the calibrated
-        # parameters and their bounds (recalibrated with the effects when diagnosis.open_loop.refit is on) and, for
-        # its MLflow run, the case, mlflow and results_dir
-        config={**config_sections("case", "results_dir", "seed", "mlflow", "fmu", "signals", "transforms", "roles",
-                                  "model", "calibration", "diagnosis"),
-                "maneuvers": {name: config["maneuvers"][name] for name in DIAGNOSIS_MANEUVERS}},
+        config=DIAGNOSIS_CONFIG,
     log:
         f"{RESULTS}/logs/diagnose/diagnose.log",
     benchmark:
@@ -55,3 +56,29 @@ rule diagnose:
 
 
 ALL_TARGETS.extend([f"{DIAGNOSIS}/diagnosis.json", f"{DIAGNOSIS}/report.md"])
+
+if DIAGNOSIS_COMPARES_NEURAL_FMU:
+
+    rule compare_neural_fmu:
+        input:
+            fmu=fmu_path(),
+            data=expand(f"{RESULTS}/data/{{maneuver}}.parquet", maneuver=DIAGNOSIS_MANEUVERS),
+            segments=expand(f"{RESULTS}/segments/{{maneuver}}.json", maneuver=DIAGNOSIS_MANEUVERS),
+            calibration=f"{RESULTS}/calibration/calibration.json",
+            best=f"{RESULTS}/hpo/best.json",
+            diagnosed=DIAGNOSED_MODEL,
+            diagnosis=f"{DIAGNOSIS}/diagnosis.json",
+        output:
+            json=f"{DIAGNOSIS}/neural_fmu.json",
+            report=f"{DIAGNOSIS}/neural_fmu.md",
+        params:
+            maneuvers=DIAGNOSIS_MANEUVERS,
+            config=DIAGNOSIS_CONFIG,
+        log:
+            f"{RESULTS}/logs/diagnose/compare_neural_fmu.log",
+        benchmark:
+            f"{RESULTS}/benchmarks/compare_neural_fmu/compare_neural_fmu.tsv"
+        script:
+            "../scripts/compare_neural_fmu.py"
+
+    ALL_TARGETS.append(f"{DIAGNOSIS}/neural_fmu.md")

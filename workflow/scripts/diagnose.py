@@ -16,6 +16,5 @@ diagnose(
     data_paths=dict(zip(maneuvers, snakemake.input.data)),
     segments_paths=dict(zip(maneuvers, snakemake.input.segments)),
     out_dir=Path(snakemake.output.json).parent,
-    best_json=snakemake.input.best[0] if snakemake.input.best else None,
     calibration_path=snakemake.input.calibration,
 )

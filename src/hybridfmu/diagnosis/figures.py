@@ -126,7 +126,7 @@ def effects_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
 
 
 def waterfall_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
-    """Normalised open-loop gap on the test maneuver(s): FMU, after each effect, neural FMU."""
+    """Normalised open-loop gap on the test maneuver(s): the FMU and after each effect."""
     steps = result["how_far"]["steps"]
     keys = [("gap", "whole maneuver")] + ([("window_gap", "restarted windows")] if "window_gap" in steps[0] else [])
     fig, axes = plt.subplots(1, len(keys), figsize=(5.5 * len(keys), 4.0), squeeze=False)
@@ -144,7 +144,7 @@ def waterfall_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
 
 
 def open_loop_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
-    """Target states of the test maneuver(s): measured, FMU, corrected FMU, neural FMU."""
+    """Target states of the test maneuver(s): measured, FMU, FMU + all chosen effects."""
     problem = result["problem"]
     far = result["how_far"]
     names = list(far["trajectories"])
@@ -156,8 +156,7 @@ def open_loop_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
         t = p.measured.time_s
         sl = _thin(len(t))
         variants = list(far["trajectories"][name])
-        shown = {"FMU", variants[-1], "neural FMU"} | ({variants[-2]} if variants[-1] == "neural FMU" and
-                                                        len(variants) > 2 else set())
+        shown = {"FMU", variants[-1]}
         for k, idx in enumerate(targets):
             ax = axes[len(targets) * i + k, 0]
             state = problem.state_names[idx]

@@ -29,14 +29,14 @@ OPEN_LOOP_FIGURES = {
 }
 
 
-def _clean(value: Any) -> Any:
+def json_safe(value: Any) -> Any:
     """JSON-safe copy: NumPy to Python, non-finite floats to None."""
     if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
+        return {str(k): json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
+        return [json_safe(v) for v in value]
     if isinstance(value, np.ndarray):
-        return _clean(value.tolist())
+        return json_safe(value.tolist())
     if isinstance(value, (np.floating, float)):
         return float(value) if math.isfinite(float(value)) else None
     if isinstance(value, (np.integer,)):
@@ -144,15 +144,13 @@ def diagnosis_record(result: dict[str, Any], config: dict[str, Any]) -> dict[str
             "calibration": which.get("calibration") or [],
             "skipped_candidates": which["skipped"],
         },
-        "neural_fmu": result.get("neural"),
-        "neural_fmu_error": result.get("neural_error"),
         "how_far": None if far is None else {k: v for k, v in far.items() if k != "trajectories"},
         "how_far_not_run": result.get("how_far_not_run") if far is None else None,
     }
-    return _clean(record)
+    return json_safe(record)
 
 
-def _fmt(value: Any, digits: int = 4) -> str:
+def format_number(value: Any, digits: int = 4) -> str:
     if value is None:
         return "-"
     if isinstance(value, float):
@@ -181,9 +179,9 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
     lines += ["", "| equation | RMS residual | noise floor | ratio | spread of derivative | normalised excess | "
               "depends on unmeasured |", "|---|---|---|---|---|---|---|"]
     for name, s in eq["states"].items():
-        lines.append(f"| d{name}/dt, {labels.get(name, name)} [{s['unit']}] | {_fmt(s['rms_residual'])} | "
-                     f"{_fmt(s['noise_floor'])} | {_fmt(s['ratio_to_noise'], 3)} | {_fmt(s['derivative_spread'])} | "
-                     f"{_fmt(s['normalised_excess'], 3)} | {', '.join(s['depends_on_unmeasured']) or '-'} |")
+        lines.append(f"| d{name}/dt, {labels.get(name, name)} [{s['unit']}] | {format_number(s['rms_residual'])} | "
+                     f"{format_number(s['noise_floor'])} | {format_number(s['ratio_to_noise'], 3)} | {format_number(s['derivative_spread'])} | "
+                     f"{format_number(s['normalised_excess'], 3)} | {', '.join(s['depends_on_unmeasured']) or '-'} |")
     if eq["carrier"]:
         lines += ["", f"The gap is carried mainly by the equation of **{named(eq['carrier'])}**."]
     lines += ["", "### Operating regions", ""]
@@ -194,7 +192,7 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
         if top:
             lines += ["", "Time spans with the most residual energy: " + "; ".join(
                 f"{t['maneuver']} {t['t_start_s']:.4g}-{t['t_end_s']:.4g} s ({100 * t['energy_share']:.0f} %, "
-                f"{_fmt(t['ratio_to_noise'], 3)} x noise)" for t in top) + "."]
+                f"{format_number(t['ratio_to_noise'], 3)} x noise)" for t in top) + "."]
         lines.append("")
     growth = record["where"]["open_loop_growth"]
     if growth:
@@ -205,7 +203,7 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
             for signal, t in item["targets"].items():
                 at = "never" if t["exceeds_threshold_at_s"] is None else f"{t['exceeds_threshold_at_s']:.4g} s"
                 lines.append(f"| {item['maneuver']} | {item['role']} | {signal} | {at} "
-                             f"({_fmt(item['threshold_relative'])} x spread) | {_fmt(t['final_normalised_error'], 3)} |")
+                             f"({format_number(item['threshold_relative'])} x spread) | {format_number(t['final_normalised_error'], 3)} |")
         lines.append("")
     which = record["which"]
     lines += ["## Which", ""]
@@ -223,7 +221,7 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
         for p in c["parameters"]:
             stab = c["stability"].get(p["name"])
             spread = f"{100 * stab['relative_spread']:.1f} %" if stab else "-"
-            lines.append(f"| {p['name']} | {_fmt(p['value'], 5)} | {_fmt(p['se'], 3)} | {_fmt(p.get('se_bootstrap'), 3)} "
+            lines.append(f"| {p['name']} | {format_number(p['value'], 5)} | {format_number(p['se'], 3)} | {format_number(p.get('se_bootstrap'), 3)} "
                          f"| {p['unit'] or '-'} | {spread} |")
         lines.append("")
     lines += ["### Candidates and selection steps", "",
@@ -242,8 +240,8 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                   "| parameter error | equation(s) | relative error | BIC drop | outcome |", "|---|---|---|---|---|"]
         for row in which["calibration"]:
             where = ", ".join(f"d{e}/dt" for e in row.get("equations") or [])
-            lines.append(f"| {table_cell(row['effect'])} | {where} | {_fmt(row.get('relative_parameter_error'), 3)} | "
-                         f"{_fmt(row.get('bic_drop'), 4)} | {table_cell(row['outcome'])} |")
+            lines.append(f"| {table_cell(row['effect'])} | {where} | {format_number(row.get('relative_parameter_error'), 3)} | "
+                         f"{format_number(row.get('bic_drop'), 4)} | {table_cell(row['outcome'])} |")
         lines.append("")
     for k, step in enumerate(which.get("steps") or [], start=1):
         title = f"Step {k} (exchange): {step['chosen']} {step['reason']}" if step.get("kind") == "exchange" else \
@@ -252,31 +250,15 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                   "| candidate | equation(s) | setting | residual removed | BIC drop |", "|---|---|---|---|---|"]
         ranked = sorted(step["candidates"], key=lambda c: c["bic"])[:12]
         for cand in ranked:
-            setting = ", ".join(f"{key}={_fmt(v, 4)}" for key, v in cand["setting"].items()) or "-"
+            setting = ", ".join(f"{key}={format_number(v, 4)}" for key, v in cand["setting"].items()) or "-"
             where = ", ".join(f"d{e}/dt" for e in cand.get("equations") or [])
             lines.append(f"| {table_cell(cand['effect'])} | {where} | {setting} | {100 * cand['relative_improvement']:.2f} % | "
-                         f"{_fmt(cand.get('bic_drop'), 4)} |")
+                         f"{format_number(cand.get('bic_drop'), 4)} |")
         if len(step["candidates"]) > len(ranked):
             lines.append(f"| ... {len(step['candidates']) - len(ranked)} more | | | | |")
         lines.append("")
     if which["skipped_candidates"]:
         lines += ["Left out: " + "; ".join(f"{k} ({v})" for k, v in which["skipped_candidates"].items()), ""]
-    nn = record.get("neural_fmu")
-    if nn:
-        lines += ["### Compared with the trained neural FMU", "",
-                  f"Learned input delays {_delays_text(nn['learned_delay_s'])}, gates {nn['gates']}. Learned correction per "
-                  "equation: " + "; ".join(f"d{k}/dt: RMS {_fmt(v['learned_correction_rms'], 3)} {v['unit']}, joint "
-                                             f"R^2 of the chosen effects {_fmt(v['r2_joint'], 3)}"
-                                             for k, v in nn["equations"].items()) + ".", "",
-                  "| effect | equation | R^2 (fitted) | R^2 (refitted) |", "|---|---|---|---|"]
-        for row in nn["effects"]:
-            lines.append(f"| {table_cell(row['effect'])} | {row['equation']} | {_fmt(row['r2_fitted'], 3)} | "
-                         f"{_fmt(row['r2_refit'], 3)} |")
-        lines.append("")
-    elif record.get("neural_fmu_error"):
-        lines += [f"The comparison with the neural FMU failed: {record['neural_fmu_error']}", ""]
-    else:
-        lines += ["No trained neural FMU was available for comparison.", ""]
     far = record.get("how_far")
     if far:
         signals = [prob["signals"][s] for s in prob["targets"]]
@@ -298,19 +280,19 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                   "|---|" + "---|---|" * len(states) + "---|" + ("---|" if windowed else "") +
                   ("---|" if refitted else "")]
         for s in far["steps"]:
-            cells = " | ".join(f"{_fmt(s.get(f'{sig}_rmse'))} | {_fmt(s.get(f'{sig}_mae'))}" for sig in signals)
-            lines.append(f"| {table_cell(s['model'])} | {cells} | {_fmt(s.get('gap'))} |" +
-                         (f" {_fmt(s.get('window_gap'))} |" if windowed else "") +
-                         (f" {_fmt(s['refit']['cost'])} |" if "refit" in s else (" - |" if refitted else "")))
-        lines += ["", f"Normalised gap: {_fmt(far['gap_before'])} -> {_fmt(far['gap_after'])}, factor "
-                      f"{_fmt(far['shrink_factor'], 3)}."]
+            cells = " | ".join(f"{format_number(s.get(f'{sig}_rmse'))} | {format_number(s.get(f'{sig}_mae'))}" for sig in signals)
+            lines.append(f"| {table_cell(s['model'])} | {cells} | {format_number(s.get('gap'))} |" +
+                         (f" {format_number(s.get('window_gap'))} |" if windowed else "") +
+                         (f" {format_number(s['refit']['cost'])} |" if "refit" in s else (" - |" if refitted else "")))
+        lines += ["", f"Normalised gap: {format_number(far['gap_before'])} -> {format_number(far['gap_after'])}, factor "
+                      f"{format_number(far['shrink_factor'], 3)}."]
         last = next((s for s in reversed(far["steps"]) if "refit" in s), None)
         if last is not None:
             lines += ["", f"Recalibrated variables of the last variant ({table_cell(last['model'])}; train cost "
-                          f"{_fmt(last['refit']['cost_start'])} -> {_fmt(last['refit']['cost'])}, "
+                          f"{format_number(last['refit']['cost_start'])} -> {format_number(last['refit']['cost'])}, "
                           f"{last['refit']['evaluations']} simulations):", "",
                       "| variable | start | recalibrated |", "|---|---|---|"]
-            lines += [f"| {table_cell(name)} | {_fmt(v['start'])} | {_fmt(v['fitted'])} |"
+            lines += [f"| {table_cell(name)} | {format_number(v['start'])} | {format_number(v['fitted'])} |"
                       for name, v in last["refit"]["variables"].items()]
         lines += [f"- {note}" for note in far.get("notes", [])] + [""]
     else:
@@ -383,8 +365,7 @@ def log_to_mlflow(record: dict[str, Any], paths: dict[str, Any], config: dict[st
 
 
 def diagnose(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, str | Path],
-             segments_paths: dict[str, str | Path], out_dir: str | Path, best_json: str | Path | None = None,
-             mlflow: bool = True, calibration_path: str | Path | None = None) -> dict[str, Any]:
+             segments_paths: dict[str, str | Path], out_dir: str | Path, mlflow: bool = True, calibration_path: str | Path | None = None) -> dict[str, Any]:
     """Diagnose the sim-to-real gap of a case; write ``diagnosis.json``, ``report.md`` and figures.
 
     Args:
@@ -393,7 +374,6 @@ def diagnose(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str,
         fmu_path: the case's FMU.
         data_paths, segments_paths: maneuver -> ingested Parquet / segments JSON (all maneuvers of the case).
         out_dir: ``{results}/diagnosis``.
-        best_json: ``{results}/hpo/best.json`` when a neural FMU was trained (optional).
         mlflow: log the run to MLflow.
         calibration_path: ``{results}/calibration/calibration.json`` (calibrated parameters and unmeasured
             initial states), or None for the FMU with ``config.fmu.parameters``.
@@ -402,7 +382,7 @@ def diagnose(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str,
     """
     from hybridfmu.diagnosis.run import analyse
 
-    result = analyse(config, fmu_path, data_paths, segments_paths, calibration_path, best_json)
+    result = analyse(config, fmu_path, data_paths, segments_paths, calibration_path)
     paths = write_outputs(result, config, out_dir)
     if mlflow:
         paths["record"]["mlflow_run_id"] = log_to_mlflow(paths["record"], paths, config)

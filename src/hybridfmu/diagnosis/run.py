@@ -1,7 +1,8 @@
 """The diagnosis: where the gap lies, which effect causes it, how far it shrinks.
 
 ``analyse`` reads the case's FMU (with the calibrated parameters), ingested maneuvers, segments and
-calibration (and the trained neural FMU when there is one), never a bench's ground truth.
+calibration, never a bench's ground truth (the trained neural FMU is compared afterwards, by
+:mod:`hybridfmu.diagnosis.neural_comparison`).
 ``run_diagnosis`` does the computation on loaded objects (any model with ``state_names``,
 ``input_names``, ``derivatives``, ``jacobians``; parameters via ``get_parameters``/``set_parameters``)
 and returns the result as a dictionary; :mod:`hybridfmu.diagnosis.report` writes it.
@@ -332,7 +333,7 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
 
 # ----------------------------------------------------------------------------- how far
 
-def _reference(meas: MeasuredManeuver, starts: np.ndarray, problem: Problem) -> np.ndarray:
+def reference_states(meas: MeasuredManeuver, starts: np.ndarray, problem: Problem) -> np.ndarray:
     """Measured states to compare with: as logged, differentiated states smoothed like the start states."""
     ref = np.array(meas.x, dtype=float)
     for state in problem.settings.get("state_from_derivative") or {}:
@@ -346,7 +347,8 @@ def equation_label(effect: Any, problem: Problem) -> str:
     return ", ".join(f"d{problem.state_names[eq]}/dt" for eq in effect_equations(effect))
 
 
-def _mean_errors(per: dict[str, dict[str, float]]) -> dict[str, float]:
+def mean_errors(per: dict[str, dict[str, float]]) -> dict[str, float]:
+    """Mean over maneuvers of each error of ``per`` (maneuver -> error name -> value), window counts left out."""
     keys = next(iter(per.values())).keys()
     return {k: float(np.mean([v[k] for v in per.values()])) for k in keys if k != "n_windows"}
 
@@ -359,10 +361,10 @@ def _refit_record(refit: Refit) -> dict[str, Any]:
 
 
 def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
-            test_names: list[str], terms: list[Term], problem: Problem, neural_model: Any = None,
+            test_names: list[str], terms: list[Term], problem: Problem,
             refit: RefitSpec | None = None, refit_names: list[str] | None = None) -> dict[str, Any]:
-    """Open-loop errors on the test maneuvers: the model, after each chosen effect (cumulative, rank order),
-    and the neural FMU. Returns steps, ``before``/``after`` (``<signal>_rmse``, ``<signal>_mae``, ``gap``).
+    """Open-loop errors on the test maneuvers: the model, and after each chosen effect (cumulative, rank order).
+    Returns steps, ``before``/``after`` (``<signal>_rmse``, ``<signal>_mae``, ``gap``).
 
     With ``refit`` (:func:`hybridfmu.diagnosis.refit.refit_spec`), every variant, the model alone among them,
     is first recalibrated with its effects by output error on the maneuvers ``refit_names``
@@ -394,32 +396,16 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
                     starts = _refit_starts(model, simulate_fn, meas, starts, corrected,
                                            fitted.initial_states_of(name, refit), problem)
                 started = time.perf_counter()
-                errors, whole = open_loop_errors(model, simulate_fn, meas.time_s, _reference(meas, starts, problem),
+                errors, whole = open_loop_errors(model, simulate_fn, meas.time_s, reference_states(meas, starts, problem),
                                                  meas.u, starts, problem, corrected, window_s)
                 LOGGER.info("open loop %s on %s: normalised gap %.4g (%.1f s)", label, name, errors["gap"],
                             time.perf_counter() - started)
                 per[name] = errors
                 trajectories[name][label] = whole
-        step = {"model": label, "effects": names, "per_maneuver": per, **_mean_errors(per)}
+        step = {"model": label, "effects": names, "per_maneuver": per, **mean_errors(per)}
         if fitted is not None:
             step["refit"] = _refit_record(fitted)
         steps.append(step)
-    if neural_model is not None:
-        from hybridfmu.diagnosis.corrected_model import target_errors
-        from hybridfmu.diagnosis.neural import simulate_neural
-
-        per = {}
-        for name in test_names:
-            meas = prepared[name].measured
-            starts = prepared[name].starts
-            try:
-                whole = simulate_neural(neural_model, meas.time_s, meas.u, starts[0])
-            except Exception as err:  # reported, not fatal
-                LOGGER.warning("neural FMU open loop on %s failed: %s", name, err)
-                whole = np.full_like(meas.x, np.nan)
-            per[name] = target_errors(whole, _reference(meas, starts, problem), problem)
-            trajectories[name]["neural FMU"] = whole
-        steps.append({"model": "neural FMU", "effects": [], "per_maneuver": per, **_mean_errors(per)})
     before, after = steps[0], steps[len(terms)]
     keys = [k for k in before if k not in ("model", "effects", "per_maneuver")]
     diagnosed = DiagnosedModel(list(active), dict(fitted.parameters) if fitted is not None else {}, problem,
@@ -465,7 +451,7 @@ def error_growth(model: Any, simulate_fn: Callable, prepared: dict[str, Prepared
         meas = p.measured
         starts = p.starts
         whole = simulate(model, simulate_fn, meas.time_s, meas.u, starts[0], None)
-        ref = _reference(meas, starts, problem)
+        ref = reference_states(meas, starts, problem)
         item = {"maneuver": name, "role": meas.role, "threshold_relative": threshold, "targets": {},
                 "normalised_error": {}}
         for state in problem.target_weights:
@@ -505,7 +491,7 @@ def prepare_all(problem: Problem, model: Any, measured: dict[str, MeasuredManeuv
 
 def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredManeuver], *, helper: Any = None,
                   simulate_fn: Callable | None = None, open_loop: bool = True,
-                  neural_model: Any = None, refit: RefitSpec | None = None) -> dict[str, Any]:
+                  refit: RefitSpec | None = None) -> dict[str, Any]:
     """Where / which / how far on loaded maneuvers.
 
     Args:
@@ -514,7 +500,6 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
         measured: maneuver name -> :class:`MeasuredManeuver` (roles train / validation fit, test checks).
         simulate_fn: open-loop simulator (default: by model type, :func:`simulator_for`).
         open_loop: also simulate open loop (how far, error growth).
-        neural_model: a loaded neural FMU to compare with, or None.
         refit: recalibrate every variant of the held-out check with its effects on the train maneuvers
             (:func:`hybridfmu.diagnosis.refit.refit_spec`), or None.
     """
@@ -536,17 +521,11 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
                                                           int(problem.settings["regions"]["top_statements"]), at_noise),
                           "top_time_bins": per_time[:8]}
     which = select_effects(prepared, fit_names, problem, model)
-    neural = None
-    if neural_model is not None:
-        from hybridfmu.diagnosis.neural import compare_learned_correction
-
-        neural = compare_learned_correction(neural_model, prepared, fit_names, which["terms"], problem)
     far = growth = None
     not_run = how_far_not_run(test_names, open_loop)
     if not_run is None:
         train_names = [n for n in fit_names if measured[n].role == "train"] or fit_names
-        far = how_far(model, helper, simulate_fn, prepared, test_names, which["terms"], problem, neural_model,
-                      refit=refit, refit_names=train_names)
+        far = how_far(model, helper, simulate_fn, prepared, test_names, which["terms"], problem, refit=refit, refit_names=train_names)
         growth = error_growth(model, simulate_fn, prepared, problem)
     else:
         LOGGER.warning("diagnosis: %s", not_run)
@@ -555,7 +534,7 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
         DiagnosedModel(list(which["terms"]), {}, problem, [t.effect.name for t in which["terms"]])
     return {"settings": problem.settings, "problem": problem, "prepared": prepared, "fit_names": fit_names,
             "diagnosed": diagnosed,
-            "test_names": test_names, "where": where, "regions": regions, "which": which, "neural": neural,
+            "test_names": test_names, "where": where, "regions": regions, "which": which,
             "how_far": far, "how_far_not_run": not_run, "growth": growth}
 
 
@@ -621,7 +600,7 @@ def load_inputs(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[s
 
 def analyse(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, str | Path],
             segments_paths: dict[str, str | Path], calibration_path: str | Path | None = None,
-            best_json: str | Path | None = None, open_loop: bool = True) -> dict[str, Any]:
+            open_loop: bool = True) -> dict[str, Any]:
     """Run the whole diagnosis of a case from its files (see :func:`hybridfmu.diagnosis.report.diagnose`).
 
     Args:
@@ -630,25 +609,13 @@ def analyse(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, 
         data_paths, segments_paths: maneuver name -> ingested Parquet / segments JSON.
         calibration_path: ``{results}/calibration/calibration.json`` (parameters and unmeasured initial
             states), or None for the FMU with ``config.fmu.parameters``.
-        best_json: ``{results}/hpo/best.json`` of a trained neural FMU, or None.
         open_loop: also simulate open loop.
     """
     from hybridfmu.diagnosis.refit import refit_spec
 
     case = load_inputs(config, fmu_path, data_paths, segments_paths, calibration_path)
-    neural_model = None
-    neural_error = None
-    if best_json is not None and Path(best_json).is_file() and case.settings.get("neural_fmu", True):
-        try:
-            from hybridfmu.diagnosis.neural import load_neural_fmu
-
-            neural_model = load_neural_fmu(best_json, fmu_path, case.parameters)
-        except Exception as err:  # the comparison is optional; its failure is reported, not fatal
-            neural_error = f"{type(err).__name__}: {err}"
-            LOGGER.warning("neural FMU could not be loaded: %s", neural_error)
     result = run_diagnosis(case.problem, case.model, case.measured, helper=case.helper, open_loop=open_loop,
-                           neural_model=neural_model, refit=refit_spec(config, case.settings))
-    result["neural_error"] = neural_error
+                           refit=refit_spec(config, case.settings))
     result["calibration"] = None if calibration_path is None else str(calibration_path)
     result["model_parameters"] = case.parameters
     return result

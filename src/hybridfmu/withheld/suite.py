@@ -483,5 +483,5 @@ def diagnose_case(case_path: str | Path, fmu_path: str | Path, data_paths: dict[
     from hybridfmu.diagnosis.report import diagnose
 
     case = without_bench(load_case(case_path))
-    return diagnose(case, fmu_path, data_paths, segments_paths, out_dir, best_json=None, mlflow=False)
+    return diagnose(case, fmu_path, data_paths, segments_paths, out_dir, mlflow=False)
 
