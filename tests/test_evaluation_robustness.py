@@ -60,5 +60,17 @@ def test_figures_are_pooled_over_every_seed_and_maneuver(tmp_path):
     closed = summarize(seeds)["models"]["hybrid"]["angle_mae_closed_loop_factor"]
     assert (closed["median"], closed["n"]) == pytest.approx((4.0, 4))
     assert "| angle closed-loop MAE vs FMU |" in summary_markdown("demo", summarize(seeds))
+    # the neural FMU's medians beside a reference's test factors (validation ones are not pooled here)
+    reference = {"name": "paper", "factors": [{"role": "test", "metric": "angle_mae", "factor": 5.4},
+                                              {"role": "test", "metric": "angle_mse", "factor": 74},
+                                              {"role": "validation", "metric": "angle_mae", "factor": 4.6}]}
+    referenced = write_summary("demo", paths, tmp_path / "summary.json", tmp_path / "summary.md", reference=reference)
+    rows = {row["metric"]: row for row in referenced["reference"]}
+    neural = referenced["models"]["neural_fmu"]
+    assert set(rows) == {"angle_mae", "angle_mse"}
+    assert rows["angle_mae"]["neural_fmu_median"] == neural["angle_mae_factor"]["median"]
+    assert rows["angle_mae"]["reached"] == (neural["angle_mae_factor"]["median"] >= 5.4)
+    assert rows["angle_mse"]["reached"] == (neural["angle_mse_factor"]["median"] >= 74)
+    assert "against paper's test factors" in (tmp_path / "summary.md").read_text()
     with pytest.raises(ValueError, match="no seed"):
         summarize({})

@@ -157,6 +157,9 @@ def test_search_end_to_end(case):
         assert all(0 < r < 10 for r in ratios) and finalist["score"] == pytest.approx(math.sqrt(ratios[0] * ratios[1]))
     chosen = min(scores["finalists"], key=lambda f: f["score"])
     assert scores["chosen"] == chosen["trial_id"] and read_json(hpo / "finalists.json") == scores
+    # one file per candidate (the workflow scores them in parallel); ranks without a finished configuration are absent
+    assert read_json(hpo / "finalists" / "rank1.json")["trial_id"] == scores["finalists"][0]["trial_id"]
+    assert read_json(hpo / "finalists" / "rank5.json") == {"candidate": "rank5", "absent": True}
     chosen_best = select_best(plan_path=case["plan"], selection_paths=selections, best_path=hpo / "best_chosen.json",
                               best_model_path=hpo / "best_chosen.pt", summary_path=hpo / "summary_chosen.json",
                               case="synthetic", finalists_path=hpo / "finalists.json")

@@ -270,8 +270,8 @@ SECTION_CHANGES = {
                    "evaluate", "plot", "report", "summary", "compare_neural_fmu"}),
     # the final choice over whole maneuvers is no part of the plan: the search's trained rungs stay
     "hpo.selection": (_set("hpo", "searches", {"hpo": {"selection": {"maneuvers": ["train", "validation"]}}}),
-                      {"score_finalists", "select_best", "simulate_best", "evaluate", "plot", "report", "summary",
-                       "compare_neural_fmu"}),
+                      {"score_finalist", "score_finalists", "select_best", "simulate_best", "evaluate", "plot",
+                       "report", "summary", "compare_neural_fmu"}),
     "withheld": (_set("withheld", "duration_s", 5.0), set()),  # the `withheld` target only
     "bench": (_set("bench", "effects", "inertia_mismatch", "scale", 1.07), FROM_EMULATION),
 }
@@ -337,7 +337,7 @@ def test_the_hybrids_physical_layer_competes_in_its_final_choice(tiny_run, tmp_p
     best_path = results / "hybrid" / "best.json"
     target = str(best_path.relative_to(workdir))
     assert planned_rules(snakemake(workdir, configfile, "-n", target).stdout) == {
-        "physical_layer_checkpoint", "score_finalists", "select_best"}
+        "physical_layer_checkpoint", "score_finalist", "score_finalists", "select_best"}
     snakemake(workdir, configfile, target)
     scores = json.loads((results / "hybrid" / "finalists.json").read_text())
     trial_ids = [f["trial_id"] for f in scores["finalists"]]
@@ -356,7 +356,7 @@ def test_the_hybrids_physical_layer_competes_in_its_final_choice(tiny_run, tmp_p
         model = load_trained_neural_fmu(best_path, workdir / json.loads(best_path.read_text())["fmu"]["path"],
                                         None, results / "diagnosis" / "diagnosed_model.pkl")
         assert untrained_is_physical_layer(model)
-    log = (results / "logs" / "score_finalists" / "hybrid.log").read_text()
+    log = (results / "logs" / "score_finalist" / "hybrid" / "physical_layer.log").read_text()
     assert "physical layer (the FMU + effects, ANN at zero): score" in log
 
 
@@ -371,7 +371,8 @@ def test_the_best_neural_fmu_chosen_over_whole_maneuvers(tiny_run, tmp_path):
     configfile.write_text(yaml.safe_dump(changed, sort_keys=False))
     best_path = results / "hpo" / "best.json"
     target = str(best_path.relative_to(workdir))
-    assert planned_rules(snakemake(workdir, configfile, "-n", target).stdout) == {"score_finalists", "select_best"}
+    assert planned_rules(snakemake(workdir, configfile, "-n", target).stdout) == {
+        "score_finalist", "score_finalists", "select_best"}
     before = json.loads(best_path.read_text())
     snakemake(workdir, configfile, target)
     scores = json.loads((results / "hpo" / "finalists.json").read_text())
@@ -387,6 +388,6 @@ def test_the_best_neural_fmu_chosen_over_whole_maneuvers(tiny_run, tmp_path):
         assert best["selection"]["by"] == "maneuvers" and best["selection"]["score"] == chosen["score"]
     else:
         assert best["selection"]["by"] == "objective" and best["trial_id"] == before["trial_id"]
-    log = (results / "logs" / "score_finalists" / "hpo.log").read_text()
-    assert "finalists of search" in log and "simulated s/s" in log
+    log = (results / "logs" / "score_finalist" / "hpo" / "rank1.log").read_text()  # one job per finalist
+    assert "candidate rank1 of search" in log and "simulated s/s" in log
 

@@ -48,7 +48,8 @@ def test_held_out_maneuvers_are_read_by_no_rule_before_the_evaluation(tmp_path):
     unseen = [name for name in tests if name not in diagnosis_maneuvers(config)]
     assert len(tests) >= 6 and len(unseen) >= 5, (tests, unseen)
     jobs = dry_run_inputs(tmp_path)
-    assert {rule for rule, _ in jobs} >= {"train_rung", "diagnose", "score_finalists", "simulate_best", "evaluate"}
+    assert {rule for rule, _ in jobs} >= {"train_rung", "diagnose", "score_finalist", "score_finalists", "simulate_best",
+                                         "evaluate"}
     pattern = re.compile(r"/(?:raw|data|segments|baseline|evaluation/ceiling|evaluation/trajectories)/(" +
                          "|".join(map(re.escape, unseen)) + r")\.")
     readers = {rule for rule, inputs in jobs for path in inputs if pattern.search(path)}

@@ -6,13 +6,14 @@
 # Search "hpo" trains the paper's neural FMU (the FMU under the ANN). When model.physics_terms names a
 # physical layer, search "hybrid" trains the hybrid (the FMU plus the diagnosed effects under the ANN) with
 # the same search space, after the diagnosis (its diagnosis/diagnosed_model.pkl); config.hpo.searches gives a
-# search its own budget. With config.hpo.selection.maneuvers, rule score_finalists runs a search's finalists
-# open loop over whole maneuvers and select_best takes the one it chooses.
+# search its own budget. With config.hpo.selection.maneuvers, rule score_finalist runs each of a search's finalists
+# open loop over whole maneuvers (one job per finalist), score_finalists chooses and select_best takes that one.
 from hybridfmu.data.settings import section_settings
 from hybridfmu.io import read_json
 from hybridfmu.tracking import experiment_name, tracking_uri
 from hybridfmu.training.maneuver_roles import role_maneuver
 from hybridfmu.training.plan import search_settings
+from hybridfmu.training.finalists import candidate_names
 from hybridfmu.training.hyperband import hyperband_brackets
 
 HPO = section_settings(config.get("hpo"), "hpo")
@@ -268,8 +269,15 @@ def selection_maneuvers(search):
     return {role: TRAIN_MANEUVERS[role] for role in SEARCH_HPO[search]["selection"]["maneuvers"]}
 
 
-rule score_finalists:
-    """The search's finalists open loop over whole maneuvers against the FMU (config hpo.selection)."""
+def finalist_candidates(search):
+    """The candidates of a search's final choice, one score_finalist job each: rank1 .. rank<top> and, for the
+    hybrid, its physical layer."""
+    return candidate_names(SEARCH_HPO[search]["selection"]["top"], search == "hybrid")
+
+
+rule score_finalist:
+    """One candidate of the search's final choice open loop over whole maneuvers against the FMU (config
+    hpo.selection): the finalist with the k-th best objective (rank<k>) or the hybrid's physical layer."""
     input:
         plan=f"{RESULTS}/{{search}}/plan.json",
         selections=search_selections,
@@ -283,6 +291,30 @@ rule score_finalists:
         # a hybrid's physical layer competes with its finalists: the chosen hybrid is never worse than it there
         physical_layer=lambda wildcards: [PHYSICAL_LAYER_CHECKPOINT] if wildcards.search == "hybrid" else [],
     output:
+        score=f"{RESULTS}/{{search}}/finalists/{{candidate}}.json",
+    params:
+        maneuvers=lambda wildcards: list(selection_maneuvers(wildcards.search).values()),
+        top=lambda wildcards: SEARCH_HPO[wildcards.search]["selection"]["top"],
+        case=case_sections(),
+    wildcard_constraints:
+        search="|".join(FINALIST_SEARCHES) if FINALIST_SEARCHES else "(?!)",
+        candidate=r"rank\d+|physical_layer",
+    threads: 1
+    log:
+        f"{RESULTS}/logs/score_finalist/{{search}}/{{candidate}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/score_finalist/{{search}}/{{candidate}}.tsv"
+    script:
+        "../scripts/train_score_finalist.py"
+
+
+rule score_finalists:
+    """The search's final choice among its scored candidates (the smallest score)."""
+    input:
+        plan=f"{RESULTS}/{{search}}/plan.json",
+        candidates=lambda wildcards: [f"{RESULTS}/{wildcards.search}/finalists/{candidate}.json"
+                                      for candidate in finalist_candidates(wildcards.search)],
+    output:
         finalists=f"{RESULTS}/{{search}}/finalists.json",
     params:
         maneuvers=lambda wildcards: list(selection_maneuvers(wildcards.search).values()),
@@ -290,7 +322,6 @@ rule score_finalists:
         case=case_sections(),
     wildcard_constraints:
         search="|".join(FINALIST_SEARCHES) if FINALIST_SEARCHES else "(?!)",
-    threads: 1
     log:
         f"{RESULTS}/logs/score_finalists/{{search}}.log",
     benchmark:

@@ -6,4 +6,5 @@ setup_rule_logging(snakemake.log[0])
 paths = {snakemake.params.own_seed: snakemake.input.own,
          **dict(zip(snakemake.params.other_seeds, snakemake.input.others))}
 write_summary(snakemake.params.case, paths, snakemake.output.summary, snakemake.output.markdown,
-              seed_wall_times(snakemake.input.benchmarks, snakemake.params.other_seeds))
+              seed_wall_times(snakemake.input.benchmarks, snakemake.params.other_seeds),
+              reference=snakemake.params.reference)

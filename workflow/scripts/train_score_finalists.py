@@ -1,24 +1,15 @@
-"""Rule score_finalists: a search's finalists open loop over whole maneuvers -> {search}/finalists.json."""
-
-import torch
+"""Rule score_finalists: a search's final choice among its scored candidates -> {search}/finalists.json."""
 
 from hybridfmu.case import case_roles
 from hybridfmu.progress import setup_rule_logging
-from hybridfmu.training.finalists import score_finalists
+from hybridfmu.training.finalists import choose_among_candidates
 
-torch.set_num_threads(1)
 setup_rule_logging(snakemake.log[0])
-score_finalists(
-    plan_path=snakemake.input.plan,
-    selection_paths=list(snakemake.input.selections),
+choose_among_candidates(
+    candidate_paths=list(snakemake.input.candidates),
+    maneuvers=list(snakemake.params.maneuvers),
     top=snakemake.params.top,
-    maneuver_paths={name: {"data": data, "baseline": baseline} for name, data, baseline in
-                    zip(snakemake.params.maneuvers, snakemake.input.data, snakemake.input.baselines)},
-    fmu_path=snakemake.input.fmu,
-    calibration_path=snakemake.input.calibration,
+    plan_path=snakemake.input.plan,
     roles=case_roles(snakemake.params.case),
-    maneuvers_config=snakemake.params.case["maneuvers"],
     scores_path=snakemake.output.finalists,
-    diagnosed_path=snakemake.input.diagnosed[0] if snakemake.input.diagnosed else None,
-    physical_layer_path=snakemake.input.physical_layer[0] if snakemake.input.physical_layer else None,
 )

@@ -137,6 +137,27 @@ def summarize(metrics_by_seed: Mapping[int, Mapping[str, Any]]) -> dict[str, Any
             "hybrid_worse_than_fmu_effects": worse}
 
 
+def reference_comparison(summary: Mapping[str, Any], reference: Mapping[str, Any] | None) -> list[dict[str, Any]]:
+    """The reference's test factors (config ``evaluation.reference.factors`` with role ``test``, e.g. the paper's)
+    beside the neural FMU's median over every (seed, maneuver) and the ceiling's median in the same metric.
+
+    Returns ``[{"metric", "factor", "note", "neural_fmu_median", "reached", "ceiling_median"}]`` (``reached``: the
+    median is at least the reference's factor; None where the summary has no such metric).
+    """
+    rows = []
+    models = summary["models"]
+    for item in (reference or {}).get("factors") or []:
+        if item.get("role") != "test":
+            continue
+        key = f"{item['metric']}_factor"
+        median = ((models.get("neural_fmu") or {}).get(key) or {}).get("median")
+        ceiling = ((models.get("ceiling") or {}).get(key) or {}).get("median")
+        rows.append({"metric": item["metric"], "factor": float(item["factor"]), "note": item.get("note", ""),
+                     "neural_fmu_median": median, "ceiling_median": ceiling,
+                     "reached": None if median is None else bool(median >= float(item["factor"]))})
+    return rows
+
+
 def summary_markdown(case: str, summary: Mapping[str, Any], wall_s: Mapping[int, float] | None = None) -> str:
     """The summary as the README quotes it: one row per model, median [min – max] over every (seed, maneuver)."""
     from hybridfmu.evaluation.report import MODEL_TITLES, spread_text
@@ -159,6 +180,21 @@ def summary_markdown(case: str, summary: Mapping[str, Any], wall_s: Mapping[int,
         cells = [spread_text(stats.get(key), factor=True) for key, _ in measures]
         cells.append(spread_text(stats.get("in_tolerance_share"), percent=True))
         lines.append(f"| {MODEL_TITLES.get(model, model)} | " + " | ".join(cells) + " |")
+    compared = summary.get("reference") or []
+    if compared:
+        name = summary.get("reference_name") or "the reference"
+        parts = []
+        for row in compared:
+            metric = row["metric"].replace("_", " ").replace(" mae", " MAE").replace(" mse", " MSE")
+            if row["neural_fmu_median"] is None:
+                parts.append(f"{metric} ×{row['factor']:.3g}: not measured")
+                continue
+            verdict = "reached" if row["reached"] else "not reached"
+            ceiling = "" if row["ceiling_median"] is None else f", the ceiling's ×{row['ceiling_median']:.3g}"
+            parts.append(f"{metric} ×{row['factor']:.3g} against the neural FMU's median "
+                         f"×{row['neural_fmu_median']:.3g}: {verdict}{ceiling}")
+        lines += ["", f"The neural FMU against {name}'s test factors (config `evaluation.reference`): "
+                  + "; ".join(parts) + "."]
     worse = summary["hybrid_worse_than_fmu_effects"]
     lines += ["", "The hybrid is worse than the FMU + diagnosed effects (whole-record MAE) on: " +
               ("; ".join(f"seed {w['seed']} {w['maneuver']} ({w['signal']})" for w in worse) if worse else
@@ -170,10 +206,15 @@ def summary_markdown(case: str, summary: Mapping[str, Any], wall_s: Mapping[int,
 
 
 def write_summary(case: str, metrics_paths: Mapping[int, str | Path], summary_path: str | Path,
-                  markdown_path: str | Path, wall_s: Mapping[int, float] | None = None) -> dict[str, Any]:
-    """Rule ``robustness_summary``: :func:`summarize` of the seeds' test metrics (seed -> ``test.json``), written as
+                  markdown_path: str | Path, wall_s: Mapping[int, float] | None = None,
+                  reference: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Rule ``robustness_summary``: :func:`summarize` of the seeds' test metrics (seed -> ``test.json``), with the
+    neural FMU beside ``reference`` (config ``evaluation.reference``, :func:`reference_comparison`), written as
     JSON and as the README's Markdown."""
     summary = summarize({int(seed): read_json(path) for seed, path in metrics_paths.items()})
+    if reference and reference.get("factors"):
+        summary["reference_name"] = reference.get("name") or "the reference"
+        summary["reference"] = reference_comparison(summary, reference)
     write_json_atomic(summary_path, summary)
     write_text_atomic(markdown_path, summary_markdown(case, summary, wall_s))
     return summary

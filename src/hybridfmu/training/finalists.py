@@ -223,12 +223,142 @@ def physical_layer_entry(checkpoint_path: str | Path, model: Any) -> dict[str, A
             "resource_s": 0.0, "status": "ok", "mlflow_run_id": None}
 
 
+def finalist_candidate(rank: int) -> str:
+    """``rank<k>``: the candidate name of the finalist with the ``rank``-th best objective."""
+    return f"rank{rank}"
+
+
+def candidate_names(top: int, physical_layer: bool) -> list[str]:
+    """The candidates of a search's final choice, one job each: ``rank1`` .. ``rank<top>`` and, for a hybrid's
+    search, :data:`PHYSICAL_LAYER_ID`."""
+    return [finalist_candidate(k) for k in range(1, top + 1)] + ([PHYSICAL_LAYER_ID] if physical_layer else [])
+
+
+def _scoring_inputs(plan_path: str | Path, maneuver_paths: dict[str, dict[str, str]],
+                    calibration_path: str | Path | None, roles: Any) -> tuple[dict[str, Any], Objective, Any,
+                                                                              dict[str, tuple[Any, np.ndarray]]]:
+    """The plan, its objective, the calibration and name -> (measured maneuver, the FMU's baseline states)."""
+    from hybridfmu.evaluation.evaluate import read_baseline
+    from hybridfmu.training.losses import objective_from_config
+    from hybridfmu.training.measured import load_calibration, read_measured
+
+    if not maneuver_paths:
+        raise ValueError("config.hpo.selection.maneuvers: no maneuver to score the finalists on")
+    plan = read_json(plan_path)
+    objective = objective_from_config(plan["objective"], roles)
+    calibration = load_calibration(calibration_path)
+    state_names = list(roles.state_names)
+    maneuvers: dict[str, tuple[Any, np.ndarray]] = {}
+    for name, paths in maneuver_paths.items():
+        measured = read_measured(paths["data"], roles)
+        maneuvers[name] = (measured, read_baseline(paths["baseline"], state_names, measured.time_s))
+    return plan, objective, calibration, maneuvers
+
+
+def score_candidate(*, candidate: str, plan_path: str | Path, selection_paths: Sequence[str | Path], top: int,
+                    maneuver_paths: dict[str, dict[str, str]], fmu_path: str | Path,
+                    calibration_path: str | Path | None, roles: Any, maneuvers_config: dict[str, Any] | None,
+                    score_path: str | Path, diagnosed_path: str | Path | None = None,
+                    physical_layer_path: str | Path | None = None) -> dict[str, Any]:
+    """Rule ``score_finalist``: one candidate of a search's final choice open loop over every whole maneuver.
+
+    Args:
+        candidate: ``rank<k>`` (the finalist with the k-th best objective, :func:`finalist_candidate`) or
+            :data:`PHYSICAL_LAYER_ID` (a hybrid's physical layer, ``physical_layer_path``).
+        plan_path, selection_paths, top, maneuver_paths, fmu_path, calibration_path, roles, maneuvers_config,
+        diagnosed_path, physical_layer_path: as for :func:`score_finalists`.
+        score_path: output JSON.
+
+    Writes ``score_path``: the candidate's entry of ``finalists.json`` (:func:`score_finalists`), or
+    ``{"candidate", "absent": true}`` when fewer than ``k`` configurations finished with a finite objective.
+    Returns it.
+    """
+    from hybridfmu.progress import Progress
+    from hybridfmu.training.inference import load_checkpoint_model
+
+    if top < 1:
+        raise ValueError(f"config.hpo.selection.top: expected at least 1 finalist, got {top}")
+    if candidate not in candidate_names(top, physical_layer_path is not None):
+        raise ValueError(f"score_finalist: unknown candidate {candidate!r}; expected one of "
+                         f"{candidate_names(top, physical_layer_path is not None)}")
+    plan, objective, calibration, maneuvers = _scoring_inputs(plan_path, maneuver_paths, calibration_path, roles)
+    parameters = dict(calibration.parameters) or None
+    if candidate == PHYSICAL_LAYER_ID:
+        if diagnosed_path is None:
+            raise ValueError("score_finalists: the physical layer of a hybrid needs its diagnosed model")
+        model = load_checkpoint_model(physical_layer_path, fmu_path, parameters, diagnosed_path)
+        entry = {**physical_layer_entry(physical_layer_path, model), "objective_rank": None}
+    else:
+        rank = int(candidate[len("rank"):])
+        finalists = finalist_results(selection_paths, top)
+        if rank > len(finalists):
+            LOG.info("no finalist of rank %d: %d configuration(s) finished with a finite objective", rank,
+                     len(finalists))
+            write_json_atomic(score_path, {"candidate": candidate, "absent": True})
+            return {"candidate": candidate, "absent": True}
+        result = finalists[rank - 1]
+        model = load_checkpoint_model(result["checkpoint"], fmu_path, parameters, diagnosed_path)
+        entry = {key: result.get(key) for key in ("trial_id", "bracket", "config", "rung", "objective", "checkpoint")}
+        entry["objective_rank"] = rank
+    simulated_s = sum(float(m.time_s[-1] - m.time_s[0]) for m, _ in maneuvers.values())
+    progress = Progress(simulated_s, f"candidate {candidate} of search {plan['search_id']}", "simulated s", LOG)
+    entry.update(score_model(model, maneuvers, roles, calibration, maneuvers_config, objective,
+                             entry["trial_id"], progress))
+    progress.finish()
+    what = "physical layer (the FMU + effects, ANN at zero)" if candidate == PHYSICAL_LAYER_ID else \
+        f"finalist {entry['trial_id']} (objective {entry['objective']:.4g}, rank {entry['objective_rank']})"
+    LOG.info("%s: score %.4g (%s)", what, entry["score"],
+             ", ".join(f"{name} {m['ratio']:.4g}" for name, m in entry["maneuvers"].items()))
+    entry = {"candidate": candidate, **entry}
+    write_json_atomic(score_path, finite_or_null(entry))
+    return finite_or_null(entry)
+
+
+def choose_among_candidates(*, candidate_paths: Sequence[str | Path], maneuvers: Sequence[str], top: int,
+                            plan_path: str | Path, roles: Any, scores_path: str | Path) -> dict[str, Any]:
+    """Rule ``score_finalists``: the final choice among the scored candidates (:func:`score_candidate`).
+
+    Writes ``scores_path`` (``finalists.json``, layout in :func:`score_finalists`) and returns it.
+    """
+    from hybridfmu.training.losses import objective_from_config
+
+    objective = objective_from_config(read_json(plan_path)["objective"], roles)
+    scored, layer_entry = [], None
+    for path in candidate_paths:
+        entry = read_json(path)
+        if entry.get("absent"):
+            continue
+        entry = {key: value for key, value in entry.items() if key != "candidate"}
+        scored.append(entry)
+        if entry["trial_id"] == PHYSICAL_LAYER_ID:
+            layer_entry = entry
+    chosen = choose_finalist(scored)
+    record = {"maneuvers": list(maneuvers), "top": top, "objective": objective.to_dict(),
+              "finalists": scored, "chosen": None if chosen is None else chosen["trial_id"]}
+    if layer_entry is not None:
+        record["physical_layer"] = {"score": layer_entry["score"],
+                                    "beaten_by": [entry["trial_id"] for entry in scored if entry is not layer_entry
+                                                  and entry["score"] is not None and layer_entry["score"] is not None
+                                                  and float(entry["score"]) < float(layer_entry["score"])]}
+        if chosen is layer_entry:
+            LOG.warning("no trained configuration beats the physical layer over the whole maneuvers %s: the hybrid "
+                        "is its physical layer (the FMU + effects, ANN at zero)", list(maneuvers))
+    write_json_atomic(scores_path, finite_or_null(record))
+    if chosen is None:
+        LOG.warning("every finalist diverged over the whole maneuvers; the search falls back to the objective")
+    else:
+        LOG.info("chosen over whole maneuvers %s: %s (score %.4g, objective rank %s)", list(maneuvers),
+                 chosen["trial_id"], chosen["score"], chosen["objective_rank"])
+    return record
+
+
 def score_finalists(*, plan_path: str | Path, selection_paths: Sequence[str | Path], top: int,
                     maneuver_paths: dict[str, dict[str, str]], fmu_path: str | Path,
                     calibration_path: str | Path | None, roles: Any, maneuvers_config: dict[str, Any] | None,
                     scores_path: str | Path, diagnosed_path: str | Path | None = None,
                     physical_layer_path: str | Path | None = None) -> dict[str, Any]:
-    """Run each finalist open loop over every whole maneuver and score it against the FMU.
+    """Run each finalist open loop over every whole maneuver and score it against the FMU, in one process (the
+    workflow runs :func:`score_candidate` once per candidate in parallel, then :func:`choose_among_candidates`).
 
     Args:
         plan_path: the search plan (its ``objective``); selection_paths: the rungs' selections (the last
@@ -236,7 +366,7 @@ def score_finalists(*, plan_path: str | Path, selection_paths: Sequence[str | Pa
         maneuver_paths: maneuver name -> ``{"data": ingested Parquet, "baseline": the FMU's baseline Parquet}``.
         fmu_path, calibration_path: the FMU and its calibration (None: as configured).
         roles: :class:`hybridfmu.case.CaseRoles`; maneuvers_config: config ``maneuvers`` (initial states).
-        scores_path: output JSON.
+        scores_path: output JSON; the candidates' own files go to ``finalists/<candidate>.json`` beside it.
         diagnosed_path: the diagnosed model under a hybrid's ANN (search "hybrid"), else None.
         physical_layer_path: for a hybrid's search, its physical layer's checkpoint
             (:func:`write_physical_layer_checkpoint`): scored too and chosen when no finalist beats it; None: the
@@ -250,68 +380,14 @@ def score_finalists(*, plan_path: str | Path, selection_paths: Sequence[str | Pa
     ``score`` and the finalists that beat it (``beaten_by``).
     Returns it.
     """
-    from hybridfmu.evaluation.evaluate import read_baseline
-    from hybridfmu.progress import Progress
-    from hybridfmu.training.inference import load_checkpoint_model
-    from hybridfmu.training.losses import objective_from_config
-    from hybridfmu.training.measured import load_calibration, read_measured
-
-    if top < 1:
-        raise ValueError(f"config.hpo.selection.top: expected at least 1 finalist, got {top}")
-    if not maneuver_paths:
-        raise ValueError("config.hpo.selection.maneuvers: no maneuver to score the finalists on")
-    plan = read_json(plan_path)
-    objective = objective_from_config(plan["objective"], roles)
-    calibration = load_calibration(calibration_path)
-    finalists = finalist_results(selection_paths, top)
-    state_names = list(roles.state_names)
-    maneuvers: dict[str, tuple[Any, np.ndarray]] = {}
-    for name, paths in maneuver_paths.items():
-        measured = read_measured(paths["data"], roles)
-        maneuvers[name] = (measured, read_baseline(paths["baseline"], state_names, measured.time_s))
-    simulated_s = sum(float(m.time_s[-1] - m.time_s[0]) for m, _ in maneuvers.values())
-    candidates = len(finalists) + (physical_layer_path is not None)
-    progress = Progress(simulated_s * candidates, f"finalists of search {plan['search_id']}", "simulated s", LOG)
-    scored = []
-    for objective_rank, result in enumerate(finalists, start=1):
-        model = load_checkpoint_model(result["checkpoint"], fmu_path, dict(calibration.parameters) or None,
-                                      diagnosed_path)
-        entry = {key: result.get(key) for key in ("trial_id", "bracket", "config", "rung", "objective", "checkpoint")}
-        entry["objective_rank"] = objective_rank
-        entry.update(score_model(model, maneuvers, roles, calibration, maneuvers_config, objective,
-                                 entry["trial_id"], progress))
-        LOG.info("finalist %s (objective %.4g, rank %d): score %.4g (%s)", entry["trial_id"], entry["objective"],
-                 objective_rank, entry["score"],
-                 ", ".join(f"{name} {m['ratio']:.4g}" for name, m in entry["maneuvers"].items()))
-        scored.append(entry)
-    layer_entry = None
-    if physical_layer_path is not None:
-        if diagnosed_path is None:
-            raise ValueError("score_finalists: the physical layer of a hybrid needs its diagnosed model")
-        model = load_checkpoint_model(physical_layer_path, fmu_path, dict(calibration.parameters) or None,
-                                      diagnosed_path)
-        layer_entry = physical_layer_entry(physical_layer_path, model)
-        layer_entry.update(objective_rank=None, **score_model(model, maneuvers, roles, calibration, maneuvers_config,
-                                                              objective, PHYSICAL_LAYER_ID, progress))
-        LOG.info("physical layer (the FMU + effects, ANN at zero): score %.4g (%s)", layer_entry["score"],
-                 ", ".join(f"{name} {m['ratio']:.4g}" for name, m in layer_entry["maneuvers"].items()))
-        scored.append(layer_entry)
-    progress.finish()
-    chosen = choose_finalist(scored)
-    record = {"maneuvers": list(maneuver_paths), "top": top, "objective": objective.to_dict(),
-              "finalists": scored, "chosen": None if chosen is None else chosen["trial_id"]}
-    if layer_entry is not None:
-        record["physical_layer"] = {"score": layer_entry["score"],
-                                    "beaten_by": [entry["trial_id"] for entry in scored if entry is not layer_entry
-                                                  and entry["score"] is not None
-                                                  and float(entry["score"]) < float(layer_entry["score"])]}
-        if chosen is layer_entry:
-            LOG.warning("no trained configuration beats the physical layer over the whole maneuvers %s: the hybrid "
-                        "is its physical layer (the FMU + effects, ANN at zero)", list(maneuver_paths))
-    write_json_atomic(scores_path, finite_or_null(record))
-    if chosen is None:
-        LOG.warning("every finalist diverged over the whole maneuvers; the search falls back to the objective")
-    else:
-        LOG.info("chosen over whole maneuvers %s: %s (score %.4g, objective rank %d)", list(maneuver_paths),
-                 chosen["trial_id"], chosen["score"], chosen["objective_rank"])
-    return record
+    folder = Path(scores_path).parent / "finalists"
+    paths = []
+    for candidate in candidate_names(top, physical_layer_path is not None):
+        path = folder / f"{candidate}.json"
+        score_candidate(candidate=candidate, plan_path=plan_path, selection_paths=selection_paths, top=top,
+                        maneuver_paths=maneuver_paths, fmu_path=fmu_path, calibration_path=calibration_path,
+                        roles=roles, maneuvers_config=maneuvers_config, score_path=path,
+                        diagnosed_path=diagnosed_path, physical_layer_path=physical_layer_path)
+        paths.append(path)
+    return choose_among_candidates(candidate_paths=paths, maneuvers=list(maneuver_paths), top=top,
+                                   plan_path=plan_path, roles=roles, scores_path=scores_path)
