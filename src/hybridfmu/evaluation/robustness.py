@@ -193,7 +193,7 @@ def summary_markdown(case: str, summary: Mapping[str, Any], wall_s: Mapping[int,
             ceiling = "" if row["ceiling_median"] is None else f", the ceiling's ×{row['ceiling_median']:.3g}"
             parts.append(f"{metric} ×{row['factor']:.3g} against the neural FMU's median "
                          f"×{row['neural_fmu_median']:.3g}: {verdict}{ceiling}")
-        lines += ["", f"The neural FMU against {name}'s test factors (config `evaluation.reference`): "
+        lines += ["", f"The neural FMU against the reference's test factors ({name}, config `evaluation.reference`): "
                   + "; ".join(parts) + "."]
     worse = summary["hybrid_worse_than_fmu_effects"]
     lines += ["", "The hybrid is worse than the FMU + diagnosed effects (whole-record MAE) on: " +
