@@ -98,6 +98,13 @@ def test_search_settings_override_the_section_for_one_search():
     # a config that never mentions the new settings keeps the settings (and the search id) it had
     assert search_settings(plain, "hpo") == {k: v for k, v in plain.items() if k != "searches"}
     assert search_settings(hpo, "other")["selection"] == {"maneuvers": ["validation"], "top": 3}
+    # a search's own search space replaces the section's, all of it; the other search keeps the section's
+    space = dict(plain["search_space"], lr={"distribution": "loguniform", "low": 1e-4, "high": 1e-3})
+    own = section_settings({"R": 9, "searches": {"hybrid": {"search_space": space}}}, "hpo")
+    assert search_settings(own, "hybrid")["search_space"] == space
+    assert search_settings(own, "hpo")["search_space"] == plain["search_space"]
+    with pytest.raises(ConfigError, match=r"searches\.hybrid\.search_space: 'beta1' is a required property"):
+        section_settings({"searches": {"hybrid": {"search_space": {"lr": space["lr"]}}}}, "hpo")
 
 
 def test_the_test_maneuver_never_chooses_and_each_budget_is_checked():
