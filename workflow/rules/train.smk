@@ -13,7 +13,7 @@ from hybridfmu.io import read_json
 from hybridfmu.tracking import experiment_name, tracking_uri
 from hybridfmu.training.maneuver_roles import role_maneuver
 from hybridfmu.training.plan import search_settings
-from hybridfmu.training.finalists import candidate_names
+from hybridfmu.training.candidates import candidate_names
 from hybridfmu.training.hyperband import hyperband_brackets
 
 HPO = section_settings(config.get("hpo"), "hpo")

@@ -29,6 +29,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from hybridfmu.io import read_json, write_json_atomic
+from hybridfmu.training.candidates import PHYSICAL_LAYER_ID, candidate_names
 from hybridfmu.training.hyperband import rank_results
 from hybridfmu.training.losses import Objective
 
@@ -113,10 +114,6 @@ def finite_or_null(value: Any) -> Any:
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
-
-
-#: The trial id of a hybrid search's physical layer among its finalists.
-PHYSICAL_LAYER_ID = "physical_layer"
 
 
 def choose_finalist(scored: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
@@ -223,17 +220,6 @@ def physical_layer_entry(checkpoint_path: str | Path, model: Any) -> dict[str, A
             "resource_s": 0.0, "status": "ok", "mlflow_run_id": None}
 
 
-def finalist_candidate(rank: int) -> str:
-    """``rank<k>``: the candidate name of the finalist with the ``rank``-th best objective."""
-    return f"rank{rank}"
-
-
-def candidate_names(top: int, physical_layer: bool) -> list[str]:
-    """The candidates of a search's final choice, one job each: ``rank1`` .. ``rank<top>`` and, for a hybrid's
-    search, :data:`PHYSICAL_LAYER_ID`."""
-    return [finalist_candidate(k) for k in range(1, top + 1)] + ([PHYSICAL_LAYER_ID] if physical_layer else [])
-
-
 def _scoring_inputs(plan_path: str | Path, maneuver_paths: dict[str, dict[str, str]],
                     calibration_path: str | Path | None, roles: Any) -> tuple[dict[str, Any], Objective, Any,
                                                                               dict[str, tuple[Any, np.ndarray]]]:
@@ -263,8 +249,9 @@ def score_candidate(*, candidate: str, plan_path: str | Path, selection_paths: S
     """Rule ``score_finalist``: one candidate of a search's final choice open loop over every whole maneuver.
 
     Args:
-        candidate: ``rank<k>`` (the finalist with the k-th best objective, :func:`finalist_candidate`) or
-            :data:`PHYSICAL_LAYER_ID` (a hybrid's physical layer, ``physical_layer_path``).
+        candidate: ``rank<k>`` (the finalist with the k-th best objective,
+            :func:`hybridfmu.training.candidates.finalist_candidate`) or :data:`PHYSICAL_LAYER_ID` (a hybrid's
+            physical layer, ``physical_layer_path``).
         plan_path, selection_paths, top, maneuver_paths, fmu_path, calibration_path, roles, maneuvers_config,
         diagnosed_path, physical_layer_path: as for :func:`score_finalists`.
         score_path: output JSON.

@@ -13,7 +13,7 @@ from typing import Any
 from hybridfmu.model.delay import describe_delays
 from hybridfmu.io import atomic_path, read_json, write_json_atomic
 from hybridfmu.training.data import build_maneuver_arrays
-from hybridfmu.training.finalists import PHYSICAL_LAYER_ID
+from hybridfmu.training.candidates import PHYSICAL_LAYER_ID
 from hybridfmu.training.hyperband import rank_results, select_survivors
 from hybridfmu.training.plan import search_plan
 from hybridfmu.training.statistics import data_statistics
