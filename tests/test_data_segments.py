@@ -12,8 +12,9 @@ import pytest
 from hybridfmu.case import CaseRoles, Signal
 from hybridfmu.data.errors import DataError
 from hybridfmu.data.segments import (
-    read_segments, select_segments, select_segments_to_files, span_mask, spans_from_mask,
+    read_segments, select_segments, span_mask, spans_from_mask,
 )
+from hybridfmu.data.segments_stage import select_segments_to_files
 
 RATE_HZ = 10_000.0
 DURATION_S = 12.0

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from hybridfmu.diagnosis.effects import Effect, EffectInputs
-from hybridfmu.diagnosis.joint import JOINT, JointEffect, StackedCache, joint_candidates, terms_in_equation
+from hybridfmu.diagnosis.joint import JOINT, JointEffect, StackedCache, joint_candidates
+from hybridfmu.diagnosis.selection import terms_in_equation
 from hybridfmu.diagnosis.selection import DesignCache, ManeuverFitData, SelectionSettings, select_equation
 
 M = 3000

@@ -25,7 +25,6 @@ API::
 
     indicator_signals(frame, signals, smooth_s) -> {signal: (T,)}
     select_segments(frame, roles, segments_config) -> SegmentSelection
-    select_segments_to_files(data_path, json_path, png_path, maneuver, config, roles=None) -> SegmentSelection
     read_segments(path) -> record;  span_mask(time_s, spans_s) -> (T,) bool
 """
 
@@ -275,39 +274,6 @@ def read_segments(path: str | Path) -> dict[str, Any]:
     if not all(isinstance(span, list) and len(span) == 2 and span[0] <= span[1] for span in spans):
         raise DataError(f"{path}: field 'spans_s': expected [[t_start_s, t_end_s], ...] with start <= end")
     return record
-
-
-def select_segments_to_files(data_path: str | Path, json_path: str | Path, png_path: str | Path, maneuver: str,
-                             config: dict[str, Any], roles: CaseRoles | None = None) -> SegmentSelection:
-    """Select the segments of an ingested maneuver; write the JSON record and the Fig. 8 plot atomically.
-
-    Args:
-        data_path: the ingested maneuver (Parquet).
-        json_path, png_path: outputs.
-        maneuver: its name (record and title).
-        config: the case config (sections ``segments`` and, unless ``roles`` is given, those
-            :func:`hybridfmu.case.case_roles` reads).
-        roles: the case's roles, if already known.
-    """
-    from hybridfmu.case import case_roles
-    from hybridfmu.data.segments_plot import plot_segments
-    from hybridfmu.io import write_json_atomic
-
-    roles = roles if roles is not None else case_roles(config)
-    data_path = Path(data_path)
-    try:
-        frame = pd.read_parquet(data_path)
-    except Exception as err:
-        raise DataError(f"{data_path}: cannot read the ingested data: {err}") from None
-    try:
-        selection = select_segments(frame, roles, config.get("segments"))
-    except DataError as err:
-        raise DataError(f"{data_path}: {err}") from None
-    LOG.info("%s: %d spans, %.1f%% of %.4g s kept", maneuver, len(selection.spans_s),
-             100.0 * selection.fraction_kept, selection.duration_s)
-    plot_segments(frame, selection, maneuver, png_path, roles)
-    write_json_atomic(json_path, segments_record(maneuver, selection))
-    return selection
 
 
 def _time(frame: pd.DataFrame) -> np.ndarray:

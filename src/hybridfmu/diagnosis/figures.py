@@ -13,7 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from hybridfmu.diagnosis.joint import terms_in_equation  # noqa: E402
+from hybridfmu.diagnosis.selection import terms_in_equation  # noqa: E402
 from hybridfmu.io import atomic_path  # noqa: E402
 
 

@@ -123,22 +123,6 @@ def joint_candidates(library: dict[int, list[Effect]], equations: list[int]) -> 
     return [JointEffect(groups[name]) for name in order] + out
 
 
-def terms_in_equation(terms: list[Any], equation: int) -> list[Any]:
-    """The chosen terms acting on ``equation``, a joint term as its member there (same setting and
-    coefficients): what a consumer that works equation by equation (a figure, a comparison) needs."""
-    from hybridfmu.diagnosis.selection import Term
-
-    out = []
-    for term in terms:
-        if isinstance(term.effect, JointEffect):
-            member = term.effect.member(equation)
-            if member is not None:
-                out.append(Term(member, dict(term.setting), term.coef, dict(term.setting_se)))
-        elif term.effect.equation == equation:
-            out.append(term)
-    return out
-
-
 @dataclass(frozen=True)
 class Block:
     """The rows of one equation in a (stacked) design: ``rows`` a slice, ``noise_variance`` per row."""

@@ -18,8 +18,7 @@ from typing import Any
 import numpy as np
 
 from hybridfmu.evaluation.offset import shift_inputs
-from hybridfmu.diagnosis.joint import terms_in_equation
-from hybridfmu.diagnosis.selection import Term
+from hybridfmu.diagnosis.selection import Term, terms_in_equation
 
 
 def load_neural_fmu(best_json: str | Path, fmu_path: str | Path, parameters: dict[str, float] | None) -> Any:

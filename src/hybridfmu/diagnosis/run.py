@@ -22,8 +22,7 @@ import numpy as np
 from hybridfmu.diagnosis.corrected_model import CorrectedModel, open_loop_errors, simulate, simulator_for
 from hybridfmu.diagnosis.derivatives import smooth_at
 from hybridfmu.diagnosis.export import DiagnosedModel
-from hybridfmu.diagnosis.joint import JOINT, StackedCache, effect_equations, effect_key, joint_candidates, \
-    terms_in_equation
+from hybridfmu.diagnosis.joint import JOINT, StackedCache, effect_equations, effect_key, joint_candidates
 from hybridfmu.diagnosis.library import build_library
 from hybridfmu.diagnosis.prepare import (MeasuredManeuver, PreparedManeuver, fill_unmeasured, kernel_samples,
                                          load_maneuver, prepare_maneuver)
@@ -32,7 +31,8 @@ from hybridfmu.diagnosis.refit import Refit, RefitSpec, parameters_set, refit_te
 from hybridfmu.diagnosis.regions import (RegionSamples, band_family, ranked_statements, region_table, reversal_mask,
                                          time_bins)
 from hybridfmu.diagnosis.selection import (DesignCache, EquationSelection, SelectionSettings, Term, best_setting,
-                                           bootstrap_coefficients, drop_one_scores, fit_terms, select_equation)
+                                           bootstrap_coefficients, drop_one_scores, fit_terms, select_equation,
+                                           terms_in_equation)
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 

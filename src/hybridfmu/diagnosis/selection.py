@@ -36,7 +36,7 @@ from scipy.optimize import minimize, minimize_scalar
 from hybridfmu.config import ConfigError
 from hybridfmu.diagnosis.derivatives import smooth_at
 from hybridfmu.diagnosis.effects import Effect, EffectInputs
-from hybridfmu.diagnosis.joint import Block, effect_equations, effect_key
+from hybridfmu.diagnosis.joint import Block, JointEffect, effect_equations, effect_key
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -167,6 +167,20 @@ class Term:
     setting: dict[str, float]
     coef: np.ndarray = field(default_factory=lambda: np.zeros(0))
     setting_se: dict[str, float] = field(default_factory=dict)
+
+
+def terms_in_equation(terms: list[Term], equation: int) -> list[Term]:
+    """The chosen terms acting on ``equation``, a joint term as its member there (same setting and
+    coefficients): what a consumer that works equation by equation (a figure, a comparison) needs."""
+    out = []
+    for term in terms:
+        if isinstance(term.effect, JointEffect):
+            member = term.effect.member(equation)
+            if member is not None:
+                out.append(Term(member, dict(term.setting), term.coef, dict(term.setting_se)))
+        elif term.effect.equation == equation:
+            out.append(term)
+    return out
 
 
 def count_parameters(term: Term, grid_size: int) -> int:

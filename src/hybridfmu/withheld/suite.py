@@ -471,7 +471,7 @@ def ingest_case(case_path: str | Path, raw_path: str | Path, out_path: str | Pat
 def segment_case(case_path: str | Path, data_path: str | Path, json_path: str | Path, png_path: str | Path,
                  maneuver: str) -> None:
     """Select the segments of one ingested maneuver of a withheld case."""
-    from hybridfmu.data.segments import select_segments_to_files
+    from hybridfmu.data.segments_stage import select_segments_to_files
 
     select_segments_to_files(data_path, json_path, png_path, maneuver, without_bench(load_case(case_path)))
 
