@@ -13,7 +13,6 @@ PACKAGE = Path(__file__).resolve().parent.parent / "src" / "hybridfmu"
 
 #: Circles between modules that remain to be taken apart, each as the set of its modules.
 REMAINING_CIRCLES = [
-    {"hybridfmu.case", "hybridfmu.data.ingest", "hybridfmu.data.plausibility"},
     {"hybridfmu.tracking.search", "hybridfmu.training.trial"},
 ]
 

@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from hybridfmu.config import ConfigError
+from hybridfmu.data.errors import DataError
 from hybridfmu.units import UnitError, converter, dimension, parse_unit, unit_string
 
 
@@ -174,6 +175,47 @@ class CaseRoles:
             "state_names": self.state_names, "input_names": self.input_names, "inputs": self.inputs,
             "states": self.states, "target_weights": self.target_weights,
         }
+
+
+@dataclass(frozen=True)
+class ManeuverSource:
+    """Where a maneuver's samples come from in its raw log.
+
+    Attributes:
+        channels: logged signal -> raw channel name (config.signals, with the maneuver's overrides).
+        t_start_s, t_end_s: slice of the log (s, relative to its first sample); None = unbounded.
+    """
+
+    channels: dict[str, str]
+    t_start_s: float | None = None
+    t_end_s: float | None = None
+
+
+def maneuver_source(config: dict[str, Any], roles: CaseRoles, maneuver: str | None) -> ManeuverSource:
+    """The raw channel of every logged signal and the slice of the log for ``maneuver``.
+
+    Raises:
+        DataError: an unknown maneuver, an override for a signal that is not logged, or a slice whose
+            end is not after its start (naming the ``config.maneuvers`` field).
+    """
+    channels = {name: signal.channel for name, signal in roles.signals.items() if not signal.derived}
+    if maneuver is None:
+        return ManeuverSource(channels)
+    maneuvers = config.get("maneuvers") or {}
+    if maneuver not in maneuvers:
+        raise DataError(f"config.maneuvers: no maneuver {maneuver!r}; expected one of {sorted(maneuvers)}")
+    entry = maneuvers[maneuver] or {}
+    for name, channel in (entry.get("channels") or {}).items():
+        if name not in channels:
+            raise DataError(f"config.maneuvers.{maneuver}.channels.{name}: not a logged signal; expected one of "
+                            f"config.signals {sorted(channels)}")
+        channels[name] = str(channel)
+    t_start_s, t_end_s = entry.get("t_start_s"), entry.get("t_end_s")
+    if t_start_s is not None and t_end_s is not None and not float(t_end_s) > float(t_start_s):
+        raise DataError(f"config.maneuvers.{maneuver}: t_end_s = {t_end_s} is not after t_start_s = {t_start_s}; "
+                        "expected a slice of positive length")
+    return ManeuverSource(channels, None if t_start_s is None else float(t_start_s),
+                          None if t_end_s is None else float(t_end_s))
 
 
 def model_description_path(config: dict[str, Any]) -> Path:
@@ -419,9 +461,6 @@ def check_maneuvers(config: dict[str, Any], roles: CaseRoles) -> None:
         ConfigError: a channel override of a signal that is not logged, a slice that ends before it starts,
             or the same data in two roles; naming the ``config.maneuvers`` fields.
     """
-    from hybridfmu.data.errors import DataError
-    from hybridfmu.data.ingest import maneuver_source
-
     maneuvers = config.get("maneuvers") or {}
     sources = {}
     for name in maneuvers:

@@ -29,14 +29,13 @@ of ``case_roles(config).signals`` (logged signals, then derived ones), each in i
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from hybridfmu.case import CaseRoles, Signal, case_roles
+from hybridfmu.case import CaseRoles, Signal, case_roles, maneuver_source
 from hybridfmu.data.errors import DataError
 from hybridfmu.data.readers import MDF_SUFFIXES, RawChannel, read_channels
 from hybridfmu.data.plausibility import check_kinematic_pairs, check_outliers, check_range, kinematic_pairs
@@ -50,20 +49,6 @@ LOG = logging.getLogger(__name__)
 
 #: Resampling functions by ``Signal.resample``: (time_s (n,), values (n,), grid_s (T,)) -> (T,).
 RESAMPLERS = {"hold": zero_order_hold, "linear": linear}
-
-
-@dataclass(frozen=True)
-class ManeuverSource:
-    """Where a maneuver's samples come from in its raw log.
-
-    Attributes:
-        channels: logged signal -> raw channel name (config.signals, with the maneuver's overrides).
-        t_start_s, t_end_s: slice of the log (s, relative to its first sample); None = unbounded.
-    """
-
-    channels: dict[str, str]
-    t_start_s: float | None = None
-    t_end_s: float | None = None
 
 
 def ingest_to_parquet(raw_path: str | Path, output_path: str | Path, config: dict[str, Any],
@@ -147,33 +132,6 @@ def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | Non
     LOG.info("%s: %d samples at %.6g Hz over %.4g s, columns %s", raw_path.name, len(frame), rate_hz,
              frame["time_s"].iloc[-1], list(frame.columns))
     return frame
-
-
-def maneuver_source(config: dict[str, Any], roles: CaseRoles, maneuver: str | None) -> ManeuverSource:
-    """The raw channel of every logged signal and the slice of the log for ``maneuver``.
-
-    Raises:
-        DataError: an unknown maneuver, an override for a signal that is not logged, or a slice whose
-            end is not after its start (naming the ``config.maneuvers`` field).
-    """
-    channels = {name: signal.channel for name, signal in roles.signals.items() if not signal.derived}
-    if maneuver is None:
-        return ManeuverSource(channels)
-    maneuvers = config.get("maneuvers") or {}
-    if maneuver not in maneuvers:
-        raise DataError(f"config.maneuvers: no maneuver {maneuver!r}; expected one of {sorted(maneuvers)}")
-    entry = maneuvers[maneuver] or {}
-    for name, channel in (entry.get("channels") or {}).items():
-        if name not in channels:
-            raise DataError(f"config.maneuvers.{maneuver}.channels.{name}: not a logged signal; expected one of "
-                            f"config.signals {sorted(channels)}")
-        channels[name] = str(channel)
-    t_start_s, t_end_s = entry.get("t_start_s"), entry.get("t_end_s")
-    if t_start_s is not None and t_end_s is not None and not float(t_end_s) > float(t_start_s):
-        raise DataError(f"config.maneuvers.{maneuver}: t_end_s = {t_end_s} is not after t_start_s = {t_start_s}; "
-                        "expected a slice of positive length")
-    return ManeuverSource(channels, None if t_start_s is None else float(t_start_s),
-                          None if t_end_s is None else float(t_end_s))
 
 
 def checked_samples(path: Path, channel: RawChannel, signal: str, time_factor: float, max_gap_s: float,
