@@ -104,8 +104,16 @@ def log_to_diagnosis_run(record: dict[str, Any], paths: list[Path], config: dict
     LOGGER.info("neural FMU comparison logged to the MLflow diagnosis run %s", run_id)
 
 
+def delays_text(delays: dict[str, float]) -> str:
+    """``{input: s}`` with the inputs of one value together: 'u1, u2 28.14 µs; u3 0.00 µs'."""
+    by_value: dict[float, list[str]] = {}
+    for name, value in delays.items():
+        by_value.setdefault(float(value), []).append(name)
+    return "; ".join(f"{', '.join(names)} {format_delay(value)}" for value, names in by_value.items())
+
+
 def gates_text(gates: Any) -> str:
-    """``omega: g_F 0.95, g_A 0.242``: the gates per corrected state (a non-dict value as text)."""
+    """``x: g_F 0.95, g_A 0.242``: the gates per corrected state (a non-dict value as text)."""
     if not isinstance(gates, dict):
         return str(gates)
     return "; ".join(f"{state}: " + (", ".join(f"{name} {format_number(v, 3)}" for name, v in values.items())
@@ -116,15 +124,12 @@ def gates_text(gates: Any) -> str:
 def comparison_markdown(record: dict[str, Any], targets: dict[str, float]) -> str:
     """``neural_fmu.md``: the learned correction against the diagnosed effects and the open-loop gaps."""
     correction = record["correction"]
-    delays: dict[float, list[str]] = {}
-    for name, value in correction["learned_delay_s"].items():
-        delays.setdefault(float(value), []).append(name)
     lines = ["# The trained neural FMU beside the diagnosis", "",
              f"Best model: `{record['best']}`; diagnosed effects: "
              f"{', '.join(table_cell(e) for e in record['effects']) or 'none'}.", "",
              "## What the ANN learned", "",
-             "Learned input delays " + "; ".join(f"{', '.join(n)} {format_delay(v)}" for v, n in delays.items())
-             + f", gates {gates_text(correction['gates'])}. The learned correction per equation along the measured trajectories "
+             f"Learned input delays {delays_text(correction['learned_delay_s'])}, gates "
+             f"{gates_text(correction['gates'])}. The learned correction per equation along the measured trajectories "
              f"of {', '.join(record['fit_maneuvers'])}: "
              + ("; ".join(f"d{k}/dt: RMS {format_number(v['learned_correction_rms'], 3)} {v['unit']}, joint R^2 of "
                           f"the diagnosed effects {format_number(v['r2_joint'], 3)}"

@@ -12,7 +12,6 @@ import numpy as np
 from hybridfmu.diagnosis import figures
 from hybridfmu.diagnosis.export import DIAGNOSED_MODEL, save_diagnosed
 from hybridfmu.io import write_json_atomic, write_text_atomic
-from hybridfmu.model.delay import format_delay
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -389,11 +388,3 @@ def diagnose(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str,
         write_json_atomic(paths["json"], paths["record"])
     LOGGER.info("diagnosis: %s", paths["record"]["verdict"])
     return paths["record"]
-
-
-def _delays_text(delays: dict[str, float]) -> str:
-    """``{input: s}`` with the inputs of one value together: 'u1, u2 28.14 µs; u3 0.00 µs'."""
-    by_value: dict[float, list[str]] = {}
-    for name, value in delays.items():
-        by_value.setdefault(float(value), []).append(name)
-    return "; ".join(f"{', '.join(names)} {format_delay(value)}" for value, names in by_value.items())

@@ -185,7 +185,8 @@ def summary_markdown(case: str, summary: Mapping[str, Any], wall_s: Mapping[int,
         name = summary.get("reference_name") or "the reference"
         parts = []
         for row in compared:
-            metric = row["metric"].replace("_", " ").replace(" mae", " MAE").replace(" mse", " MSE")
+            signal, measure = row["metric"].rsplit("_", 1)
+            metric = f"{signal} {measure.upper()}"
             if row["neural_fmu_median"] is None:
                 parts.append(f"{metric} ×{row['factor']:.3g}: not measured")
                 continue
