@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from hybridfmu.bench.emulate import emulate_bench
+from hybridfmu_bench.emulate import emulate_bench
 from hybridfmu.config import load_case_config
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -24,7 +24,7 @@ import json
 import time
 from pathlib import Path
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.config import check_config_file
 from hybridfmu.fmu import FmuRhs
 from hybridfmu.io import read_json

@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.config import check_config_file
-from hybridfmu.evaluation.evaluate import read_baseline
+from hybridfmu.training.measured import read_baseline
 from hybridfmu.evaluation.metrics import improvement_factors, trajectory_errors
 from hybridfmu.io import atomic_path, read_json
 from hybridfmu.training.finalists import finite_or_null, score_finalists

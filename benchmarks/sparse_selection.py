@@ -3,11 +3,11 @@
 For every case of a finished withheld suite (``snakemake -j2 withheld``) it rebuilds the diagnosis' candidate
 features from the case's ingested logs (:mod:`hybridfmu.diagnosis.sparse`: each candidate at its setting
 fitted alone beside the calibrated parameter errors, rows in noise-floor units), runs STLSQ over a grid of
-thresholds and scores what it names with the suite's own scoring (:func:`hybridfmu.withheld.scoring.
+thresholds and scores what it names with the suite's own scoring (:func:`hybridfmu_bench.withheld.scoring.
 score_case`, the case's ground truth). The forward selection's names come from the case's ``diagnosis.json``
 and are scored the same way. The threshold is chosen as the suite chooses the forward selection's: the smallest
 that names nothing in every none case. Both methods are measured on the cases above the forward selection's
-detection limits (:func:`hybridfmu.withheld.report.aggregate`).
+detection limits (:func:`hybridfmu_bench.withheld.report.aggregate`).
 
 Prints a table; the last line is a JSON object with the figures. ``--markdown FILE`` writes the table for the
 README (block ``sparse_selection``).
@@ -58,8 +58,8 @@ def score_case_files(case: str, withheld: Path, fmu: Path, expected: dict, backg
     from hybridfmu.diagnosis.run import load_inputs, prepare_all, selection_inputs
     from hybridfmu.diagnosis.selection import SelectionSettings
     from hybridfmu.diagnosis.sparse import candidate_features, stlsq_select
-    from hybridfmu.withheld.suite import load_case, without_bench
-    from hybridfmu.withheld.scoring import score_case
+    from hybridfmu_bench.withheld.suite import load_case, without_bench
+    from hybridfmu_bench.withheld.scoring import score_case
 
     config = without_bench(load_case(withheld / "cases" / f"{case}.yaml"))
     maneuvers = list(config["maneuvers"])
@@ -95,7 +95,7 @@ def _work(args: tuple) -> dict[str, Any]:
 def compare(results: list[dict[str, Any]]) -> dict[str, Any]:
     """Both methods' measures on the cases above the forward selection's detection limits, and STLSQ's per
     threshold; the chosen threshold: the smallest naming nothing in every none case."""
-    from hybridfmu.withheld.report import aggregate, detection_limits
+    from hybridfmu_bench.withheld.report import aggregate, detection_limits
 
     forward_rows = [r["forward"] for r in results]
     limits = detection_limits(forward_rows)

@@ -7,7 +7,7 @@ from typing import Callable
 
 import numpy as np
 
-from hybridfmu.case import CaseRoles, Signal
+from hybridfmu.data.roles import CaseRoles, Signal
 from hybridfmu.diagnosis.prepare import MeasuredManeuver
 from hybridfmu.diagnosis.problem import build_problem, diagnosis_settings
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hybridfmu.bench.ceiling import DUTY_CHANNELS, applied_duties, grid_start_s, true_plant_open_loop
-from hybridfmu.bench.emulate import CHANNELS, channel_groups, run_maneuver
-from hybridfmu.bench.mdf_writer import write_mdf4
-from hybridfmu.bench.settings import parse_bench_settings
+from hybridfmu_bench.ceiling import DUTY_CHANNELS, applied_duties, grid_start_s, true_plant_open_loop
+from hybridfmu_bench.emulate import CHANNELS, channel_groups, run_maneuver
+from hybridfmu_bench.mdf_writer import write_mdf4
+from hybridfmu_bench.settings import parse_bench_settings
 from test_bench_emulate import short_config
 
 

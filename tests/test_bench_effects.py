@@ -11,11 +11,11 @@ import math
 import numpy as np
 import pytest
 
-from hybridfmu.bench.effects import EFFECTS, Effect, build_effects, register_effect
-from hybridfmu.bench.hydraulics import PressureVolumeCurve
-from hybridfmu.bench.parameters import NOMINAL_PARAMETERS
-from hybridfmu.bench.plant import Plant
-from hybridfmu.bench.supply import Supply
+from hybridfmu_bench.effects import EFFECTS, Effect, build_effects, register_effect
+from hybridfmu_bench.hydraulics import PressureVolumeCurve
+from hybridfmu_bench.parameters import NOMINAL_PARAMETERS
+from hybridfmu_bench.plant import Plant
+from hybridfmu_bench.supply import Supply
 
 PERIOD_S = 1e-4
 NO_PRESSURE = PressureVolumeCurve(dead_travel_rad=1e6, pressure_scale_bar=5.0, volume_scale_cm3=1.5,

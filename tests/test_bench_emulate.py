@@ -12,18 +12,18 @@ import numpy as np
 import pytest
 import yaml
 
-from hybridfmu.bench.controller import ControllerSettings
-from hybridfmu.bench.emulate import (CHANNELS, check_planned_spread, emulate_bench, run_maneuver,
+from hybridfmu_bench.controller import ControllerSettings
+from hybridfmu_bench.emulate import (CHANNELS, check_planned_spread, emulate_bench, run_maneuver,
                                      summarize_bench)
-from hybridfmu.bench.maneuvers import check_spread
-from hybridfmu.bench.settings import (EcuMapSettings, HydraulicsSettings, SensorSettings,
+from hybridfmu_bench.maneuvers import check_spread
+from hybridfmu_bench.settings import (EcuMapSettings, HydraulicsSettings, SensorSettings,
                                       parse_bench_settings)
-from hybridfmu.bench.supply import Supply
+from hybridfmu_bench.supply import Supply
 from hybridfmu.config import load_case_config, validate_case_config
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO_CONFIG = ROOT / "config" / "config.yaml"
-SCHEMA = ROOT / "workflow" / "schemas" / "bench.schema.yaml"
+SCHEMA = ROOT / "src" / "hybridfmu" / "schemas" / "bench.schema.yaml"
 
 SHORT_SEGMENTS = [
     {"kind": "rest", "duration_s": 0.1},
@@ -230,7 +230,7 @@ def test_realised_spread_is_checked_from_the_ground_truth(tmp_path):
 
 def test_progress_lines_are_logged(caplog):
     settings = parse_bench_settings(short_config())
-    with caplog.at_level(logging.INFO, logger="hybridfmu.bench"):
+    with caplog.at_level(logging.INFO, logger="hybridfmu_bench"):
         run_maneuver(settings, "quick", duration_s=0.05)
     assert any("bench quick: done 0.05 simulated s" in record.getMessage() for record in caplog.records)
 
@@ -263,7 +263,7 @@ def test_fmu_reproduces_the_bench_without_effects_but_not_with_the_demo_effects(
 
 
 def test_raw_paths_must_be_the_bench_outputs():
-    from hybridfmu.bench.settings import check_raw_paths
+    from hybridfmu_bench.settings import check_raw_paths
 
     config = load_case_config(DEMO_CONFIG)
     check_raw_paths(config, "results/ipb")

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from hybridfmu.bench.hydraulics import PressureVolumeCurve, displacement_m3_per_rad
-from hybridfmu.bench.parameters import NOMINAL_PARAMETERS, nominal_parameters, true_parameters
-from hybridfmu.bench.plant import Plant
-from hybridfmu.bench.supply import Supply
+from hybridfmu_bench.hydraulics import PressureVolumeCurve, displacement_m3_per_rad
+from hybridfmu_bench.parameters import NOMINAL_PARAMETERS, nominal_parameters, true_parameters
+from hybridfmu_bench.plant import Plant
+from hybridfmu_bench.supply import Supply
 
 PERIOD_S = 1e-4
 NO_PRESSURE = PressureVolumeCurve(1e6, 5.0, 1.5, 1.25e-7)

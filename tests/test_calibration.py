@@ -14,7 +14,7 @@ import pytest
 from hybridfmu.calibration import Calibration, calibrated_parameters, open_loop_rmse, run_calibration
 from hybridfmu.calibration.data import load_maneuver
 from hybridfmu.calibration.tracking import flat_metrics, flat_params
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.config import ConfigError, validate_case_config
 from hybridfmu.fmu import build_fmu, load_fmu, simulate_open_loop
 

@@ -7,11 +7,11 @@ import copy
 import numpy as np
 import pytest
 
-from hybridfmu.bench.ceiling import true_plant_closed_loop
-from hybridfmu.bench.ecu import EcuSoftware
-from hybridfmu.bench.emulate import REFERENCE_CHANNELS, run_maneuver
-from hybridfmu.bench.settings import parse_bench_settings
-from hybridfmu.case import case_roles
+from hybridfmu_bench.ceiling import true_plant_closed_loop
+from hybridfmu_bench.ecu import EcuSoftware
+from hybridfmu_bench.emulate import REFERENCE_CHANNELS, run_maneuver
+from hybridfmu_bench.settings import parse_bench_settings
+from hybridfmu.data.roles import case_roles
 from hybridfmu.evaluation.closed_loop import (ClosedLoopRecord, closed_loop_settings, make_controller,
                                               simulate_closed_loop)
 from test_bench_emulate import short_config
@@ -76,7 +76,7 @@ def test_settings_are_checked_against_the_case():
     config = short_config()
     roles = demo_roles()
     settings = closed_loop_settings(config, roles)
-    assert settings.controller == "hybridfmu.bench.ecu:EcuSoftware"
+    assert settings.controller == "hybridfmu_bench.ecu:EcuSoftware"
     assert settings.outputs == {"d_a": "d_a", "d_b": "d_b", "d_c": "d_c"}
     assert closed_loop_settings({**config, "closed_loop": {}}, roles) is None
     cases = [({"controller": "no_colon"}, r"controller: expected 'module:attribute'"),
@@ -84,7 +84,7 @@ def test_settings_are_checked_against_the_case():
              ({"outputs": {"d_a": "duty_a"}}, r"outputs: FMU input\(s\) \['duty_a'\]"),
              ({"outputs": {}}, r"outputs: expected at least one"),
              ({"controller": "hybridfmu.no_such_module:Ecu"}, r"controller: cannot import module 'hybridfmu.no_such_module'"),
-             ({"controller": "hybridfmu.bench.ecu:NoSuchThing"}, r"controller: module 'hybridfmu.bench.ecu' has no callable 'NoSuchThing'")]
+             ({"controller": "hybridfmu_bench.ecu:NoSuchThing"}, r"controller: module 'hybridfmu_bench.ecu' has no callable 'NoSuchThing'")]
     for change, message in cases:
         edited = copy.deepcopy(config)
         edited["closed_loop"].update(change)

@@ -83,7 +83,7 @@ def test_a_case_configfile_replaces_the_demo_config(tmp_path, demo_config):
     assert "MANEUVERS=run1\n" in proc.stdout + proc.stderr, proc.stdout + proc.stderr
 
 
-# ---- the case's roles and units, checked before any job runs (hybridfmu.case.check_case) -----------------
+# ---- the case's roles and units, checked before any job runs (hybridfmu.case_checks.check_case) -----------------
 
 def _case(demo_config):
     config = copy.deepcopy(demo_config)
@@ -91,7 +91,7 @@ def _case(demo_config):
 
 
 def test_check_case_names_a_nonexistent_fmu_variable(demo_config):
-    from hybridfmu.case import check_case
+    from hybridfmu.case_checks import check_case
 
     config = validate_case_config(_case(demo_config))
     config["roles"]["states"]["psi_r"] = "speed"
@@ -108,7 +108,7 @@ def test_a_signal_without_unit_is_a_schema_error(demo_config):
 
 
 def test_check_case_names_a_unit_of_the_wrong_dimension(demo_config):
-    from hybridfmu.case import check_case
+    from hybridfmu.case_checks import check_case
 
     config = validate_case_config(_case(demo_config))
     config["signals"]["speed"]["unit"] = "N"
@@ -121,7 +121,7 @@ def test_check_case_names_a_unit_of_the_wrong_dimension(demo_config):
 
 
 def test_demo_and_tiny_cases_pass_check_case():
-    from hybridfmu.case import check_case
+    from hybridfmu.case_checks import check_case
 
     for path in (DEMO_CONFIG, REPO / "config" / "cases" / "tiny.yaml"):
         roles = check_case(load_case_config(path), str(path))
@@ -188,7 +188,7 @@ def test_check_config_file_names_the_file_for_schema_errors_and_leaves_the_confi
         check_config_file(path, config)
 
 
-# ---- maneuvers: one raw log in two roles (hybridfmu.case.check_maneuvers) ---------------------------------------
+# ---- maneuvers: one raw log in two roles (hybridfmu.case_checks.check_maneuvers) ---------------------------------------
 
 TANKS = REPO / "config" / "cases" / "tanks.yaml"
 
@@ -198,7 +198,7 @@ def _tanks():
 
 
 def test_one_log_in_slices_and_side_by_side_records_is_legitimate(monkeypatch):
-    from hybridfmu.case import check_case
+    from hybridfmu.case_checks import check_case
 
     monkeypatch.chdir(REPO)
     config = _tanks()
@@ -214,7 +214,7 @@ def test_one_log_in_slices_and_side_by_side_records_is_legitimate(monkeypatch):
 
 
 def test_overlap_of_a_slice_and_same_channels_in_two_roles_is_an_error(monkeypatch):
-    from hybridfmu.case import check_case
+    from hybridfmu.case_checks import check_case
 
     monkeypatch.chdir(REPO)
     config = _tanks()
@@ -250,7 +250,7 @@ def _user_fmu(tmp_path, model_name=None):
 
 
 def test_model_name_of_a_user_fmu_is_checked_when_set(tmp_path):
-    from hybridfmu.case import model_interface
+    from hybridfmu.data.roles import model_interface
 
     fmu, section = _user_fmu(tmp_path, "MassSpring")
     assert model_interface({"fmu": section}).state_names == ["x", "v"]
@@ -337,7 +337,7 @@ def test_without_a_test_maneuver_the_diagnosis_says_the_held_out_check_was_not_r
 
 
 def test_with_a_test_maneuver_nothing_is_said_to_be_missing(demo_config):
-    from hybridfmu.case import case_warnings
+    from hybridfmu.case_checks import case_warnings
 
     assert case_warnings(validate_case_config(demo_config), "demo.yaml") == []
     for name in [name for name, item in demo_config["maneuvers"].items() if item["role"] == "test"]:

@@ -13,8 +13,8 @@ import math
 import numpy as np
 import pytest
 
-from hybridfmu.bench.emulate import emulate_bench
-from hybridfmu.case import case_roles
+from hybridfmu_bench.emulate import emulate_bench
+from hybridfmu.data.roles import case_roles
 from hybridfmu.data.ingest import ingest_log
 from hybridfmu.data.signals import input_array, state_array, time_array
 from hybridfmu.fmu import load_fmu, simulate_open_loop

@@ -105,7 +105,7 @@ def test_the_real_cascaded_tanks_records_pass():
 def test_the_demo_bench_log_passes_with_a_ratio_near_one(tmp_path, caplog):
     """An emulated demo log (time offset between channels, encoder quantisation) passes; its measured
     angle/speed ratio is within 0.002 of 1, far inside the default tolerance 0.1."""
-    from hybridfmu.bench.emulate import emulate_bench
+    from hybridfmu_bench.emulate import emulate_bench
 
     config = load_case_config(REPO / "config" / "config.yaml")
     raw = tmp_path / "train.mf4"

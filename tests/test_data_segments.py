@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hybridfmu.case import CaseRoles, Signal
+from hybridfmu.data.roles import CaseRoles, Signal
 from hybridfmu.data.errors import DataError
 from hybridfmu.data.segments import (
     read_segments, select_segments, span_mask, spans_from_mask,

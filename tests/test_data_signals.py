@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hybridfmu.case import CaseRoles, Signal
+from hybridfmu.data.roles import CaseRoles, Signal
 from hybridfmu.data.errors import DataError
 from hybridfmu.data.signals import input_array, signal_array, state_array, target_array, time_array
 

@@ -96,7 +96,7 @@ def test_config_errors_name_the_field():
 
 
 def test_the_core_never_imports_the_motor_plugin():
-    code = ("import sys, hybridfmu.diagnosis.run, hybridfmu.diagnosis.report, hybridfmu.withheld.suite; "
+    code = ("import sys, hybridfmu.diagnosis.run, hybridfmu.diagnosis.report, hybridfmu_bench.withheld.suite; "
             "print(any('motor' in m for m in sys.modules if m.startswith('hybridfmu.diagnosis')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "False"

@@ -1,6 +1,7 @@
 """The diagnosis knows nothing of the emulated bench: no default of the diagnosis package and no value of a
 case config's ``diagnosis`` section equals a constant of the bench (its config section, its settings'
-defaults, its effect catalog's defaults, its module constants), and no diagnosis module imports it.
+defaults, its effect catalog's defaults, its module constants). That no module of the package imports the bench
+is checked with the package's whole import graph (tests/test_import_structure.py).
 
 The bench plays the real world; a diagnosis that carried one of its numbers (a sensor lag, a smoothing
 current, a PWM frequency) would be told the answer. Values that are dimensionless statistics or grids
@@ -22,7 +23,7 @@ from typing import Any, Iterator
 import pytest
 import yaml
 
-import hybridfmu.bench as bench_package
+import hybridfmu_bench as bench_package
 import hybridfmu.diagnosis as diagnosis_package
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,8 +42,8 @@ DIMENSIONLESS_KEYS = ("quantile", "relative", "order", "harmonic", "degree", "sa
 DIMENSIONLESS_SECTIONS = ("selection",)
 #: Bench constants that are the FMU's own (nominal) parameters, not the bench's truth.
 MODEL_OWN = ("NOMINAL_PARAMETERS",)
-#: Bench modules outside the real world's physics.
-SKIPPED_BENCH_MODULES = ("hybridfmu.bench.mdf_writer",)
+#: Bench modules outside the real world's physics (the log writer; the withheld suite, which drives the bench).
+SKIPPED_BENCH_MODULES = ("hybridfmu_bench.mdf_writer", "hybridfmu_bench.withheld")
 
 
 def numbers(value: Any, path: str = "") -> Iterator[tuple[str, float]]:
@@ -106,7 +107,7 @@ def bench_values() -> dict[float, list[str]]:
         if module.__name__ not in SKIPPED_BENCH_MODULES:
             for path, value in _module_constants(module, skip=MODEL_OWN):
                 values.setdefault(value, []).append(path)
-    for path, value in _schema_defaults(ROOT / "workflow" / "schemas" / "bench.schema.yaml"):
+    for path, value in _schema_defaults(ROOT / "src" / "hybridfmu" / "schemas" / "bench.schema.yaml"):
         values.setdefault(value, []).append(f"bench.schema.yaml:{path}")
     for config in BENCH_CONFIGS:
         section = (yaml.safe_load(config.read_text()) or {}).get("bench") or {}
@@ -134,7 +135,7 @@ def diagnosis_values() -> list[tuple[str, float]]:
     for module in _modules(diagnosis_package):
         out += [(p, v) for p, v in _module_constants(module) if not is_dimensionless(p)]
         out += [(p, v) for p, v in _inline_defaults(Path(module.__file__)) if not is_dimensionless(p)]
-    schema = ROOT / "workflow" / "schemas" / "diagnosis.schema.yaml"
+    schema = ROOT / "src" / "hybridfmu" / "schemas" / "diagnosis.schema.yaml"
     out += [(f"diagnosis.schema.yaml:{p}", v) for p, v in _schema_defaults(schema) if not is_dimensionless(p)]
     for config in BENCH_CONFIGS:
         data = yaml.safe_load(config.read_text()) or {}
@@ -182,7 +183,7 @@ def test_no_diagnosis_default_or_config_value_equals_a_bench_constant():
 
 def test_the_check_catches_a_copied_bench_constant():
     """A sensor lag copied from the bench's sensor settings into a diagnosis section is caught."""
-    from hybridfmu.bench.settings import SensorSettings
+    from hybridfmu_bench.settings import SensorSettings
 
     lag = SensorSettings().pressure_lag_s
     planted = [("config.yaml:diagnosis.input_lag_compensation_s.tau_load", lag)]
@@ -194,16 +195,3 @@ def test_the_check_catches_a_copied_bench_constant():
                                   "end_stop_margin", "kernel_s"])
 def test_physical_settings_are_compared(path):
     assert not is_dimensionless(path)
-
-
-def test_no_diagnosis_module_imports_the_bench():
-    offenders = []
-    for file in sorted((ROOT / "src" / "hybridfmu" / "diagnosis").glob("*.py")):
-        for node in ast.walk(ast.parse(file.read_text())):
-            names = []
-            if isinstance(node, ast.Import):
-                names = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom):
-                names = [node.module or ""]
-            offenders += [f"{file.name}: {n}" for n in names if n.startswith("hybridfmu.bench")]
-    assert not offenders, offenders

@@ -62,7 +62,7 @@ def test_selection_thresholds_stay_configurable_and_unknown_ones_are_named():
 
 
 #: The diagnosis section's schema (``config.schema.yaml`` refers to it for ``diagnosis``).
-DIAGNOSIS_SCHEMA = REPO / "workflow" / "schemas" / "diagnosis.schema.yaml"
+DIAGNOSIS_SCHEMA = REPO / "src" / "hybridfmu" / "schemas" / "diagnosis.schema.yaml"
 
 
 @pytest.fixture()
@@ -72,7 +72,7 @@ def section():
 
 
 def test_the_case_schema_validates_the_diagnosis_section_with_this_schema():
-    case_schema = yaml.safe_load((REPO / "workflow" / "schemas" / "config.schema.yaml").read_text())
+    case_schema = yaml.safe_load((REPO / "src" / "hybridfmu" / "schemas" / "config.schema.yaml").read_text())
     assert case_schema["properties"]["diagnosis"]["$ref"].endswith("diagnosis.schema.yaml")
 
 

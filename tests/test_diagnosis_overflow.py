@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hybridfmu.case import CaseRoles, Signal
+from hybridfmu.data.roles import CaseRoles, Signal
 from hybridfmu.diagnosis.corrected_model import rk4_simulate
 from hybridfmu.diagnosis.library import Overflow
 from hybridfmu.diagnosis.prepare import MeasuredManeuver, fill_unmeasured

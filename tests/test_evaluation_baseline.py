@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from hybridfmu.calibration.result import Calibration
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.evaluation.baseline import run_baseline
 from hybridfmu.evaluation.offset import run_time_offset
 from hybridfmu.fmu import load_fmu, simulate_open_loop

@@ -19,7 +19,7 @@ def write_best(tmp_path, fmu_path, gate_opening: float):
     """best.json + checkpoint of an untrained neural FMU (as the training writes them)."""
     from hybridfmu.data.settings import section_settings
     from hybridfmu.training.build import build_neural_fmu, model_spec
-    from hybridfmu.training.trial import CHECKPOINT_FORMAT
+    from hybridfmu.training.checkpoint import CHECKPOINT_FORMAT
 
     # random output layer: with an open gate the untrained ANN changes the dynamics
     model_config = section_settings({"corrected_states": ["omega"], "end_stop": {"state": "theta", "rate_state": "omega",

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from matplotlib import image
 
-from hybridfmu.case import Signal
+from hybridfmu.data.roles import Signal
 from hybridfmu.evaluation.figures import (PlotOptions, Trajectories, decimate_minmax, plot_time_offset,
                                           plot_trajectory, plot_zooms, squared_unit)
 

@@ -121,7 +121,7 @@ def test_target_weights_in_the_search_space_and_objective():
 
     class Roles(SimpleNamespace):
         def weights_with(self, overrides):
-            from hybridfmu.case import CaseRoles
+            from hybridfmu.data.roles import CaseRoles
             return CaseRoles.weights_with(self, overrides)
 
     roles = Roles(target_weights={"p": 0.5, "v": 0.5}, target_states=["p", "v"])

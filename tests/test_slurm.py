@@ -230,7 +230,7 @@ def test_runs_of_another_nodes_slurm_job_end_when_the_job_ends(cluster, tmp_path
     from hybridfmu.tracking import default_tracking_uri
     from hybridfmu.tracking.jobs import owner_alive, slurm_job_state
     from hybridfmu.tracking.mlflow_store import Tracker
-    from hybridfmu.tracking.search import end_stale_runs
+    from hybridfmu.training.search_tracking import end_stale_runs
 
     submitted = subprocess.run(["sbatch", "--parsable", "--job-name=hybridfmu-owner-test", "--mem=100",
                                 f"--output={tmp_path / 'job.out'}", "--wrap", "sleep 300"],
@@ -278,7 +278,7 @@ def test_a_job_in_a_slurm_job_watches_its_job_steps_snakemake(cluster, tmp_path)
     probe = textwrap.dedent('''
         import json, os
         from hybridfmu.tracking.jobs import owner_tags, snakemake_ancestor, workflow_process
-        from hybridfmu.tracking.search import workflow_owner_tags
+        from hybridfmu.training.search_tracking import workflow_owner_tags
         print(json.dumps({"ancestor": snakemake_ancestor().pid, "parent": os.getppid(),
                           "workflow": workflow_process() and workflow_process().pid,
                           "tags": owner_tags(), "workflow_tags": workflow_owner_tags()}))

@@ -14,7 +14,7 @@ WORKER = textwrap.dedent('''
     import json, sys
     import torch
     from hybridfmu.model import NeuralFmu, NeuralFmuSpec
-    from hybridfmu.tracking.search import log_trial_rung
+    from hybridfmu.training.search_tracking import log_trial_rung
 
     tracking, worker = json.loads(sys.argv[1]), int(sys.argv[2])
     spec = NeuralFmuSpec(state_names=["p", "v"], input_names=["f"], corrected_states=["v"], ann_states=["v"],
@@ -103,7 +103,7 @@ def test_two_processes_create_a_fresh_store_at_once(tmp_path):
 def test_two_training_processes_log_everything(tmp_path):
     from mlflow.tracking import MlflowClient
 
-    from hybridfmu.tracking.search import start_search
+    from hybridfmu.training.search_tracking import start_search
 
     uri = default_tracking_uri(tmp_path)
     tracking = start_search(uri, "case", "search-1", "case", {"R": 9, "eta": 3})
@@ -214,7 +214,7 @@ def test_logging_is_idempotent_and_order_free(tmp_path):
     """A rung logged twice (a rerun) adds no rows; a rung logged late (after the next one) adds only its own."""
     from mlflow.tracking import MlflowClient
 
-    from hybridfmu.tracking.search import log_trial_rung, start_search
+    from hybridfmu.training.search_tracking import log_trial_rung, start_search
 
     uri = default_tracking_uri(tmp_path)
     tracking = start_search(uri, "case", "search-1", "case", {"R": 3})
@@ -251,7 +251,7 @@ def test_runs_left_running_by_dead_jobs_are_ended(tmp_path):
 
     from hybridfmu.tracking.jobs import owner_tags
     from hybridfmu.tracking.mlflow_store import Tracker
-    from hybridfmu.tracking.search import end_stale_runs
+    from hybridfmu.training.search_tracking import end_stale_runs
 
     tracker = Tracker(default_tracking_uri(tmp_path))
     experiment = tracker.experiment_id("case")
@@ -398,7 +398,7 @@ def test_a_new_job_takes_over_from_an_orphan(tmp_path):
 OWNER_PROBE = textwrap.dedent('''
     import json, os
     from hybridfmu.tracking.jobs import snakemake_ancestor, workflow_process
-    from hybridfmu.tracking.search import workflow_owner_tags
+    from hybridfmu.training.search_tracking import workflow_owner_tags
     workflow = workflow_process()
     print(json.dumps({"parent": os.getppid(), "ancestor": snakemake_ancestor().pid,
                       "workflow": workflow.pid if workflow else None, "tags": workflow_owner_tags()}))
@@ -464,7 +464,7 @@ def test_select_best_catches_up_on_queued_rungs(tmp_path):
     import torch
     from mlflow.tracking import MlflowClient
 
-    from hybridfmu.tracking.search import catch_up_search, finish_search, record_pending, start_search
+    from hybridfmu.training.search_tracking import catch_up_search, finish_search, record_pending, start_search
 
     uri = default_tracking_uri(tmp_path / "store")
     tracking = start_search(uri, "case", "search-1", "case", {"R": 3})

@@ -112,7 +112,7 @@ def test_the_test_maneuver_never_chooses_and_each_budget_is_checked():
         section_settings({"selection": {"maneuvers": ["test"]}}, "hpo")
     with pytest.raises(ConfigError, match=r"config\.hpo\.searches"):
         section_settings({"searches": {"neural": {"R": 3}}}, "hpo")
-    from hybridfmu.case import check_hpo
+    from hybridfmu.case_checks import check_hpo
 
     check_hpo({"hpo": {"R": 9, "eta": 3, "searches": {"hpo": {"R": 27}}}})
     with pytest.raises(ConfigError, match=r"config\.hpo\.searches\.hybrid\.R"):

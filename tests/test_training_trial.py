@@ -16,7 +16,8 @@ from hybridfmu.evaluation.baseline import run_baseline
 from hybridfmu.training.finalists import score_finalists
 from hybridfmu.training.hpo import plan_search, prepare_training_data, select_best, select_rung
 from hybridfmu.training.inference import load_trained_neural_fmu, simulate_neural_fmu
-from hybridfmu.training.trial import load_checkpoint, run_trial_rung
+from hybridfmu.training.checkpoint import load_checkpoint
+from hybridfmu.training.trial import run_trial_rung
 from test_evaluation_baseline import MANEUVERS, measured_frame, motor_roles, write_calibration
 
 H = 1e-4
@@ -427,7 +428,7 @@ def test_tracking_store_lost_mid_search_keeps_the_rung_and_logs_it_later(case, t
     from mlflow.tracking import MlflowClient
 
     from hybridfmu.tracking import default_tracking_uri
-    from hybridfmu.tracking.search import pending_folder, start_search, sync_pending
+    from hybridfmu.training.search_tracking import pending_folder, start_search, sync_pending
 
     plan = read_json(case["plan"])
     uri = default_tracking_uri(tmp_path / "store")
@@ -468,7 +469,7 @@ def test_tracking_store_lost_mid_search_keeps_the_rung_and_logs_it_later(case, t
         {int(round(1000 * lost["resource_s"])), int(round(1000 * resumed["resource_s"]))})
     assert client.get_run(run_id).info.status == "FINISHED"
 
-    from hybridfmu.tracking.search import record_pending
+    from hybridfmu.training.search_tracking import record_pending
     record_pending(plan_path, lost, tmp_path / "hpo/b1/r0/c1/result.json", "again")
     assert set(sync_pending(plan_path)) == {"b1c1"}  # logging it a second time adds no rows
     assert [m.step for m in client.get_metric_history(run_id, "train_loss")] == steps

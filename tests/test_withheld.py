@@ -16,8 +16,8 @@ import pytest
 import yaml
 
 from hybridfmu.config import read_config_file, validate_case_config
-from hybridfmu.withheld import suite as withheld
-from hybridfmu.withheld.report import SUMMARY_COLUMNS, summarise
+from hybridfmu_bench.withheld import suite as withheld
+from hybridfmu_bench.withheld.report import SUMMARY_COLUMNS, summarise
 
 ROOT = Path(__file__).resolve().parents[1]
 DURATION_S = 3.0

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hybridfmu.config import read_config_file, validate_case_config
-from hybridfmu.withheld import suite as withheld
+from hybridfmu_bench.withheld import suite as withheld
 
 ROOT = Path(__file__).resolve().parents[1]
 EFFECTS = ["coulomb_friction", "viscous_friction", "load_dependent_friction", "cogging", "inverter_deadtime",

@@ -8,9 +8,9 @@ import math
 
 import pytest
 
-from hybridfmu.withheld.report import (aggregate, above_limits, confusion_matrix, detection_limit,
+from hybridfmu_bench.withheld.report import (aggregate, above_limits, confusion_matrix, detection_limit,
                                                  detection_limits, summarise)
-from hybridfmu.withheld.scoring import effect_size, rejected_candidates, score_case
+from hybridfmu_bench.withheld.scoring import effect_size, rejected_candidates, score_case
 from hybridfmu.evaluation.summary import replace_block
 from hybridfmu.io import write_json_atomic
 

@@ -2,12 +2,15 @@
 
 The tiny case (config/cases/tiny.yaml) has short maneuvers and a tiny Hyperband budget. The run
 happens in a temporary directory (outputs, Snakemake metadata, MLflow store), with the repository's
-Snakefile.
+Snakefile. Every run of this module uses the package installed as a user installs it (``pip install .``, not
+editable) into a fresh virtual environment: configs validate and the FMU builds from the package's own data,
+not from the source tree.
 """
 
 import copy
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -23,10 +26,18 @@ TINY = REPO / "config" / "cases" / "tiny.yaml"
 pytestmark = pytest.mark.slow
 
 
+#: The interpreter of the installed package while this module's tests run (its fixture :func:`installed_python`).
+PYTHON: Path | None = None
+
+
 def snakemake(workdir: Path, configfile: Path, *args: str, timeout_s: float = 600) -> subprocess.CompletedProcess:
-    command = [sys.executable, "-m", "snakemake", "-j2", "--snakefile", str(REPO / "Snakefile"),
+    """Run Snakemake on the repository's Snakefile in ``workdir``: in this module's tests with the installed
+    package's interpreter, in other modules that import this helper with this one (the development install)."""
+    python = PYTHON or Path(sys.executable)
+    command = [str(python), "-m", "snakemake", "-j2", "--snakefile", str(REPO / "Snakefile"),
                "--directory", str(workdir), "--configfile", str(configfile), "--nocolor", *args]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+           "PATH": f"{python.parent}{os.pathsep}{os.environ.get('PATH', '')}"}
     result = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=timeout_s, env=env)
     if result.returncode != 0:
         log = result.stdout[-6000:] + "\n" + result.stderr[-12000:]
@@ -50,6 +61,46 @@ def planned_rules(output: str) -> set[str]:
             if parts[0] != "all":
                 rules.add(parts[0])
     return rules
+
+
+def installed_package(root: Path) -> Path:
+    """The interpreter of a fresh virtual environment under ``root`` with the package installed from a wheel built
+    from a copy of the sources (``pip install .``, not editable; nothing is written into the repository). The
+    dependencies are this interpreter's (``--system-site-packages``): the test is of the package, not of the
+    registry."""
+    source = root / "source"
+    shutil.copytree(REPO / "src", source / "src", ignore=shutil.ignore_patterns("*.egg-info", "__pycache__"))
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy2(REPO / name, source / name)
+    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
+    subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", str(root / "wheel"), str(source)],
+                   check=True, capture_output=True, text=True)
+    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", "--without-pip", str(root / "venv")],
+                   check=True)
+    python = root / "venv" / "bin" / "python"
+    wheel = next((root / "wheel").glob("hybridfmu-*.whl"))
+    subprocess.run([*pip, "--python", str(python), "install", "--no-deps", str(wheel)], check=True,
+                   capture_output=True, text=True)
+    return python
+
+
+def test_a_non_editable_install_holds_the_whole_package(installed_python):
+    found = subprocess.run([str(installed_python), "-c", "import hybridfmu, hybridfmu_bench, hybridfmu.config as c; "
+                            "print(hybridfmu.__file__, hybridfmu_bench.__file__, c.SCHEMA_PATH.is_file())"],
+                           check=True, capture_output=True, text=True).stdout.split()
+    site = installed_python.parent.parent / "lib"
+    assert all(Path(path).is_relative_to(site) for path in found[:2]), found  # not the source tree
+    assert found[2] == "True"  # the schemas are package data
+
+
+@pytest.fixture(scope="module", autouse=True)
+def installed_python(tmp_path_factory):
+    """Every Snakemake run of this module with the package installed from a wheel (the rules' inputs name the
+    package's files, so one workdir is never run with two installs)."""
+    global PYTHON
+    PYTHON = installed_package(tmp_path_factory.mktemp("installed"))
+    yield PYTHON
+    PYTHON = None
 
 
 @pytest.fixture(scope="module")

@@ -29,7 +29,7 @@ def loaded_heavy_modules(modules: list[str]) -> list[str]:
 
 def test_the_workflow_start_loads_no_heavy_library():
     modules = start_modules()
-    assert {"hybridfmu.config", "hybridfmu.case", "hybridfmu.model.settings"} <= set(modules), modules
+    assert {"hybridfmu.config", "hybridfmu.data.roles", "hybridfmu.model.settings"} <= set(modules), modules
     assert loaded_heavy_modules(modules) == []
 
 

@@ -9,8 +9,8 @@ from typing import Any
 
 import yaml
 
-#: The schema every case config is validated against (sections are $ref'd files beside it).
-SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
+#: The schema every case config is validated against (package data; sections are $ref'd files beside it).
+SCHEMA_PATH = Path(__file__).resolve().parent / "schemas" / "config.schema.yaml"
 #: libyaml's loader where PyYAML was built with it (several times faster), else the pure-Python one
 _YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 

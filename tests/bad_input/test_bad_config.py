@@ -21,7 +21,7 @@ from typing import Any, Callable
 import pytest
 import yaml
 
-from hybridfmu.case import check_case
+from hybridfmu.case_checks import check_case
 from hybridfmu.config import ConfigError, load_case_config
 
 

@@ -44,7 +44,7 @@ def test_store_folder_that_cannot_be_created(outputs):
 
 
 def test_corrupt_checkpoint(outputs):
-    from hybridfmu.training.trial import load_checkpoint
+    from hybridfmu.training.checkpoint import load_checkpoint
 
     path = outputs / "hpo" / "b1" / "r0" / "c2" / "checkpoint.pt"
     path.parent.mkdir(parents=True)
@@ -72,7 +72,7 @@ def test_best_json_naming_a_corrupt_checkpoint(outputs):
 
 
 def test_checkpoint_of_another_format(outputs):
-    from hybridfmu.training.trial import load_checkpoint
+    from hybridfmu.training.checkpoint import load_checkpoint
 
     path = outputs / "hpo" / "foreign.pt"
     path.parent.mkdir(parents=True)
@@ -88,7 +88,7 @@ def test_tracking_store_lost_during_the_search(outputs):
     """The store's database is gone: opening it names the database (it is not silently created anew), the
     catch-up of queued rungs reports and keeps the queue, and nothing already written changes."""
     from hybridfmu.tracking.mlflow_store import Tracker
-    from hybridfmu.tracking.search import catch_up_search, sync_pending
+    from hybridfmu.training.search_tracking import catch_up_search, sync_pending
 
     database = outputs / "store" / "mlflow.db"
     uri = default_tracking_uri(outputs / "store")

@@ -2,7 +2,7 @@
 # shows the time offset between data and model (rule time_offset, paper Fig. 6). Every stage that
 # simulates the FMU loads it with the calibrated parameters (rule calibrate) and reads the data through
 # the case's roles; the definitions below are shared with train.smk and evaluate.smk.
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.data.settings import section_settings
 
 CALIBRATION_JSON = f"{RESULTS}/calibration/calibration.json"
@@ -13,7 +13,7 @@ UNMEASURED_STATES = _ROLES.unmeasured_states
 
 def case_sections():
     """The config a stage reads its data through (params of every such stage, so that a change reruns it):
-    the case's roles (``hybridfmu.case.case_roles`` builds them from the FMU's interface and the sections
+    the case's roles (``hybridfmu.data.roles.case_roles`` builds them from the FMU's interface and the sections
     signals, transforms, roles) and config.maneuvers (roles, initial states). The FMU's parameters are not
     part of it: they reach these stages through the calibration."""
     return {"fmu": fmu_interface(), "maneuvers": config["maneuvers"], "signals": config.get("signals", {}),

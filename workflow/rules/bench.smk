@@ -3,7 +3,7 @@
 # speed of every two maneuvers of different roles differ by at least 10 %; and the ceiling of the evaluation.
 
 if "bench" in config:
-    from hybridfmu.bench.settings import check_raw_paths as _bench_check_raw_paths
+    from hybridfmu_bench.settings import check_raw_paths as _bench_check_raw_paths
 
     _bench_check_raw_paths(config, RESULTS)
 
@@ -12,7 +12,7 @@ if "bench" in config:
             mdf=f"{RESULTS}/raw/{{maneuver}}.mf4",
             truth=f"{RESULTS}/raw/{{maneuver}}.truth.json",
         params:
-            # what hybridfmu.bench reads: the bench, the master seed and the FMU's nominal parameters
+            # what hybridfmu_bench reads: the bench, the master seed and the FMU's nominal parameters
             config={**config_sections("bench", "seed"), "fmu": {"parameters": config["fmu"].get("parameters", {})}},
             roles={name: item["role"] for name, item in config["maneuvers"].items()},
         wildcard_constraints:
@@ -38,7 +38,7 @@ if "bench" in config:
             "../scripts/check_bench_spread.py"
 
     # The ceiling: the bench's true plant open loop over an evaluated maneuver from its measured initial state and
-    # logged duties (hybridfmu.bench.ceiling); read by the evaluation only (rule simulate_best), never by
+    # logged duties (hybridfmu_bench.ceiling); read by the evaluation only (rule simulate_best), never by
     # training, selection or diagnosis.
     rule simulate_ceiling:
         input:

@@ -1,5 +1,5 @@
 # Shared definitions for all rule files: validated config, case roles, case paths, default targets.
-from hybridfmu.case import check_case
+from hybridfmu.case_checks import check_case
 from hybridfmu.config import validate_case_config
 
 CONFIG_FILE = str((workflow.config_settings.configfiles or ["config/config.yaml"])[-1])
@@ -25,7 +25,7 @@ check_tracking_store(_tracking_uri(config.get("mlflow"), config.get("results_dir
                      timeout_s=float(config.get("mlflow", {}).get("request_timeout_s", 10.0)))
 forward_interrupt()
 # What a valid config leaves out (no test maneuver: the held-out check is not run), logged as the run starts.
-from hybridfmu.case import case_warnings
+from hybridfmu.case_checks import case_warnings
 from snakemake.logging import logger as _logger
 for _warning in case_warnings(config, CONFIG_FILE):
     _logger.warning(f"Warning: {_warning}")

@@ -1,9 +1,9 @@
 # Withheld-effect check (target `withheld`): per seed of config.withheld.seeds, cases whose bench has an
 # effect the FMU lacks (every effect of the bench's catalog at withheld.sizes_per_effect sizes, configured
 # pairs, and none) plus motor parameter offsets are generated, emulated, ingested, segmented and diagnosed;
-# the summary scores the diagnoses against the ground truth (hybridfmu.withheld.report).
+# the summary scores the diagnoses against the ground truth (hybridfmu_bench.withheld.report).
 # Cases (ids s<seed>__...) are wildcards, so `snakemake -j2 withheld` runs them in parallel.
-from hybridfmu.withheld.suite import case_names as _withheld_case_names
+from hybridfmu_bench.withheld.suite import case_names as _withheld_case_names
 
 WITHHELD = f"{config.get('results_dir', 'results')}/withheld"
 WITHHELD_CASES = _withheld_case_names(config) if config.get("withheld", {}).get("maneuvers") else []
@@ -35,7 +35,7 @@ rule withheld_case:
         case=f"{WITHHELD}/cases/{{wcase}}.yaml",
         draw=f"{WITHHELD}/cases/{{wcase}}.draw.json",
     params:
-        # the sections a generated case is derived from (hybridfmu.withheld.suite.case_config) and that
+        # the sections a generated case is derived from (hybridfmu_bench.withheld.suite.case_config) and that
         # its emulation, ingestion, segments and diagnosis read; withheld.expected/targets/background only reach the summary
         config=withheld_case_sections(),
         duration_s=WITHHELD_DURATION_S,

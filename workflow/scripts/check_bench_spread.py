@@ -1,5 +1,5 @@
 """Rule check_bench_spread: the realised max load and max speed of maneuvers of different roles differ by >= 10 %."""
-from hybridfmu.bench.emulate import summarize_bench
+from hybridfmu_bench.emulate import summarize_bench
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])

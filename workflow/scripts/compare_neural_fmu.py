@@ -4,7 +4,7 @@ from pathlib import Path
 
 import torch
 
-from hybridfmu.diagnosis.neural_comparison import compare_neural_fmu
+from hybridfmu.evaluation.neural_comparison import compare_neural_fmu
 from hybridfmu.progress import setup_rule_logging
 
 torch.set_num_threads(1)

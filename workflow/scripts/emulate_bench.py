@@ -1,5 +1,5 @@
 """Rule emulate_bench: emulate one maneuver on the test bench (MDF4 log + ground truth)."""
-from hybridfmu.bench.emulate import emulate_bench
+from hybridfmu_bench.emulate import emulate_bench
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])

@@ -1,6 +1,6 @@
 """Rule hybrid_time_offset: each input group's time offset with the hybrid's physical layer (its delays' start)."""
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.evaluation.hybrid_offset import run_hybrid_time_offset
 from hybridfmu.progress import setup_rule_logging
 

@@ -1,6 +1,6 @@
 """Rule plot: the paper's figures, training curves and the Hyperband overview, from saved results."""
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.evaluation.plots import draw_all
 from hybridfmu.progress import setup_rule_logging
 

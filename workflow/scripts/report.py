@@ -1,6 +1,6 @@
 """Rule report: report.md (improvement factors beside the paper's, figures, hyperparameters, learned dt)."""
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.evaluation.report import write_report
 from hybridfmu.progress import setup_rule_logging
 

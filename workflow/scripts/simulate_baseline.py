@@ -1,6 +1,6 @@
 """Rule simulate_baseline: the calibrated FMU open loop over one whole maneuver."""
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.evaluation.baseline import run_baseline
 from hybridfmu.progress import setup_rule_logging
 

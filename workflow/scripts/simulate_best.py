@@ -2,7 +2,7 @@
 
 import torch
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.evaluation.evaluate import simulate_best
 from hybridfmu.progress import setup_rule_logging
 

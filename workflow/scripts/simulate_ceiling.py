@@ -1,6 +1,6 @@
 """Rule simulate_ceiling: the bench's true plant open loop over one evaluated maneuver (the ceiling)."""
-from hybridfmu.bench.ceiling import write_ceiling
-from hybridfmu.case import case_roles
+from hybridfmu_bench.ceiling import write_ceiling
+from hybridfmu.data.roles import case_roles
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])

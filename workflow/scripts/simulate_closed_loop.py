@@ -2,7 +2,7 @@
 
 import torch
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.evaluation.closed_loop import closed_loop_model, closed_loop_settings, write_closed_loop
 from hybridfmu.progress import setup_rule_logging
 

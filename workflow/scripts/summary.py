@@ -1,6 +1,6 @@
 """Rule summary: the run's measured test figures as the README quotes them."""
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.evaluation.summary import write_case_summary
 from hybridfmu.progress import setup_rule_logging
 

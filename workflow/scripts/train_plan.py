@@ -1,7 +1,7 @@
 """Rule hpo_plan: the search plan (brackets, rungs, configurations) and the MLflow parent run (runs that
 killed jobs left RUNNING in the case's experiment are ended as KILLED first)."""
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.progress import setup_rule_logging
 from hybridfmu.tracking import retry_settings
 from hybridfmu.tracking.mlflow_store import bound_http_requests

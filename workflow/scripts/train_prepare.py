@@ -1,6 +1,6 @@
 """Rule hpo_prepare: arrays of the train and validation maneuvers, and the training data statistics."""
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.progress import setup_rule_logging
 from hybridfmu.training.hpo import prepare_training_data
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.progress import setup_rule_logging
 from hybridfmu.tracking import retry_settings
 from hybridfmu.tracking.jobs import job_guard

@@ -3,7 +3,7 @@
 
 import torch
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.progress import setup_rule_logging
 from hybridfmu.training.finalists import score_candidate
 

@@ -1,6 +1,6 @@
 """Rule score_finalists: a search's final choice among its scored candidates -> {search}/finalists.json."""
 
-from hybridfmu.case import case_roles
+from hybridfmu.data.roles import case_roles
 from hybridfmu.progress import setup_rule_logging
 from hybridfmu.training.finalists import choose_among_candidates
 

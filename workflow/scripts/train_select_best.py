@@ -7,7 +7,7 @@ RUNNING are ended, and best.json names the best trial's MLflow run even when it 
 
 from hybridfmu.progress import setup_rule_logging
 from hybridfmu.tracking import retry_settings
-from hybridfmu.tracking.search import catch_up_search
+from hybridfmu.training.search_tracking import catch_up_search
 from hybridfmu.training.hpo import select_best
 
 setup_rule_logging(snakemake.log[0])

@@ -1,6 +1,6 @@
 """Rule withheld_case: the config of one withheld-effect case, derived from the main case, and its draw record."""
 
-from hybridfmu.withheld.suite import write_case_config
+from hybridfmu_bench.withheld.suite import write_case_config
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from hybridfmu.withheld.suite import diagnose_case
+from hybridfmu_bench.withheld.suite import diagnose_case
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])

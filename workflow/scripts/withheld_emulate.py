@@ -1,6 +1,6 @@
 """Rule withheld_emulate: emulate one truncated maneuver of a withheld-effect case."""
 
-from hybridfmu.withheld.suite import emulate_case
+from hybridfmu_bench.withheld.suite import emulate_case
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])

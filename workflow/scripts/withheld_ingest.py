@@ -1,6 +1,6 @@
 """Rule withheld_ingest: ingest one raw log of a withheld-effect case."""
 
-from hybridfmu.withheld.suite import ingest_case
+from hybridfmu_bench.withheld.suite import ingest_case
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])

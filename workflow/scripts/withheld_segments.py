@@ -1,6 +1,6 @@
 """Rule withheld_segments: the informative spans of one maneuver of a withheld-effect case."""
 
-from hybridfmu.withheld.suite import segment_case
+from hybridfmu_bench.withheld.suite import segment_case
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])

@@ -1,6 +1,6 @@
 """Rule withheld_summary: score the withheld cases' diagnoses against their ground truth and aggregate."""
 
-from hybridfmu.withheld.report import summarise
+from hybridfmu_bench.withheld.report import summarise
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])

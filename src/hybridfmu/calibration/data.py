@@ -1,7 +1,7 @@
 """The arrays the calibration needs from one ingested maneuver: time, FMU inputs, measured states.
 
 An ingested maneuver (``{RESULTS}/data/<maneuver>.parquet``) holds ``time_s`` and one column per
-signal in its model unit (:mod:`hybridfmu.case`); the case's roles say which signal feeds which
+signal in its model unit (:mod:`hybridfmu.data.roles`); the case's roles say which signal feeds which
 FMU input and which FMU state each measured signal is.
 
 API::
@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from hybridfmu.case import CaseRoles
+from hybridfmu.data.roles import CaseRoles
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybridfmu.case import CaseRoles
+from hybridfmu.data.roles import CaseRoles
 from hybridfmu.io import atomic_path
 
 #: Most points drawn per line (longer series are thinned evenly).

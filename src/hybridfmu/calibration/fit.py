@@ -43,7 +43,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from hybridfmu.calibration.data import ManeuverArrays
-from hybridfmu.case import CaseRoles
+from hybridfmu.data.roles import CaseRoles
 from hybridfmu.config import ConfigError
 
 LOG = logging.getLogger(__name__)

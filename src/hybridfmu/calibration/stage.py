@@ -21,7 +21,7 @@ from hybridfmu.calibration.figure import Panel, calibration_figure
 from hybridfmu.calibration.fit import (FitSettings, TargetSimulator, check_settings, fit_case, fit_settings,
                                        fitted_states, needs_fit, target_rmse)
 from hybridfmu.calibration.result import Calibration
-from hybridfmu.case import CaseRoles, case_roles
+from hybridfmu.data.roles import CaseRoles, case_roles
 
 LOG = logging.getLogger(__name__)
 
@@ -184,7 +184,7 @@ def open_loop_rmse(config: dict[str, Any], fmu_path: str | Path, calibration_pat
     maneuver: measured states from the data at its start, unmeasured ones from the calibration
     (:meth:`Calibration.unmeasured_initial_states`: the maneuver's own, its ``initial_states_from``, the
     FMU's start values)."""
-    from hybridfmu.case import model_interface
+    from hybridfmu.data.roles import model_interface
     from hybridfmu.fmu import load_fmu
 
     interface = model_interface(config)

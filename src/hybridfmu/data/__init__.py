@@ -1,8 +1,10 @@
 """Measured data: raw-log readers, ingestion onto the case's grid, segment selection, FMU arrays.
 
 Nothing here knows a particular machine: names, units and roles come from the case config
-(:mod:`hybridfmu.case`), units through :mod:`hybridfmu.units`.
+(:mod:`hybridfmu.data.roles`), units through :mod:`hybridfmu.units`.
 
+- ``roles``: the case's signals, how they feed the FMU, which states are measured and compared, and each
+  maneuver's raw source (``case_roles``, ``maneuver_source``).
 - ``readers``: MDF4 / CSV / Parquet channels with their own time bases (``read_channels``).
 - ``resample``: zero-order hold / linear interpolation onto a uniform grid, Savitzky-Golay filters.
 - ``transforms``: derived signals a case declares (scale, derivative, park).

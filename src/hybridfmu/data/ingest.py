@@ -1,6 +1,6 @@
 """Ingestion: a raw log -> the case's signals in their model units on the case's uniform grid -> Parquet.
 
-The case config declares what is read (:func:`hybridfmu.case.case_roles`): every logged signal of
+The case config declares what is read (:func:`hybridfmu.data.roles.case_roles`): every logged signal of
 ``config.signals`` names a raw channel and its unit; ``config.maneuvers.<m>.channels`` may map a
 signal to another channel for one maneuver. Steps:
 
@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from hybridfmu.case import CaseRoles, Signal, case_roles, maneuver_source
+from hybridfmu.data.roles import CaseRoles, Signal, case_roles, maneuver_source
 from hybridfmu.data.errors import DataError
 from hybridfmu.data.readers import MDF_SUFFIXES, RawChannel, read_channels
 from hybridfmu.data.plausibility import check_kinematic_pairs, check_outliers, check_range, kinematic_pairs

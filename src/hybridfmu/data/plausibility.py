@@ -159,7 +159,7 @@ def _cached_pairs(key: tuple) -> tuple[KinematicPair, ...]:
     source, model_name, fmu_path, measured, parameters = key[:5]
     from fmpy import read_model_description
 
-    from hybridfmu.case import model_description_path
+    from hybridfmu.data.roles import model_description_path
 
     config = {"fmu": {"source": source, "model_name": model_name, "path": fmu_path}}
     description_path = model_description_path(config)

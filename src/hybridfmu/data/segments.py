@@ -38,7 +38,7 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from hybridfmu.case import CaseRoles
+from hybridfmu.data.roles import CaseRoles
 from hybridfmu.data.errors import DataError
 from hybridfmu.data.resample import savgol_window, smoothing_derivative
 from hybridfmu.data.settings import section_settings

@@ -1,7 +1,7 @@
 """The segment-selection figure (paper Fig. 8): the case's signals over time, the selected spans shaded.
 
 Panels, top to bottom: each target state's signal, then the FMU inputs grouped by unit (one panel per
-unit, e.g. three voltages together). Axis labels come from :meth:`hybridfmu.case.Signal.display`.
+unit, e.g. three voltages together). Axis labels come from :meth:`hybridfmu.data.roles.Signal.display`.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from hybridfmu.case import CaseRoles
+from hybridfmu.data.roles import CaseRoles
 from hybridfmu.data.segments import SegmentSelection
 from hybridfmu.io import atomic_path
 

@@ -12,7 +12,7 @@ from typing import Any
 
 import pandas as pd
 
-from hybridfmu.case import CaseRoles, case_roles
+from hybridfmu.data.roles import CaseRoles, case_roles
 from hybridfmu.data.errors import DataError
 from hybridfmu.data.segments import SegmentSelection, segments_record, select_segments
 from hybridfmu.data.segments_plot import plot_segments
@@ -30,7 +30,7 @@ def select_segments_to_files(data_path: str | Path, json_path: str | Path, png_p
         json_path, png_path: outputs.
         maneuver: its name (record and title).
         config: the case config (sections ``segments`` and, unless ``roles`` is given, those
-            :func:`hybridfmu.case.case_roles` reads).
+            :func:`hybridfmu.data.roles.case_roles` reads).
         roles: the case's roles, if already known.
     """
     roles = roles if roles is not None else case_roles(config)

@@ -15,7 +15,7 @@ def section_settings(section: dict[str, Any] | None, name: str) -> dict[str, Any
 
     Args:
         section: the section as found in the case config (``config[name]``); None means empty.
-        name: ``"ingest"``, ``"segments"`` or ``"signals"`` (schema ``workflow/schemas/<name>.schema.yaml``).
+        name: ``"ingest"``, ``"segments"`` or ``"signals"`` (schema ``src/hybridfmu/schemas/<name>.schema.yaml``).
 
     Raises:
         ConfigError: naming the field as ``config.<name>.<field>``.

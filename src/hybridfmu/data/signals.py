@@ -1,4 +1,4 @@
-"""FMU arrays from an ingested frame, by the case's roles (:class:`hybridfmu.case.CaseRoles`).
+"""FMU arrays from an ingested frame, by the case's roles (:class:`hybridfmu.data.roles.CaseRoles`).
 
 An ingested frame (:func:`hybridfmu.data.ingest.ingest_log`) holds ``time_s`` and one column per
 signal, each in its model unit: the unit of the FMU variable it feeds. These helpers stack the
@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from hybridfmu.case import CaseRoles
+from hybridfmu.data.roles import CaseRoles
 from hybridfmu.data.errors import DataError
 
 

@@ -6,10 +6,12 @@ with units and labels) and any Model-Exchange FMU. Modules: ``problem`` (the cas
 ``prepare`` (ingested maneuvers -> equation error and fitting data), ``effects`` (the effect interface),
 ``library`` (candidate effects over roles), ``selection`` (fitting, sparse selection, uncertainty),
 ``regions`` (residual over operating regions and time), ``corrected_model`` (chosen effects added to the
-model, open-loop re-simulation), ``neural`` (comparison with the trained neural FMU), ``report``
-(diagnosis.json, report.md, MLflow), ``figures``, ``run`` (``analyse``, ``run_diagnosis``). The
+model, open-loop re-simulation), ``export`` (the diagnosed model the later stages load), ``report``
+(diagnosis.json, report.md, MLflow), ``figures``, ``run`` (``analyse``, ``run_diagnosis``). The diagnosis
+imports no training or evaluation module: the hybrid model is built on it (:mod:`hybridfmu.model.physics`),
+and the trained neural FMU is compared with it afterwards (:mod:`hybridfmu.evaluation.neural_comparison`). The
 withheld-effect check, which drives the emulated bench and scores against its truth, is a package of its
-own (:mod:`hybridfmu.withheld`): no module here imports the bench. Case plugins with machine knowledge
+own (:mod:`hybridfmu_bench.withheld`): no module here imports the bench. Case plugins with machine knowledge
 live in modules named after the machine (``effects_motor``) and are loaded only when a case config lists
 them in ``diagnosis.plugins``.
 """

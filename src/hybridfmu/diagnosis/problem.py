@@ -1,7 +1,7 @@
 """What the diagnosis works on, in roles: states, inputs, examined equations, units and labels.
 
 Nothing here knows a machine. A :class:`Problem` is built from the case's roles
-(:func:`hybridfmu.case.case_roles`), the ``diagnosis`` section of the case config and the model
+(:func:`hybridfmu.data.roles.case_roles`), the ``diagnosis`` section of the case config and the model
 (an FMU or any object with ``state_names``, ``input_names``, ``derivatives`` and ``jacobians``):
 
 - measured states: those the roles map to a signal; their derivatives can be estimated from the
@@ -200,7 +200,7 @@ def build_problem(roles: Any, model: Any, settings: dict[str, Any], parameter_va
     """The :class:`Problem` of a case.
 
     Args:
-        roles: :class:`hybridfmu.case.CaseRoles` of the case.
+        roles: :class:`hybridfmu.data.roles.CaseRoles` of the case.
         model: the model (its ``state_names`` and ``input_names`` must match the roles').
         settings: ``diagnosis_settings(config)``.
         parameter_values: the calibrated model's parameters.

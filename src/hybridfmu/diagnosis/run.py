@@ -2,7 +2,7 @@
 
 ``analyse`` reads the case's FMU (with the calibrated parameters), ingested maneuvers, segments and
 calibration, never a bench's ground truth (the trained neural FMU is compared afterwards, by
-:mod:`hybridfmu.diagnosis.neural_comparison`).
+:mod:`hybridfmu.evaluation.neural_comparison`).
 ``run_diagnosis`` does the computation on loaded objects (any model with ``state_names``,
 ``input_names``, ``derivatives``, ``jacobians``; parameters via ``get_parameters``/``set_parameters``)
 and returns the result as a dictionary; :mod:`hybridfmu.diagnosis.report` writes it.
@@ -541,7 +541,7 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
 def how_far_not_run(test_names: list[str], open_loop: bool = True) -> str | None:
     """Why the held-out check ("how far") is not run, in words for the report, or None when it runs."""
     if not test_names:
-        from hybridfmu.case import NO_TEST_MANEUVER
+        from hybridfmu.data.roles import NO_TEST_MANEUVER
 
         return f"There is no test maneuver: {NO_TEST_MANEUVER}."
     if not open_loop:
@@ -566,7 +566,7 @@ class CaseInputs:
 def load_inputs(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, str | Path],
                 segments_paths: dict[str, str | Path], calibration_path: str | Path | None = None) -> CaseInputs:
     """Load a case's FMU (with the calibrated parameters), maneuvers and segments (arguments: :func:`analyse`)."""
-    from hybridfmu.case import case_roles, model_interface
+    from hybridfmu.data.roles import case_roles, model_interface
     from hybridfmu.fmu import load_fmu
 
     settings = diagnosis_settings(config)

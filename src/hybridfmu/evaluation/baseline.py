@@ -56,7 +56,7 @@ def run_baseline(fmu_path: str | Path, calibration_path: str | Path | None, data
         fmu_path, calibration_path: the FMU and its calibration result (None: the FMU as configured).
         data_path: the ingested maneuver.
         trajectory_path, metrics_path: outputs.
-        roles: :class:`hybridfmu.case.CaseRoles`; maneuvers: config ``maneuvers``; maneuver: its name.
+        roles: :class:`hybridfmu.data.roles.CaseRoles`; maneuvers: config ``maneuvers``; maneuver: its name.
 
     Writes ``trajectory_path`` (Parquet: ``time_s`` + one column per FMU state, model units) and
     ``metrics_path`` (JSON: ``{"maneuver", "samples", "duration_s", "x0", "events", "signals",

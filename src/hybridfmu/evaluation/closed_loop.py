@@ -59,7 +59,7 @@ class ClosedLoopSettings:
 
 def closed_loop_settings(config: Mapping[str, Any], roles: Any) -> ClosedLoopSettings | None:
     """The case's closed-loop settings, checked against its signals and FMU inputs (``roles``:
-    :class:`hybridfmu.case.CaseRoles`); None when the case declares no controller.
+    :class:`hybridfmu.data.roles.CaseRoles`); None when the case declares no controller.
 
     Raises:
         ValueError: naming the field of ``config.closed_loop`` and what was expected.
@@ -206,7 +206,7 @@ def write_closed_loop(model_kind: str, model: Any, fmu_start: Callable[[str, np.
         data_paths, output_paths: maneuver -> its ingested frame / the Parquet written: ``time_s``,
             ``closed_loop_<model>_<signal>`` per target signal and ``closed_loop_<model>_state_<state>`` per FMU
             state (model units).
-        roles: :class:`hybridfmu.case.CaseRoles`; settings: :func:`closed_loop_settings`; config: the case config
+        roles: :class:`hybridfmu.data.roles.CaseRoles`; settings: :func:`closed_loop_settings`; config: the case config
             (for the controller factory).
 
     Returns:

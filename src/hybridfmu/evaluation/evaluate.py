@@ -31,21 +31,6 @@ from hybridfmu.training.multiple_shooting import describe_windows, window_sample
 LOG = logging.getLogger(__name__)
 
 
-def read_baseline(path: str | Path, state_names: list[str], time_s: np.ndarray) -> np.ndarray:
-    """FMU states (T, n_x) of a baseline trajectory, checked against the data's time grid ``time_s`` (T,)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: baseline trajectory does not exist (rule simulate_baseline)")
-    frame = pd.read_parquet(path)
-    missing = [name for name in ["time_s", *state_names] if name not in frame.columns]
-    if missing:
-        raise ValueError(f"{path}: column(s) {missing} missing; expected time_s and the FMU states {state_names}")
-    if len(frame) != time_s.size or not np.allclose(frame["time_s"].to_numpy(), time_s, rtol=0, atol=1e-9):
-        raise ValueError(f"{path}: time_s does not match the ingested maneuver's grid ({len(frame)} vs "
-                         f"{time_s.size} samples); rerun simulate_baseline")
-    return frame[state_names].to_numpy(dtype=float)
-
-
 def read_ceiling(path: str | Path, signals: list[str], time_s: np.ndarray) -> dict[str, np.ndarray]:
     """The ``ceiling_*``, ``windowed_ceiling_*`` and ``closed_loop_ceiling_*`` columns (each (T,)) of a ceiling
     trajectory, checked against the target ``signals`` and the data's grid ``time_s`` (T,)."""
@@ -157,7 +142,7 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
         best_path: ``hpo/best.json``; fmu_path, calibration_path: the FMU and its calibration (None: as
             configured); data_path, baseline_path: the ingested maneuver and the FMU's baseline of it.
         trajectory_path, learned_path: outputs.
-        roles: :class:`hybridfmu.case.CaseRoles`; maneuvers: config ``maneuvers``; maneuver: its name.
+        roles: :class:`hybridfmu.data.roles.CaseRoles`; maneuvers: config ``maneuvers``; maneuver: its name.
         diagnosed_path: ``diagnosis/diagnosed_model.pkl``: the FMU plus the diagnosed effects is simulated too
             (model ``fmu_effects``), or None.
         hybrid_best_path: ``hybrid/best.json`` of the hybrid's search (model ``hybrid``, around the diagnosed
@@ -180,7 +165,7 @@ def simulate_best(best_path: str | Path, fmu_path: str | Path, calibration_path:
     from hybridfmu.evaluation.baseline import simulate_fmu_open_loop
     from hybridfmu.training.inference import (load_trained_neural_fmu, physical_layer, simulate_neural_fmu,
                                               simulate_neural_fmu_windows)
-    from hybridfmu.training.measured import initial_state, load_calibration, read_measured
+    from hybridfmu.training.measured import initial_state, load_calibration, read_baseline, read_measured
 
     best = read_json(best_path)
     summary = best_trial_summary(best, best_path)

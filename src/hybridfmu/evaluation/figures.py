@@ -1,7 +1,7 @@
 """The paper's figures (Figs. 6, 9-16), training curves and the Hyperband overview.
 
 Every function draws from arrays already computed (nothing is simulated here), writes one PNG
-with the Agg backend and returns its path. Signals are :class:`hybridfmu.case.Signal` (or anything
+with the Agg backend and returns its path. Signals are :class:`hybridfmu.data.roles.Signal` (or anything
 with ``name``, ``label``, ``unit`` and ``display()``): titles and axes come from them. Legends carry
 the loss values in square brackets, as in the paper, e.g. ``FMU [MAE 1.23 rad, MSE 2.5 rad²]``.
 """

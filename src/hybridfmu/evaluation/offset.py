@@ -112,7 +112,7 @@ def run_time_offset(fmu_path: str | Path, calibration_path: str | Path | None, d
     Args:
         options: config ``evaluation.time_offset`` (``length_s``, ``t_start_s`` or None, ``max_lag_s``,
             ``groups``: ``window_samples``, ``windows``).
-        roles: :class:`hybridfmu.case.CaseRoles`; maneuvers: config ``maneuvers``; maneuver: its name.
+        roles: :class:`hybridfmu.data.roles.CaseRoles`; maneuvers: config ``maneuvers``; maneuver: its name.
         delay_config: config ``model.input_delay`` (``groups``, ``min_s``, ``max_s``); None: one group of all
             inputs within ``±max_lag_s``.
 

@@ -42,7 +42,7 @@ def draw_all(figure_paths: dict[str, str], metrics_paths: list[str], trajectory_
         time_offset_path, time_offset_summary_path: the time-offset window and its summary.
         best_path, hpo_dir: the search's best trial and the folder of the per-trial histories.
         plot_options: config ``evaluation.plot``.
-        roles: :class:`hybridfmu.case.CaseRoles` (target signals, labels, units).
+        roles: :class:`hybridfmu.data.roles.CaseRoles` (target signals, labels, units).
     """
     options = PlotOptions.from_config(plot_options)
     signals = [roles.signals[name] for name in roles.target_signals]

@@ -519,7 +519,7 @@ def write_report(report_path: str | Path, case: str, metrics_paths: list[str], b
         time_offset_summary_path: the time-offset window's summary.
         figure_paths: figure name -> PNG path.
         truth_paths: ground-truth JSON files (may be empty: no "true" delay then).
-        roles: :class:`hybridfmu.case.CaseRoles` (labels and units of the target signals).
+        roles: :class:`hybridfmu.data.roles.CaseRoles` (labels and units of the target signals).
         reference: config ``evaluation.reference`` (factors and figures to compare with), or None.
         hybrid_time_offset_path: the time-offset estimates on the hybrid's physical layer (rule
             ``hybrid_time_offset``, where the hybrid's delays start), or None.

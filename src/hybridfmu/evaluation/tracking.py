@@ -63,7 +63,7 @@ def log_evaluation_run(run_path: str | Path, tracking_uri: str, experiment: str,
     """
     from hybridfmu.tracking import Tracker
     from hybridfmu.tracking.jobs import owner_tags
-    from hybridfmu.tracking.search import end_stale_runs
+    from hybridfmu.training.search_tracking import end_stale_runs
 
     tracker = Tracker(tracking_uri)
     experiment_id = tracker.experiment_id(experiment)

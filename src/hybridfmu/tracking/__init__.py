@@ -1,6 +1,7 @@
-"""MLflow tracking of the hyperparameter search: experiment per case, parent run per search, child run per
-configuration; safe with several jobs writing to one SQLite store at once, and with jobs that are killed or
-lose the store (see :mod:`hybridfmu.tracking.jobs` and :mod:`hybridfmu.tracking.search`)."""
+"""MLflow tracking: the store (experiment per case, runs, retries; safe with several jobs writing to one SQLite
+store at once) and the jobs that write to it (:mod:`hybridfmu.tracking.jobs`: jobs that are killed or lose the
+store). The stages log their own runs on top of it: a search's parent and child runs in
+:mod:`hybridfmu.training.search_tracking`, the calibration, diagnosis and evaluation runs beside their stages."""
 
 from .mlflow_store import (Tracker, check_tracking_store, default_tracking_uri, experiment_name, git_commit,
                            retry_locked, retry_settings, tracking_uri)

@@ -29,7 +29,7 @@ T = TypeVar("T")
 #: Substrings of errors that mean "try again": SQLite lock contention.
 RETRYABLE_MESSAGES = ("database is locked", "database table is locked", "disk i/o error", "unable to open database")
 
-#: Defaults of the ``mlflow`` config section's fault settings (workflow/schemas/mlflow.schema.yaml).
+#: Defaults of the ``mlflow`` config section's fault settings (src/hybridfmu/schemas/mlflow.schema.yaml).
 DEFAULT_RETRY_BUDGET_S = 60.0
 DEFAULT_REQUEST_TIMEOUT_S = 10.0
 DEFAULT_HTTP_RETRIES = 2

@@ -145,7 +145,7 @@ def build_maneuver_arrays(name: str, data_path: str | Path, segments_path: str |
         name: maneuver name.
         data_path, segments_path: ``{RESULTS}/data/<name>.parquet`` and ``{RESULTS}/segments/<name>.json``.
         fmu_model: the loaded (calibrated) FMU.
-        roles: :class:`hybridfmu.case.CaseRoles`.
+        roles: :class:`hybridfmu.data.roles.CaseRoles`.
         calibration: :class:`hybridfmu.calibration.result.Calibration` (unmeasured initial states); None = empty.
         maneuvers: config ``maneuvers`` (``initial_states_from``).
         baseline_path: the FMU's baseline open loop of this maneuver (columns ``time_s`` + FMU states).

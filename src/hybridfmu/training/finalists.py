@@ -184,7 +184,8 @@ def write_physical_layer_checkpoint(*, plan_path: str | Path, train_arrays_path:
 
     from hybridfmu.io import atomic_path
     from hybridfmu.training.physical_layer_rollout import untrained_is_physical_layer
-    from hybridfmu.training.trial import CHECKPOINT_FORMAT, file_sha256, first_configuration, trial_model
+    from hybridfmu.training.checkpoint import CHECKPOINT_FORMAT, file_sha256
+    from hybridfmu.training.trial import first_configuration, trial_model
 
     plan = read_json(plan_path)
     entry = first_configuration(plan)
@@ -211,7 +212,7 @@ def physical_layer_entry(checkpoint_path: str | Path, model: Any) -> dict[str, A
     """The finalist entry of a physical layer (:func:`write_physical_layer_checkpoint`) loaded as ``model``: the
     fields a best.json needs (``trial_id`` :data:`PHYSICAL_LAYER_ID`, ``checkpoint``, ``hyperparameters``,
     ``delay_s``, ``gates``, ``fmu`` ...), without scores."""
-    from hybridfmu.training.trial import load_checkpoint
+    from hybridfmu.training.checkpoint import load_checkpoint
 
     checkpoint = load_checkpoint(checkpoint_path)
     return {"trial_id": PHYSICAL_LAYER_ID, "bracket": None, "config": None, "rung": None, "objective": None,
@@ -224,7 +225,7 @@ def _scoring_inputs(plan_path: str | Path, maneuver_paths: dict[str, dict[str, s
                     calibration_path: str | Path | None, roles: Any) -> tuple[dict[str, Any], Objective, Any,
                                                                               dict[str, tuple[Any, np.ndarray]]]:
     """The plan, its objective, the calibration and name -> (measured maneuver, the FMU's baseline states)."""
-    from hybridfmu.evaluation.evaluate import read_baseline
+    from hybridfmu.training.measured import read_baseline
     from hybridfmu.training.losses import objective_from_config
     from hybridfmu.training.measured import load_calibration, read_measured
 
@@ -352,7 +353,7 @@ def score_finalists(*, plan_path: str | Path, selection_paths: Sequence[str | Pa
             rungs' name the candidates); top: how many finalists.
         maneuver_paths: maneuver name -> ``{"data": ingested Parquet, "baseline": the FMU's baseline Parquet}``.
         fmu_path, calibration_path: the FMU and its calibration (None: as configured).
-        roles: :class:`hybridfmu.case.CaseRoles`; maneuvers_config: config ``maneuvers`` (initial states).
+        roles: :class:`hybridfmu.data.roles.CaseRoles`; maneuvers_config: config ``maneuvers`` (initial states).
         scores_path: output JSON; the candidates' own files go to ``finalists/<candidate>.json`` beside it.
         diagnosed_path: the diagnosed model under a hybrid's ANN (search "hybrid"), else None.
         physical_layer_path: for a hybrid's search, its physical layer's checkpoint

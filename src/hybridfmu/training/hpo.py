@@ -36,7 +36,7 @@ def prepare_training_data(*, fmu_path: str | Path, calibration_path: str | Path 
     Args:
         fmu_path, calibration_path: the FMU and its calibration (parameters, unmeasured initial states);
             None = the FMU as configured.
-        roles: :class:`hybridfmu.case.CaseRoles` of the case.
+        roles: :class:`hybridfmu.data.roles.CaseRoles` of the case.
         maneuvers: role ("train", "validation") -> maneuver name; the other dicts are keyed by role.
         maneuvers_config: config ``maneuvers`` (``initial_states_from`` of the calibration).
         baseline_paths: the FMU baseline per role, used only for states that are not measured (may be None
@@ -110,7 +110,7 @@ def plan_search(*, case: str, seed: int, hpo_config: dict[str, Any], training_co
     if delay_bounds is not None:
         plan["delay_bounds_s"] = delay_bounds
     if tracking_uri:
-        from hybridfmu.tracking.search import start_search
+        from hybridfmu.training.search_tracking import start_search
 
         params = {"R": plan["R"], "eta": plan["eta"], "max_resource_s": plan["max_resource_s"],
                   "unit_s": plan["unit_s"], "n_configurations": plan["n_configurations"],
@@ -233,7 +233,7 @@ def select_best(*, plan_path: str | Path, selection_paths: list[str], best_path:
     "validation", "objective", "delay_s", "gates", "model_spec", "fmu", "mlflow_run_id", "tracking",
     "summary", ...}``.
     """
-    from hybridfmu.training.trial import load_checkpoint
+    from hybridfmu.training.checkpoint import load_checkpoint
 
     plan = read_json(plan_path)
     finals, trials = [], []
@@ -256,7 +256,7 @@ def select_best(*, plan_path: str | Path, selection_paths: list[str], best_path:
     write_json_atomic(summary_path, summary)
     if not ranked:
         if plan.get("tracking"):
-            from hybridfmu.tracking.search import finish_search
+            from hybridfmu.training.search_tracking import finish_search
             finish_search(plan["tracking"], None, summary_path)
         raise RuntimeError(f"hyperparameter search of case {case}: every configuration of the last rungs failed "
                            f"or diverged; see {summary_path}")
@@ -275,7 +275,7 @@ def select_best(*, plan_path: str | Path, selection_paths: list[str], best_path:
     }
     write_json_atomic(best_path, record)
     if plan.get("tracking"):
-        from hybridfmu.tracking.search import finish_search
+        from hybridfmu.training.search_tracking import finish_search
         finish_search(plan["tracking"], record, summary_path)
     LOG.info("best: %s (objective %s, chosen by %s, delays %s, gates %s)", best["trial_id"],
              "none" if best["objective"] is None else f"{best['objective']:.4g}", choice["by"],

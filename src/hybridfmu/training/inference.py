@@ -43,7 +43,7 @@ def load_checkpoint_model(checkpoint_path: str | Path, fmu_path: str | Path,
     """The trained neural FMU (or hybrid) of one trial's ``checkpoint.pt``, around the FMU at ``fmu_path``
     (see :func:`load_trained_neural_fmu`), in evaluation mode."""
     from hybridfmu.fmu import FmuRhs, load_fmu
-    from hybridfmu.training.trial import load_checkpoint
+    from hybridfmu.training.checkpoint import load_checkpoint
 
     checkpoint = load_checkpoint(checkpoint_path)
     spec = NeuralFmuSpec.from_dict(checkpoint["spec"])

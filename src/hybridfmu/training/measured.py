@@ -1,7 +1,7 @@
 """A maneuver's measurements in the FMU's terms, and the calibrated FMU it is compared with.
 
 Every stage that simulates the FMU (baseline, time offset, training data, evaluation) reads the
-ingested frame through the case's roles (:mod:`hybridfmu.case`) and loads the FMU with the
+ingested frame through the case's roles (:mod:`hybridfmu.data.roles`) and loads the FMU with the
 calibrated parameters (:class:`hybridfmu.calibration.result.Calibration`, rule ``calibrate``).
 
 API::
@@ -10,6 +10,7 @@ API::
     load_calibration(path) -> Calibration
     load_calibrated_fmu(fmu_path, calibration) -> FmuModel
     initial_state(model, measured_x0, roles, calibration, maneuver, maneuvers) -> (n_x,)
+    read_baseline(path, state_names, time_s) -> (T, n_x)   # the calibrated FMU's open loop (rule simulate_baseline)
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ def read_measured(data_path: str | Path, roles: Any) -> MeasuredManeuver:
 
     Args:
         data_path: ``{RESULTS}/data/<maneuver>.parquet``.
-        roles: :class:`hybridfmu.case.CaseRoles` of the case.
+        roles: :class:`hybridfmu.data.roles.CaseRoles` of the case.
 
     Raises:
         FileNotFoundError: the file does not exist.
@@ -128,3 +129,20 @@ def initial_state(model: Any, measured_x0: np.ndarray, roles: Any, calibration: 
         bad = [name for name, value in zip(model.state_names, x0) if not np.isfinite(value)]
         raise ValueError(f"maneuver {maneuver!r}: initial state(s) {bad} are not finite (measured NaN?)")
     return x0
+
+
+def read_baseline(path: str | Path, state_names: list[str], time_s: np.ndarray) -> np.ndarray:
+    """FMU states (T, n_x) of a baseline trajectory, checked against the data's time grid ``time_s`` (T,)."""
+    import pandas as pd
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: baseline trajectory does not exist (rule simulate_baseline)")
+    frame = pd.read_parquet(path)
+    missing = [name for name in ["time_s", *state_names] if name not in frame.columns]
+    if missing:
+        raise ValueError(f"{path}: column(s) {missing} missing; expected time_s and the FMU states {state_names}")
+    if len(frame) != time_s.size or not np.allclose(frame["time_s"].to_numpy(), time_s, rtol=0, atol=1e-9):
+        raise ValueError(f"{path}: time_s does not match the ingested maneuver's grid ({len(frame)} vs "
+                         f"{time_s.size} samples); rerun simulate_baseline")
+    return frame[state_names].to_numpy(dtype=float)

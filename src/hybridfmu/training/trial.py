@@ -9,7 +9,6 @@ selection ranks it last and the search goes on.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import logging
 import math
 import time
@@ -24,6 +23,7 @@ from hybridfmu.io import atomic_path, read_json, write_json_atomic
 from hybridfmu.model.delay import describe_delays
 from hybridfmu.progress import Progress
 from hybridfmu.training.build import build_neural_fmu, model_spec
+from hybridfmu.training.checkpoint import CHECKPOINT_FORMAT, file_sha256, load_checkpoint
 from hybridfmu.training.data import ManeuverArrays
 from hybridfmu.training.losses import objective_from_config
 from hybridfmu.training.plan import plan_entry
@@ -32,45 +32,6 @@ from hybridfmu.training.physical_layer_rollout import read_physical_layer_rollou
 from hybridfmu.training.validation import score_states, validate, validation_batch
 
 LOG = logging.getLogger(__name__)
-CHECKPOINT_FORMAT = 1
-
-
-def file_sha256(path: str | Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-#: Fields every trial checkpoint holds.
-CHECKPOINT_FIELDS = ("format", "status", "bracket", "rung", "config", "spec", "model", "validations")
-
-
-def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Read a trial checkpoint written by ``run_trial_rung``.
-
-    Raises:
-        FileNotFoundError: no such file.
-        ValueError: the file is not a readable trial checkpoint (truncated, corrupt, another format); the
-            message names the file and what was expected.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: checkpoint does not exist")
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as err:  # torch raises OSError, RuntimeError, UnpicklingError ... for a damaged file
-        raise ValueError(f"{path}: cannot read the checkpoint ({type(err).__name__}: {err}); expected a trial "
-                         f"checkpoint (torch.save of a dict with format {CHECKPOINT_FORMAT}) written by "
-                         f"run_trial_rung; delete it to retrain that rung") from None
-    if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
-        found = checkpoint.get("format") if isinstance(checkpoint, dict) else type(checkpoint).__name__
-        raise ValueError(f"{path}: not a trial checkpoint (field 'format' is {found!r}, expected {CHECKPOINT_FORMAT})")
-    missing = [field for field in CHECKPOINT_FIELDS if field not in checkpoint]
-    if missing:
-        raise ValueError(f"{path}: trial checkpoint lacks the fields {missing} (expected {list(CHECKPOINT_FIELDS)})")
-    return checkpoint
 
 
 def _finite_or_none(value: float) -> float | None:
@@ -95,7 +56,7 @@ def _track_rung(plan: dict[str, Any], plan_path: str | Path, result: dict[str, A
                 options: dict[str, Any]) -> tuple[str | None, dict[str, str]]:
     """Log the rung to MLflow; on failure queue it for later. Returns (run id, tracking record)."""
     from hybridfmu.tracking import Tracker
-    from hybridfmu.tracking.search import (drop_pending, end_stale_runs, log_trial_rung, record_pending,
+    from hybridfmu.training.search_tracking import (drop_pending, end_stale_runs, log_trial_rung, record_pending,
                                            sync_pending, trial_lock)
 
     tracking = plan["tracking"]
@@ -264,7 +225,7 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
         train_arrays_path, validation_arrays_path, statistics_path: outputs of ``prepare_training_data``.
         fmu_path, calibration_path: the FMU and the calibration result whose parameters it is loaded with
             (None: the FMU as configured, for tests).
-        roles: :class:`hybridfmu.case.CaseRoles` of the case (target weights: the trial's ``w_<state>``
+        roles: :class:`hybridfmu.data.roles.CaseRoles` of the case (target weights: the trial's ``w_<state>``
             override the configured ones, as does the plan's objective).
         model_config, training_config: validated ``model`` and ``training`` sections.
         previous_checkpoint: the previous rung's checkpoint (None for rung 0).
@@ -282,7 +243,7 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
     The checkpoint and the result are written before anything is logged: a tracking store that is locked
     too long, lost or unreachable does not fail the job. The result's ``tracking`` records what happened
     (``{"status": "logged" | "deferred" | "off", "error"}``); a deferred rung is queued beside the plan and
-    logged later (:func:`hybridfmu.tracking.search.sync_pending`, run by the next job that reaches the store
+    logged later (:func:`hybridfmu.training.search_tracking.sync_pending`, run by the next job that reaches the store
     and by select_best).
 
     Returns:

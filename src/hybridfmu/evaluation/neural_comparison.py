@@ -5,7 +5,7 @@ never waits for the search):
 
 - what the ANN learned: the learned correction of each equation it corrects, along the measured trajectories of
   the fitting maneuvers, and how much of it each diagnosed effect explains (R^2 with the diagnosis' coefficients
-  and refitted to it, :func:`hybridfmu.diagnosis.neural.compare_learned_correction`);
+  and refitted to it, :func:`hybridfmu.evaluation.learned_correction.compare_learned_correction`);
 - how far the neural FMU gets on the diagnosis' test maneuvers in open loop, beside the diagnosis' own held-out
   check (the FMU and the FMU + effects, read from ``diagnosis.json``), in the same normalised gap.
 
@@ -22,7 +22,7 @@ import numpy as np
 
 from hybridfmu.diagnosis.corrected_model import simulator_for, target_errors
 from hybridfmu.diagnosis.export import load_diagnosed
-from hybridfmu.diagnosis.neural import compare_learned_correction, load_neural_fmu, simulate_neural
+from hybridfmu.evaluation.learned_correction import compare_learned_correction, load_neural_fmu, simulate_neural
 from hybridfmu.diagnosis.report import format_number, json_safe, table_cell
 from hybridfmu.diagnosis.run import load_inputs, mean_errors, prepare_all, reference_states
 from hybridfmu.io import read_json, write_json_atomic, write_text_atomic

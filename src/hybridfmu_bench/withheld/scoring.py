@@ -1,6 +1,6 @@
 """Scoring one withheld case: the diagnosis' findings against the bench's ground truth and the case's draw.
 
-This is the scoring side of the withheld-effect check (:mod:`hybridfmu.withheld.suite`): the only code that
+This is the scoring side of the withheld-effect check (:mod:`hybridfmu_bench.withheld.suite`): the only code that
 reads the bench's truth (``<case>/raw/<maneuver>.truth.json``) and the draw record (``cases/<case>.draw.json``).
 
 Names. The bench names its effects (``coulomb_friction``, ``cogging``, ...), the diagnosis names generic terms
@@ -230,12 +230,12 @@ def score_case(record: dict[str, Any], truth: dict[str, Any], draw: dict[str, An
         record: the case's ``diagnosis.json``.
         truth: one of its bench truth files (effects with their parameters, ``parameter_offsets``,
             ``nominal_parameters``, ``pwm_frequency_hz``).
-        draw: its draw record (:func:`hybridfmu.withheld.suite.draw_case`: kind, seed, stratum, size scales).
+        draw: its draw record (:func:`hybridfmu_bench.withheld.suite.draw_case`: kind, seed, stratum, size scales).
         expected: ``withheld.expected`` (bench effect -> diagnosis effect name patterns).
         background: ``withheld.background`` (condition present in every case -> diagnosis effect name patterns).
 
     Returns:
-        A dict with the columns of :data:`hybridfmu.withheld.report.SUMMARY_COLUMNS`; per-effect
+        A dict with the columns of :data:`hybridfmu_bench.withheld.report.SUMMARY_COLUMNS`; per-effect
         columns are lists in the order of ``true_effects`` (a list of bench effect names).
     """
     true_params = {e["name"]: e["parameters"] for e in truth.get("effects", [])}

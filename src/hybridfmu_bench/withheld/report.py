@@ -1,9 +1,9 @@
 """The withheld-effect check's summary: ``summary.csv``, ``summary.md``, ``detection.png`` and ``confusion.png``.
 
-Every case is scored by :func:`hybridfmu.withheld.scoring.score_case`; this module aggregates:
+Every case is scored by :func:`hybridfmu_bench.withheld.scoring.score_case`; this module aggregates:
 
 - per bench effect, from its single cases: the detection rate against the effect size (the effect's RMS share of
-  the equation error, see :mod:`~hybridfmu.withheld.scoring`) and the measured **detection limit**:
+  the equation error, see :mod:`~hybridfmu_bench.withheld.scoring`) and the measured **detection limit**:
   the smallest effect size above which every single case of the effect was detected (the smallest detected size
   above the largest missed one; "not reached" when the largest one was missed; when none was missed the limit is
   at most the smallest size tested);
@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from hybridfmu.diagnosis.report import table_cell
-from hybridfmu.withheld.scoring import effect_size, rejected_candidates, score_case, selection_thresholds
+from hybridfmu_bench.withheld.scoring import effect_size, rejected_candidates, score_case, selection_thresholds
 from hybridfmu.io import atomic_path, read_json, write_text_atomic
 
 __all__ = ["SUMMARY_COLUMNS", "DEFAULT_TARGETS", "summarise", "detection_limit", "detection_limits",
@@ -184,7 +184,7 @@ def aggregate(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]],
 
 def false_alarms(records: dict[str, dict[str, Any]], rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """For the none cases: per equation the strongest rejected candidate
-    (:func:`~hybridfmu.withheld.scoring.rejected_candidates`) with the case id."""
+    (:func:`~hybridfmu_bench.withheld.scoring.rejected_candidates`) with the case id."""
     out = []
     for r in rows:
         if r["kind"] == "none":

@@ -1,6 +1,6 @@
-"""Comparison with the trained neural FMU: the ONLY module of the diagnosis that touches the training package.
+"""What the trained neural FMU's ANN learned, against the diagnosed effects.
 
-Three uses, each a thin call (adapting to a changed training API is an edit here alone):
+Three uses of the training package, each a thin call (adapting to a changed training API is an edit here alone):
 
 - ``load_neural_fmu(best_json, fmu_path, parameters)``: the search's best model;
 - ``learned_correction(model, x, u)``: what the ANN adds to the model's derivatives (K, n_x);

@@ -1,6 +1,6 @@
 """The ``bench`` section of a case config, parsed into typed settings with defaults.
 
-The defaults here equal those of ``workflow/schemas/bench.schema.yaml`` (a test checks it), so
+The defaults here equal those of ``src/hybridfmu/schemas/bench.schema.yaml`` (a test checks it), so
 a bench section that passed the schema and a partial one built in a test behave the same.
 """
 

@@ -1,7 +1,7 @@
 """The bench ECU's motor control: a cascade of position, speed and current loops at the PWM rate.
 
 Pressure requests become position references through the ECU's (nominal) pressure-volume map
-(see :mod:`hybridfmu.bench.maneuvers`); a slow integral pressure trim at the sensor rate
+(see :mod:`hybridfmu_bench.maneuvers`); a slow integral pressure trim at the sensor rate
 corrects the map with the measured pressure. Then, every PWM period, with the MEASURED
 (quantised) angle and the observer's speed estimate:
 

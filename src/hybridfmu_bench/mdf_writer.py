@@ -13,7 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..io import atomic_path
+from hybridfmu.io import atomic_path
 
 #: Fixed recording start written into the header, so that equal inputs give equal files' content.
 RECORDING_START = dt.datetime(2026, 1, 1, 8, 0, 0, tzinfo=dt.timezone.utc)

@@ -246,7 +246,7 @@ def sync_pending(plan_path: str | Path, tracker: Tracker | None = None, **tracke
     Returns ``{trial_id: run_id}`` of the rungs logged. Entries whose result or checkpoint is gone (the rung is
     being redone) are dropped: the new attempt logs itself. Errors of the store propagate (entries stay).
     """
-    from hybridfmu.training.trial import load_checkpoint
+    from hybridfmu.training.checkpoint import load_checkpoint
 
     folder = pending_folder(plan_path)
     entries = sorted(folder.glob("b*_r*_c*.json"), key=lambda p: (read_json(p)["rung"], p.name)) if folder.is_dir() else []

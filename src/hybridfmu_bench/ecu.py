@@ -1,9 +1,9 @@
 """The bench ECU's motor-control software as the demo's closed-loop controller.
 
 In software-in-the-loop tests the control software closes the loop around the model. The demo's control
-software is the bench's cascade (:class:`hybridfmu.bench.controller.CascadeController`) with its angle-tracking
+software is the bench's cascade (:class:`hybridfmu_bench.controller.CascadeController`) with its angle-tracking
 speed observer; this module exposes it through the controller interface of
-:mod:`hybridfmu.evaluation.closed_loop` (config ``closed_loop.controller: hybridfmu.bench.ecu:EcuSoftware``).
+:mod:`hybridfmu.evaluation.closed_loop` (config ``closed_loop.controller: hybridfmu_bench.ecu:EcuSoftware``).
 It carries only what the ECU has: its tuning, the nominal motor parameters it was designed with, its
 pressure-to-load factor and its rates. Nothing of the bench's plant, effects or sensors comes with it: it reads the
 model's states directly (no encoder quantisation, no current noise) and the logged references and measurements.

@@ -21,13 +21,13 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
-from ..data.readers import read_mdf
-from ..evaluation.closed_loop import closed_loop_settings, make_controller
-from ..io import write_parquet_atomic
+from hybridfmu.data.readers import read_mdf
+from hybridfmu.evaluation.closed_loop import closed_loop_settings, make_controller
+from hybridfmu.io import write_parquet_atomic
 from .plant import Plant
 from .settings import BenchSettings, parse_bench_settings
 
-LOGGER = logging.getLogger("hybridfmu.bench")
+LOGGER = logging.getLogger("hybridfmu_bench")
 
 #: The logged duty channels of phases a, b, c (%, the duty applied from t logged at t + the channel offset).
 DUTY_CHANNELS = ("MotCtl_DutyA", "MotCtl_DutyB", "MotCtl_DutyC")
@@ -169,7 +169,7 @@ def write_ceiling(config: Mapping[str, Any], maneuver: str, raw_path: str | Path
     Args:
         config: the case config (sections ``bench``, ``seed``, ``fmu``, ``signals``, ``maneuvers``).
         maneuver: the maneuver's name; raw_path, data_path: its bench log and its ingested frame.
-        roles: :class:`hybridfmu.case.CaseRoles` (which signal measures which state, the target signals).
+        roles: :class:`hybridfmu.data.roles.CaseRoles` (which signal measures which state, the target signals).
         output_path: Parquet with ``time_s``, ``ceiling_state_<state>`` for each plant state,
             ``ceiling_<signal>`` for each target signal (model units) and ``windowed_ceiling_<signal>``: the same
             over the evaluation's windows, each started from the measured state

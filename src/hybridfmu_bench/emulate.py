@@ -22,8 +22,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..io import write_json_atomic
-from ..progress import Progress
+from hybridfmu.io import write_json_atomic
+from hybridfmu.progress import Progress
 from .controller import CascadeController
 from .hydraulics import PA_PER_BAR
 from .maneuvers import References, build_references, check_spread, planned_extremes
@@ -32,7 +32,7 @@ from .plant import Plant
 from .sensors import Encoder, PressureSensor, SpeedObserver
 from .settings import BenchSettings, parse_bench_settings
 
-LOGGER = logging.getLogger("hybridfmu.bench")
+LOGGER = logging.getLogger("hybridfmu_bench")
 
 RAD_TO_DEG = 180.0 / math.pi
 RAD_S_TO_RPM = 60.0 / (2.0 * math.pi)
@@ -394,7 +394,7 @@ def summarize_bench(truth_paths: Mapping[str, str | Path], output_path: str | Pa
     Raises:
         ValueError: naming the two maneuvers that are too alike.
     """
-    from ..io import read_json
+    from hybridfmu.io import read_json
 
     extremes = {}
     for name, path in truth_paths.items():

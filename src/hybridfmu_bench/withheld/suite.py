@@ -17,8 +17,8 @@ of ``withheld.seeds`` a case config is generated from the main case. Its bench h
 
 Each case is emulated (its maneuvers truncated to ``duration_s``), ingested, segmented and diagnosed by the
 ordinary stage functions (no calibration, no neural FMU). The diagnosis sees the logs, the FMU and the case
-config without its ``bench`` section; only the scoring (:mod:`hybridfmu.withheld.scoring`) reads
-the bench's ground truth and the draws, and :mod:`hybridfmu.withheld.report` aggregates the scores
+config without its ``bench`` section; only the scoring (:mod:`hybridfmu_bench.withheld.scoring`) reads
+the bench's ground truth and the draws, and :mod:`hybridfmu_bench.withheld.report` aggregates the scores
 into ``summary.csv``, ``summary.md``, the detection-limit and confusion figures.
 
 Case ids (Snakemake wildcard ``wcase``): ``s<seed>__single_<effect>__size<k>`` (stratum k = 1 .. sizes_per_effect,
@@ -41,7 +41,7 @@ import yaml
 
 from hybridfmu.io import write_json_atomic, write_text_atomic
 
-LOGGER = logging.getLogger("hybridfmu.withheld.suite")
+LOGGER = logging.getLogger("hybridfmu_bench.withheld.suite")
 
 #: How each bench parameter of a withheld effect is drawn, relative to the main case's value of it (the
 #: "reference": ``bench.effects.<effect>.<parameter>`` of the main case, else the bench catalog's default):
@@ -97,7 +97,7 @@ def withheld_section(config: dict[str, Any]) -> dict[str, Any]:
 
 def catalog_effects(section: dict[str, Any]) -> list[str]:
     """The bench effects to withhold: the configured list, or the whole catalog."""
-    from hybridfmu.bench.effects import EFFECTS as BENCH_EFFECTS
+    from hybridfmu_bench.effects import EFFECTS as BENCH_EFFECTS
 
     names = list(section.get("effects") or BENCH_EFFECTS)
     unknown = [n for n in names if n not in BENCH_EFFECTS]
@@ -211,7 +211,7 @@ def stratified_log_uniform(rng: np.random.Generator, low: float, high: float, st
 def reference_parameters(effect: str, bench: dict[str, Any]) -> dict[str, Any]:
     """The main case's parameters of ``effect`` (``bench.effects.<effect>`` over the catalog's defaults), cogging
     flattened to its strongest harmonic (``order_per_rev``, ``amplitude_nm``, ``phase_rad``)."""
-    from hybridfmu.bench.effects import EFFECTS as BENCH_EFFECTS
+    from hybridfmu_bench.effects import EFFECTS as BENCH_EFFECTS
 
     values = copy.deepcopy(BENCH_EFFECTS[effect].PARAMETERS)
     configured = dict((bench.get("effects") or {}).get(effect) or {})
@@ -317,7 +317,7 @@ def draw_effect_parameters(effect: str, section: dict[str, Any], bench: dict[str
 def _check_drawn(effect: str, parameters: dict[str, Any], bench: dict[str, Any], name: str) -> None:
     """The bench accepts the drawn parameters (else the error names the draws and the case, not the generated
     config)."""
-    from hybridfmu.bench.effects import EFFECTS as BENCH_EFFECTS
+    from hybridfmu_bench.effects import EFFECTS as BENCH_EFFECTS
 
     try:
         BENCH_EFFECTS[effect](parameters, pwm_frequency_hz=float(bench.get("pwm_frequency_hz", 10000.0)),
@@ -454,7 +454,7 @@ def without_bench(case: dict[str, Any]) -> dict[str, Any]:
 def emulate_case(case_path: str | Path, maneuver: str, mdf_path: str | Path, truth_path: str | Path,
                  duration_s: float) -> dict[str, Any]:
     """Emulate one (truncated) maneuver of a withheld case."""
-    from hybridfmu.bench.emulate import emulate_bench
+    from hybridfmu_bench.emulate import emulate_bench
 
     case = load_case(case_path)
     return emulate_bench(case, maneuver, mdf_path, truth_path, duration_s=duration_s,

@@ -1,0 +1,142 @@
+"""Every check of a case that needs no job to run, before the workflow starts.
+
+The case's roles against the FMU (:func:`hybridfmu.data.roles.case_roles`), the search's Hyperband budget,
+the training's gradient engine against the model, and the maneuvers' raw logs (no data in two roles). Each
+failure is a :class:`hybridfmu.config.ConfigError` that names the config file and field.
+
+API::
+
+    check_case(config, config_file="") -> CaseRoles    # every check, ConfigError naming file and field
+    case_warnings(config, config_file="") -> list[str] # what a valid config leaves out (no test maneuver)
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any
+
+from hybridfmu.config import ConfigError
+from hybridfmu.data.errors import DataError
+from hybridfmu.data.roles import NO_TEST_MANEUVER, CaseRoles, case_roles, maneuver_source
+
+
+def check_case(config: dict[str, Any], config_file: str = "") -> CaseRoles:
+    """Every check of a case that needs no job to run (roles against the FMU, units), before the workflow starts.
+
+    Raises:
+        ConfigError: the message starts with the config file (when given) and names the field.
+    """
+    try:
+        check_hpo(config)
+        check_gradients(config)
+        roles = case_roles(config)
+        check_maneuvers(config, roles)
+        return roles
+    except ConfigError as err:
+        prefix = f"{config_file}: " if config_file else ""
+        raise ConfigError(f"{prefix}{err}") from None
+
+
+def check_gradients(config: dict[str, Any]) -> None:
+    """``training.gradients`` fits the model: torchdiffeq's fixed-grid solvers have no end stop.
+
+    Raises:
+        ConfigError: naming ``config.training.gradients`` and ``config.model.end_stop``.
+    """
+    gradients = (config.get("training") or {}).get("gradients", "adjoint")
+    if str(gradients).startswith("torchdiffeq") and (config.get("model") or {}).get("end_stop"):
+        raise ConfigError(f"config.training.gradients: {gradients!r} has no end stop, but config.model.end_stop is "
+                          "set; expected an adjoint engine (adjoint, adjoint_c, adjoint_numpy, adjoint_torch) or "
+                          "autograd, or no model.end_stop")
+
+
+def check_hpo(config: dict[str, Any]) -> None:
+    """The Hyperband budget of a validated config is a real search (:func:`hybridfmu.training.hyperband.check_budget`),
+    for the section and for every search that sets its own (``config.hpo.searches.<search>``).
+
+    Raises:
+        ConfigError: naming ``config.hpo.R`` and ``config.hpo.eta`` (or ``config.hpo.searches.<search>.R``, ...)
+            and what is expected.
+    """
+    from hybridfmu.training.hyperband import check_budget
+
+    hpo = config.get("hpo") or {}
+    budgets = [("config.hpo", hpo.get("R", 81), hpo.get("eta", 3))]
+    for search, own in (hpo.get("searches") or {}).items():
+        own = own or {}
+        if "R" in own or "eta" in own:
+            budgets.append((f"config.hpo.searches.{search}", own.get("R", hpo.get("R", 81)),
+                            own.get("eta", hpo.get("eta", 3))))
+    for where, R, eta in budgets:
+        try:
+            check_budget(R, eta, names=(f"{where}.R", f"{where}.eta"))
+        except ValueError as err:
+            raise ConfigError(str(err)) from None
+
+
+def check_maneuvers(config: dict[str, Any], roles: CaseRoles) -> None:
+    """Each maneuver's source in its raw log, and no log data in two roles.
+
+    A maneuver's data are its raw file, the raw channel of each logged signal (``config.signals`` with the
+    maneuver's ``channels`` overrides) and its slice ``t_start_s``..``t_end_s``. Two maneuvers of different
+    roles (train, validation, test) must not read the same data: the same file with the same channels over
+    overlapping slices would make e.g. the test maneuver a copy of the validation data. Slices that do not
+    overlap, or different channels (records side by side in one log), are different data.
+
+    Raises:
+        ConfigError: a channel override of a signal that is not logged, a slice that ends before it starts,
+            or the same data in two roles; naming the ``config.maneuvers`` fields.
+    """
+    maneuvers = config.get("maneuvers") or {}
+    sources = {}
+    for name in maneuvers:
+        try:
+            sources[name] = maneuver_source(config, roles, name)
+        except DataError as err:
+            raise ConfigError(str(err)) from None
+    names = list(maneuvers)
+    for k, first in enumerate(names):
+        for second in names[k + 1:]:
+            a, b = maneuvers[first], maneuvers[second]
+            if a["role"] == b["role"] or _raw_key(a["raw"]) != _raw_key(b["raw"]):
+                continue
+            sa, sb = sources[first], sources[second]
+            if sa.channels != sb.channels:
+                continue
+            start = max(_bound(sa.t_start_s, 0.0), _bound(sb.t_start_s, 0.0))
+            end = min(_bound(sa.t_end_s, math.inf), _bound(sb.t_end_s, math.inf))
+            if start < end:
+                raise ConfigError(
+                    f"config.maneuvers.{second}: role {b['role']} reads the same raw log {b['raw']!r} with the same "
+                    f"channels as config.maneuvers.{first} (role {a['role']}) over an overlapping time span "
+                    f"({_span(sa)} and {_span(sb)}), so its data would be {a['role']} data too; expected another "
+                    "raw file, t_start_s/t_end_s slices that do not overlap, or other channels")
+
+
+def _raw_key(raw: str) -> str:
+    """The raw file a path names (relative paths from the working directory, links resolved)."""
+    return os.path.realpath(os.path.expanduser(str(raw)))
+
+
+def _bound(value: float | None, default: float) -> float:
+    return default if value is None else float(value)
+
+
+def _span(source: Any) -> str:
+    start = "start" if source.t_start_s is None else f"{source.t_start_s:g} s"
+    end = "end" if source.t_end_s is None else f"{source.t_end_s:g} s"
+    return f"{start} to {end}"
+
+
+def case_warnings(config: dict[str, Any], config_file: str = "") -> list[str]:
+    """What a valid config leaves out that the user probably wants (one line each, naming file and field).
+
+    Without a test maneuver the held-out check (the diagnosis' "how far" on data no fit saw) is not run.
+    """
+    prefix = f"{config_file}: " if config_file else ""
+    warnings = []
+    maneuvers = config.get("maneuvers") or {}
+    if not any(entry.get("role") == "test" for entry in maneuvers.values()):
+        warnings.append(f"{prefix}config.maneuvers: {NO_TEST_MANEUVER}")
+    return warnings
