@@ -42,6 +42,20 @@ def test_bad_value_is_named(demo_config):
         validate_case_config(demo_config)
 
 
+@pytest.mark.parametrize("engine", ["adjoint", "adjoint_numpy", "torchdiffeq"])
+def test_the_three_gradient_engines_are_options(demo_config, engine):
+    demo_config["training"]["gradients"] = engine
+    assert validate_case_config(demo_config)["training"]["gradients"] == engine
+
+
+@pytest.mark.parametrize("engine", ["adjoint_torch", "autograd", "torchdiffeq_adjoint", "adjoint_c"])
+def test_test_reference_engines_are_no_options(demo_config, engine):
+    """Slower than one of the three options in every row of benchmarks/train_step.py: test references only."""
+    demo_config["training"]["gradients"] = engine
+    with pytest.raises(ConfigError, match=rf"config\.training\.gradients: '{engine}' is not one of"):
+        validate_case_config(demo_config)
+
+
 def test_missing_file_and_non_mapping(tmp_path):
     with pytest.raises(ConfigError, match="does not exist"):
         load_case_config(tmp_path / "nope.yaml")

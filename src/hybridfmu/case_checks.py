@@ -47,8 +47,7 @@ def check_gradients(config: dict[str, Any]) -> None:
     gradients = (config.get("training") or {}).get("gradients", "adjoint")
     if str(gradients).startswith("torchdiffeq") and (config.get("model") or {}).get("end_stop"):
         raise ConfigError(f"config.training.gradients: {gradients!r} has no end stop, but config.model.end_stop is "
-                          "set; expected an adjoint engine (adjoint, adjoint_c, adjoint_numpy, adjoint_torch) or "
-                          "autograd, or no model.end_stop")
+                          "set; expected adjoint or adjoint_numpy, or no model.end_stop")
 
 
 def check_hpo(config: dict[str, Any]) -> None:
