@@ -16,7 +16,7 @@ from hybridfmu.config import ConfigError, validate_case_config
 from hybridfmu.diagnosis.derivatives import savgol_derivative, savgol_smooth
 from hybridfmu.diagnosis.effects import input_derivative
 from hybridfmu.diagnosis.library import DEFAULT_KINDS
-from hybridfmu.diagnosis.prepare import load_maneuver
+from hybridfmu.diagnosis.prepare import maneuver_from_frame
 from hybridfmu.diagnosis.problem import DEFAULT_EFFECT_OPTIONS, diagnosis_settings
 from hybridfmu.diagnosis.selection import SelectionSettings
 
@@ -98,20 +98,18 @@ def test_the_schema_rejects_bad_new_options_naming_the_field(section, field, val
         validate_case_config(section, DIAGNOSIS_SCHEMA)
 
 
-def test_a_known_sensor_lag_can_still_be_compensated_before_everything(tmp_path):
+def test_a_known_sensor_lag_can_still_be_compensated_before_everything():
     """``diagnosis.input_lag_compensation_s`` (e.g. a datasheet value) still undoes a lag on loading."""
     dt = 0.01
     time_s = np.arange(0.0, 2.0, dt)
     force = np.sin(3.0 * time_s) + (time_s > 1.0)
     frame = pd.DataFrame({"time_s": time_s, "position": np.zeros_like(time_s), "velocity": np.zeros_like(time_s),
                           "force": force})
-    path = tmp_path / "train.parquet"
-    frame.to_parquet(path)
     problem, _ = msd_problem(input_lag_compensation_s={"F": 0.04})
-    loaded = load_maneuver("train", "train", path, None, problem)
+    loaded = maneuver_from_frame("train", "train", frame, None, problem)
     expected = savgol_smooth(force, 5) + 0.04 * savgol_derivative(force, dt, 5)
     np.testing.assert_allclose(loaded.u[:, 0], expected, rtol=1e-12)
-    plain = load_maneuver("train", "train", path, None, msd_problem()[0])
+    plain = maneuver_from_frame("train", "train", frame, None, msd_problem()[0])
     np.testing.assert_allclose(plain.u[:, 0], force)
     with pytest.raises(ConfigError, match=r"config\.diagnosis\.input_lag_compensation_s"):
         msd_problem(input_lag_compensation_s={"G": 0.01})

@@ -209,6 +209,47 @@ def test_neural_fmu_beats_fmu_on_the_test_maneuver(tiny_run):
     assert_neural_fmu_beats_fmu(json.loads((results / "metrics" / "test.json").read_text()), "test")
 
 
+#: Checks appended to the code of docs/api.md: the API gives what the workflow's stages wrote in the same run.
+API_CHECKS = """
+import json
+import numpy as np
+import pandas as pd
+
+results = run.results_dir
+pd.testing.assert_frame_equal(frame, pd.read_parquet(results / "data" / "test.parquet"))
+states = list(case.roles.state_names)
+baseline = pd.read_parquet(results / "baseline" / "test.parquet")
+np.testing.assert_allclose(fmu[states].to_numpy(), baseline[states].to_numpy(), rtol=1e-10, atol=1e-12)
+trajectory = pd.read_parquet(results / "evaluation" / "trajectories" / "test.parquet")
+hybrid = api.simulate_trained(case, frame, "hybrid", "test", run)
+for model, states_frame in (("neural_fmu", neural), ("hybrid", hybrid)):
+    np.testing.assert_allclose(states_frame[states].to_numpy(),
+                               trajectory[[f"{model}_state_{name}" for name in states]].to_numpy(),
+                               rtol=1e-10, atol=1e-12)
+written = json.loads((results / "diagnosis" / "diagnosis.json").read_text())
+assert diagnosis.verdict == written["verdict"], (diagnosis.verdict, written["verdict"])
+assert diagnosis.effects == written["which"]["found_effects"]
+print("API CHECKS PASSED")
+"""
+
+
+def test_the_api_page_runs_and_gives_what_the_workflow_wrote(tiny_run):
+    """Every code block of docs/api.md, in order, in the tiny run's folder with the installed package; then the
+    frame, the FMU's and the trained models' trajectories and the diagnosis equal the workflow's files."""
+    workdir, _, _, _ = tiny_run
+    page = (REPO / "docs" / "api.md").read_text()
+    blocks = [block.split("```", 1)[0] for block in page.split("```python\n")[1:]]
+    assert len(blocks) >= 3, "docs/api.md: expected its python code blocks"
+    if not (workdir / "config").exists():  # the page's paths are the repository root's
+        (workdir / "config").symlink_to(REPO / "config")
+    script = workdir / "api_page.py"
+    script.write_text("\n".join(blocks) + API_CHECKS)
+    result = subprocess.run([str(PYTHON), str(script)], cwd=workdir, capture_output=True, text=True, timeout=900,
+                            env={**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-6000:]
+    assert "named:" in result.stdout and "API CHECKS PASSED" in result.stdout, result.stdout
+
+
 def test_nothing_left_to_do(tiny_run):
     workdir, _, _, _ = tiny_run
     output = snakemake(workdir, TINY, "-n")

@@ -288,6 +288,15 @@ def case_results_dir(config: dict[str, Any]) -> Path:
     return Path(config.get("results_dir", "results")) / config["case"]
 
 
+def case_fmu_path(config: dict[str, Any]) -> Path:
+    """The case's FMU: ``<results_dir>/<case>/fmu/<model_name>.fmu`` when the workflow builds it from its C
+    sources (``fmu.source: build``, rule ``build_fmu``), else the config's ``fmu.path``."""
+    fmu = config["fmu"]
+    if fmu["source"] == "build":
+        return case_results_dir(config) / "fmu" / f"{fmu['model_name']}.fmu"
+    return Path(fmu["path"])
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m hybridfmu.config FILE...``: check case config files (strict YAML, schema); 0 when all pass.
 

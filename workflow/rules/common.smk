@@ -69,8 +69,8 @@ def fmu_interface():
 
 
 def fmu_path():
-    """Path (str) of the case's FMU: {RESULTS}/fmu/<model_name>.fmu when built, else config fmu.path."""
-    if config["fmu"]["source"] == "build":
-        return f"{RESULTS}/fmu/{config['fmu']['model_name']}.fmu"
-    return config["fmu"]["path"]
+    """Path (str) of the case's FMU (hybridfmu.config.case_fmu_path)."""
+    from hybridfmu.config import case_fmu_path
+
+    return str(case_fmu_path(config))
 

@@ -1,6 +1,6 @@
 """From ingested maneuvers to the quantities the diagnosis works on.
 
-``load_maneuver`` reads one ingested maneuver (``time_s`` and one column per signal, in the model
+``maneuver_from_frame`` puts one ingested maneuver (``time_s`` and one column per signal, in the model
 unit) and its segments into model-ordered arrays through the case's roles; measured states named
 in ``diagnosis.state_from_derivative`` are replaced by the time derivative of another measured state
 (e.g. a speed from the angle: an observer's logged speed lags). Unmeasured states are filled from an
@@ -74,23 +74,25 @@ def frame_arrays(frame: pd.DataFrame, problem: Problem, path: Path) -> tuple[np.
     return time_s, x, u
 
 
-def load_maneuver(name: str, role: str, data_path: str | Path, segments_path: str | Path | None,
-                  problem: Problem, x0_unmeasured: dict[str, float] | None = None) -> MeasuredManeuver:
-    """Read an ingested maneuver (Parquet) and its segments (JSON) into model-ordered arrays.
+def maneuver_from_frame(name: str, role: str, frame: pd.DataFrame, spans_s: list[list[float]] | None,
+                        problem: Problem, x0_unmeasured: dict[str, float] | None = None,
+                        source: str | Path = "") -> MeasuredManeuver:
+    """An ingested maneuver's frame (``time_s`` (s) and one column per signal in its model unit, as
+    :func:`hybridfmu.data.ingest.ingest_log` returns it) in model-ordered arrays.
+
+    Args:
+        spans_s: the informative segments [[t_start_s, t_end_s], ...] (s); None: the whole record.
+        x0_unmeasured: unmeasured state -> initial value.
+        source: where the frame comes from, for messages (a file, or a name).
 
     Raises:
-        FileNotFoundError: the data file does not exist.
-        ValueError: a column is missing or holds non-finite values (names the file).
+        ValueError: a column is missing or holds non-finite values (names ``source``).
     """
-    from hybridfmu.data.segments import read_segments
-
-    data_path = Path(data_path)
-    if not data_path.is_file():
-        raise FileNotFoundError(f"{data_path}: ingested data of maneuver {name!r} does not exist")
-    time_s, x, u = frame_arrays(pd.read_parquet(data_path), problem, data_path)
+    where = Path(str(source or f"maneuver {name}"))
+    time_s, x, u = frame_arrays(frame, problem, where)
     settings = problem.settings
-    for state, source in (settings.get("state_from_derivative") or {}).items():
-        x[:, problem.state_names.index(state)] = np.gradient(x[:, problem.state_names.index(source)], time_s)
+    for state, derived_from in (settings.get("state_from_derivative") or {}).items():
+        x[:, problem.state_names.index(state)] = np.gradient(x[:, problem.state_names.index(derived_from)], time_s)
     dt_s = float(np.median(np.diff(time_s)))
     for input_name, lag_s in (settings.get("input_lag_compensation_s") or {}).items():
         if lag_s > 0:
@@ -100,10 +102,10 @@ def load_maneuver(name: str, role: str, data_path: str | Path, segments_path: st
     for what, values in (("inputs", u), ("measured states", x[:, problem.measured])):
         bad = ~np.isfinite(values)
         if bad.any():
-            raise ValueError(f"{data_path}: non-finite {what} at {int(bad.any(axis=1).sum())} samples")
-    spans = read_segments(segments_path)["spans_s"] if segments_path else [[float(time_s[0]), float(time_s[-1])]]
+            raise ValueError(f"{where}: non-finite {what} at {int(bad.any(axis=1).sum())} samples")
+    spans = spans_s if spans_s is not None else [[float(time_s[0]), float(time_s[-1])]]
     return MeasuredManeuver(name=name, role=role, time_s=time_s, x=x, u=u, spans_s=[list(s) for s in spans],
-                            x0_unmeasured=dict(x0_unmeasured or {}), source=str(data_path))
+                            x0_unmeasured=dict(x0_unmeasured or {}), source=str(where))
 
 
 def start_states(meas: MeasuredManeuver, problem: Problem) -> np.ndarray:

@@ -7,6 +7,7 @@ calibrated parameters (:class:`hybridfmu.calibration.result.Calibration`, rule `
 API::
 
     read_measured(data_path, roles) -> MeasuredManeuver
+    measured_from_frame(frame, roles) -> MeasuredManeuver  # the same for a frame in memory
     load_calibration(path) -> Calibration
     load_calibrated_fmu(fmu_path, calibration) -> FmuModel
     initial_state(model, measured_x0, roles, calibration, maneuver, maneuvers) -> (n_x,)
@@ -47,7 +48,8 @@ class MeasuredManeuver:
 
 
 def read_measured(data_path: str | Path, roles: Any) -> MeasuredManeuver:
-    """Read an ingested maneuver (``time_s`` plus one column per signal) through the case's roles.
+    """Read an ingested maneuver (``time_s`` plus one column per signal) through the case's roles
+    (:func:`measured_from_frame`).
 
     Args:
         data_path: ``{RESULTS}/data/<maneuver>.parquet``.
@@ -59,21 +61,30 @@ def read_measured(data_path: str | Path, roles: Any) -> MeasuredManeuver:
     """
     import pandas as pd
 
-    from hybridfmu.data.signals import input_array, state_array, time_array
-
     data_path = Path(data_path)
     if not data_path.is_file():
         raise FileNotFoundError(f"{data_path}: ingested maneuver does not exist (rule ingest)")
-    frame = pd.read_parquet(data_path)
+    return measured_from_frame(pd.read_parquet(data_path), roles, data_path)
+
+
+def measured_from_frame(frame: Any, roles: Any, source: str | Path = "the frame") -> MeasuredManeuver:
+    """An ingested maneuver's frame (pandas; ``time_s`` (s) plus one column per signal in its model unit, as
+    :func:`hybridfmu.data.ingest.ingest_log` returns it) in the FMU's terms, through the case's roles.
+
+    Raises:
+        ValueError: a column is missing, or fewer than 2 samples (the message names ``source``).
+    """
+    from hybridfmu.data.signals import input_array, state_array, time_array
+
     measured = list(roles.measured_states)
     try:
         time_s = np.asarray(time_array(frame), dtype=np.float64)
         u = np.asarray(input_array(frame, roles), dtype=np.float64).reshape(time_s.size, len(roles.input_names))
         columns = np.asarray(state_array(frame, roles, measured), dtype=np.float64).reshape(time_s.size, len(measured))
     except ValueError as err:
-        raise type(err)(f"{data_path}: {err}") from None
+        raise type(err)(f"{source}: {err}") from None
     if time_s.size < 2:
-        raise ValueError(f"{data_path}: column 'time_s' holds {time_s.size} sample(s), at least 2 are needed")
+        raise ValueError(f"{source}: column 'time_s' holds {time_s.size} sample(s), at least 2 are needed")
     x = np.full((time_s.size, len(roles.state_names)), np.nan)
     for k, name in enumerate(measured):
         x[:, roles.state_names.index(name)] = columns[:, k]
