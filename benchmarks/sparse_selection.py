@@ -55,7 +55,8 @@ def _chosen_items(terms: list, problem: Any) -> list[dict[str, Any]]:
 def score_case_files(case: str, withheld: Path, fmu: Path, expected: dict, background: dict) -> dict[str, Any]:
     """Forward selection's row and STLSQ's rows (per threshold) of one case, with the feature-building time."""
     from hybridfmu.diagnosis.corrected_model import simulator_for
-    from hybridfmu.diagnosis.run import load_inputs, prepare_all, selection_inputs
+    from hybridfmu.diagnosis.inputs import load_inputs
+    from hybridfmu.diagnosis.run import prepare_all, selection_inputs
     from hybridfmu.diagnosis.selection import SelectionSettings
     from hybridfmu.diagnosis.sparse import candidate_features, stlsq_select
     from hybridfmu_bench.withheld.suite import load_case, without_bench

@@ -218,7 +218,8 @@ def diagnose(case: Case, frames: dict[str, pd.DataFrame], spans_s: dict[str, lis
     """
     from hybridfmu.calibration.result import Calibration
     from hybridfmu.diagnosis.report import diagnosis_record
-    from hybridfmu.diagnosis.run import analyse_inputs, case_inputs
+    from hybridfmu.diagnosis.inputs import case_inputs
+    from hybridfmu.diagnosis.run import analyse_inputs
     from hybridfmu.diagnosis.settings import diagnosis_maneuvers
 
     names = diagnosis_maneuvers(case.config, str(case.source))

@@ -7,7 +7,8 @@ with units and labels) and any Model-Exchange FMU. Modules: ``problem`` (the cas
 ``library`` (candidate effects over roles), ``selection`` (fitting, sparse selection, uncertainty),
 ``regions`` (residual over operating regions and time), ``corrected_model`` (chosen effects added to the
 model, open-loop re-simulation), ``export`` (the diagnosed model the later stages load), ``report``
-(diagnosis.json, report.md, MLflow), ``figures``, ``run`` (``analyse``, ``run_diagnosis``). The diagnosis
+(diagnosis.json, report.md, MLflow), ``figures``, ``inputs`` (a case's inputs from files or frames),
+``open_loop`` (the held-out check and the error growth), ``run`` (``analyse``, ``run_diagnosis``). The diagnosis
 imports no training or evaluation module: the hybrid model is built on it (:mod:`hybridfmu.model.physics`),
 and the trained neural FMU is compared with it afterwards (:mod:`hybridfmu.evaluation.neural_comparison`). The
 withheld-effect check, which drives the emulated bench and scores against its truth, is a package of its

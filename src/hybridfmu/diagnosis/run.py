@@ -1,11 +1,12 @@
 """The diagnosis: where the gap lies, which effect causes it, how far it shrinks.
 
 ``analyse`` reads the case's FMU (with the calibrated parameters), ingested maneuvers, segments and
-calibration, never a bench's ground truth (the trained neural FMU is compared afterwards, by
+calibration (:mod:`hybridfmu.diagnosis.inputs`), never a bench's ground truth (the trained neural FMU is compared afterwards, by
 :mod:`hybridfmu.evaluation.neural_comparison`).
 ``run_diagnosis`` does the computation on loaded objects (any model with ``state_names``,
 ``input_names``, ``derivatives``, ``jacobians``; parameters via ``get_parameters``/``set_parameters``)
-and returns the result as a dictionary; :mod:`hybridfmu.diagnosis.report` writes it.
+and returns the result as a dictionary; :mod:`hybridfmu.diagnosis.report` writes it. The open-loop check on
+held-out maneuvers is :mod:`hybridfmu.diagnosis.open_loop`.
 """
 
 from __future__ import annotations
@@ -13,21 +14,22 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-from hybridfmu.diagnosis.corrected_model import CorrectedModel, open_loop_errors, simulate, simulator_for
+from hybridfmu.diagnosis.corrected_model import simulator_for
 from hybridfmu.diagnosis.derivatives import smooth_at
 from hybridfmu.diagnosis.export import DiagnosedModel
 from hybridfmu.diagnosis.joint import JOINT, StackedCache, effect_equations, effect_key, joint_candidates
 from hybridfmu.diagnosis.library import build_library
+from hybridfmu.diagnosis.inputs import CaseInputs, load_inputs
+from hybridfmu.diagnosis.open_loop import error_growth, how_far, how_far_not_run
 from hybridfmu.diagnosis.prepare import (MeasuredManeuver, PreparedManeuver, fill_unmeasured, kernel_samples,
-                                         maneuver_from_frame, prepare_maneuver)
-from hybridfmu.diagnosis.problem import Problem, build_problem, diagnosis_settings, set_data_statistics
-from hybridfmu.diagnosis.refit import Refit, RefitSpec, parameters_set, refit_terms, simulate_corrected
+                                         prepare_maneuver)
+from hybridfmu.diagnosis.problem import Problem, set_data_statistics
+from hybridfmu.diagnosis.refit import RefitSpec
 from hybridfmu.diagnosis.regions import (RegionSamples, band_family, ranked_statements, region_table, reversal_mask,
                                          time_bins)
 from hybridfmu.diagnosis.selection import (DesignCache, EquationSelection, SelectionSettings, Term, best_setting,
@@ -333,139 +335,6 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
 
 # ----------------------------------------------------------------------------- how far
 
-def reference_states(meas: MeasuredManeuver, starts: np.ndarray, problem: Problem) -> np.ndarray:
-    """Measured states to compare with: as logged, differentiated states smoothed like the start states."""
-    ref = np.array(meas.x, dtype=float)
-    for state in problem.settings.get("state_from_derivative") or {}:
-        i = problem.state_names.index(state)
-        ref[:, i] = starts[:, i]
-    return ref
-
-
-def equation_label(effect: Any, problem: Problem) -> str:
-    """``d<state>/dt`` of the equation(s) an effect acts on, joined by commas."""
-    return ", ".join(f"d{problem.state_names[eq]}/dt" for eq in effect_equations(effect))
-
-
-def mean_errors(per: dict[str, dict[str, float]]) -> dict[str, float]:
-    """Mean over maneuvers of each error of ``per`` (maneuver -> error name -> value), window counts left out."""
-    keys = next(iter(per.values())).keys()
-    return {k: float(np.mean([v[k] for v in per.values()])) for k in keys if k != "n_windows"}
-
-
-def _refit_record(refit: Refit) -> dict[str, Any]:
-    return {"cost_start": refit.cost_start, "cost": refit.cost, "evaluations": refit.evaluations,
-            "elapsed_s": round(refit.elapsed_s, 2), "parameters": refit.parameters,
-            "initial_states": refit.initial_states,
-            "variables": {name: {"start": a, "fitted": b} for name, (a, b) in refit.variables.items()}}
-
-
-def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
-            test_names: list[str], terms: list[Term], problem: Problem,
-            refit: RefitSpec | None = None, refit_names: list[str] | None = None) -> dict[str, Any]:
-    """Open-loop errors on the test maneuvers: the model, and after each chosen effect (cumulative, rank order).
-    Returns steps, ``before``/``after`` (``<signal>_rmse``, ``<signal>_mae``, ``gap``).
-
-    With ``refit`` (:func:`hybridfmu.diagnosis.refit.refit_spec`), every variant, the model alone among them,
-    is first recalibrated with its effects by output error on the maneuvers ``refit_names``
-    (:mod:`hybridfmu.diagnosis.refit`); each step then carries its ``refit`` record."""
-    window_s = problem.settings["open_loop"].get("window_s")
-    steps = []
-    trajectories: dict[str, dict[str, np.ndarray]] = {name: {} for name in test_names}
-    variants = [("FMU", [])] + [(f"+ {t.effect.name} ({equation_label(t.effect, problem)})", terms[:k + 1])
-                                for k, t in enumerate(terms)]
-    notes: list[str] = []
-    fitted = None
-    for label, active in variants:
-        names = [t.effect.name for t in active]
-        if refit is not None:
-            absorbed = active and _refitted_parameter(active[-1], refit)
-            if not (absorbed and fitted is not None):  # an absorbed parameter error leaves the variant as it was
-                fitted = refit_terms(model, helper, simulate_fn, [prepared[n].measured for n in refit_names or []],
-                                     active, problem, refit, label=f"refit {label}")
-            active = fitted.terms
-        corrected = CorrectedModel(active, problem, helper) if active else None
-        if corrected is not None:
-            notes = corrected.notes
-        per = {}
-        with parameters_set([model, helper], fitted.parameters if fitted is not None else {}):
-            for name in test_names:
-                meas = prepared[name].measured
-                starts = prepared[name].starts
-                if fitted is not None:
-                    starts = _refit_starts(model, simulate_fn, meas, starts, corrected,
-                                           fitted.initial_states_of(name, refit), problem)
-                started = time.perf_counter()
-                errors, whole = open_loop_errors(model, simulate_fn, meas.time_s, reference_states(meas, starts, problem),
-                                                 meas.u, starts, problem, corrected, window_s)
-                LOGGER.info("open loop %s on %s: normalised gap %.4g (%.1f s)", label, name, errors["gap"],
-                            time.perf_counter() - started)
-                per[name] = errors
-                trajectories[name][label] = whole
-        step = {"model": label, "effects": names, "per_maneuver": per, **mean_errors(per)}
-        if fitted is not None:
-            step["refit"] = _refit_record(fitted)
-        steps.append(step)
-    before, after = steps[0], steps[len(terms)]
-    keys = [k for k in before if k not in ("model", "effects", "per_maneuver")]
-    diagnosed = DiagnosedModel(list(active), dict(fitted.parameters) if fitted is not None else {}, problem,
-                               [t.effect.name for t in terms],
-                               {name: dict(fitted.initial_states_of(name, refit)) for name in prepared
-                                if fitted.initial_states_of(name, refit)} if fitted is not None else {})
-    result = {"steps": steps, "before": {k: before[k] for k in keys}, "after": {k: after[k] for k in keys},
-              "gap_before": before["gap"], "gap_after": after["gap"],
-              "shrink_factor": before["gap"] / after["gap"] if after["gap"] and after["gap"] > 0 else float("inf"),
-              "notes": notes, "trajectories": trajectories, "diagnosed": diagnosed}
-    if "window_gap" in before:
-        result["window_gap_before"], result["window_gap_after"] = before["window_gap"], after["window_gap"]
-    return result
-
-
-def _refitted_parameter(term: Term, refit: RefitSpec) -> bool:
-    """Whether ``term`` is an error of a parameter the refit fits anyway (it adds nothing to the variant)."""
-    change = term.effect.parameter_change(term.coef, term.setting)
-    return change is not None and change[0] in refit.parameter_bounds
-
-
-def _refit_starts(model: Any, simulate_fn: Callable, meas: MeasuredManeuver, starts: np.ndarray,
-                  corrected: CorrectedModel | None, initial_states: dict[str, float], problem: Problem) -> np.ndarray:
-    """Start states (T, n_x) of a recalibrated variant: its unmeasured initial states, and the unmeasured states
-    along its own open-loop simulation (the windows restart from them)."""
-    if not problem.unmeasured:
-        return starts
-    out = np.array(starts, dtype=float)
-    for i in problem.unmeasured:
-        out[0, i] = float(initial_states.get(problem.state_names[i], out[0, i]))
-    whole = simulate_corrected(model, simulate_fn, meas.time_s, meas.u, out[0], corrected)
-    out[:, problem.unmeasured] = whole[:, problem.unmeasured]
-    return out
-
-
-def error_growth(model: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
-                 problem: Problem) -> list[dict[str, Any]]:
-    """Where the model's open-loop error grows: per maneuver and target, the normalised |error| over time and
-    the first time it exceeds ``open_loop.growth_threshold_relative`` (of the target's spread)."""
-    threshold = float(problem.settings["open_loop"].get("growth_threshold_relative", 0.1))
-    out = []
-    for name, p in prepared.items():
-        meas = p.measured
-        starts = p.starts
-        whole = simulate(model, simulate_fn, meas.time_s, meas.u, starts[0], None)
-        ref = reference_states(meas, starts, problem)
-        item = {"maneuver": name, "role": meas.role, "threshold_relative": threshold, "targets": {},
-                "normalised_error": {}}
-        for state in problem.target_weights:
-            i = problem.state_names.index(state)
-            err = np.abs(whole[:, i] - ref[:, i]) / (float(np.std(ref[:, i])) or 1.0)
-            exceeded = np.flatnonzero(~(err <= threshold))
-            item["targets"][problem.state_signal[state]] = {
-                "exceeds_threshold_at_s": float(meas.time_s[exceeded[0]]) if len(exceeded) else None,
-                "final_normalised_error": float(err[-1]) if np.isfinite(err[-1]) else None}
-            item["normalised_error"][problem.state_signal[state]] = err
-        out.append(item)
-    return out
-
-
 # ----------------------------------------------------------------------------- the whole diagnosis
 
 def prepare_all(problem: Problem, model: Any, measured: dict[str, MeasuredManeuver],
@@ -536,104 +405,6 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
             "diagnosed": diagnosed,
             "test_names": test_names, "where": where, "regions": regions, "which": which,
             "how_far": far, "how_far_not_run": not_run, "growth": growth}
-
-
-def how_far_not_run(test_names: list[str], open_loop: bool = True) -> str | None:
-    """Why the held-out check ("how far") is not run, in words for the report, or None when it runs."""
-    if not test_names:
-        from hybridfmu.data.roles import NO_TEST_MANEUVER
-
-        return f"There is no test maneuver: {NO_TEST_MANEUVER}."
-    if not open_loop:
-        return "The open-loop simulation was switched off, so the held-out check on the test maneuver(s) was not run."
-    return None
-
-
-@dataclass
-class CaseInputs:
-    """A case's diagnosis inputs, loaded (:func:`load_inputs`): the problem, the calibrated model and a helper
-    instance, the measured maneuvers, the model's parameters, the calibration (or None), the settings."""
-
-    problem: Problem
-    model: Any
-    helper: Any
-    measured: dict[str, MeasuredManeuver]
-    parameters: dict[str, float]
-    calibration: Any
-    settings: dict[str, Any]
-
-
-def load_inputs(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, str | Path],
-                segments_paths: dict[str, str | Path], calibration_path: str | Path | None = None) -> CaseInputs:
-    """Load a case's FMU (with the calibrated parameters), maneuvers and segments (arguments: :func:`analyse`;
-    :func:`case_inputs` does the rest)."""
-    import pandas as pd
-
-    from hybridfmu.data.segments import read_segments
-
-    calibration = None
-    if calibration_path is not None:
-        from hybridfmu.calibration.result import Calibration
-
-        calibration = Calibration.load(calibration_path)
-    missing = [n for n in config["maneuvers"] if n not in data_paths]
-    if missing:
-        raise ValueError(f"diagnosis: no ingested data given for maneuver(s) {missing}")
-    frames, spans = {}, {}
-    for name in config["maneuvers"]:
-        data_path = Path(data_paths[name])
-        if not data_path.is_file():
-            raise FileNotFoundError(f"{data_path}: ingested data of maneuver {name!r} does not exist")
-        frames[name] = pd.read_parquet(data_path)
-        if segments_paths.get(name):
-            spans[name] = read_segments(segments_paths[name])["spans_s"]
-    return case_inputs(config, fmu_path, frames, spans, calibration,
-                       sources={name: str(data_paths[name]) for name in frames})
-
-
-def case_inputs(config: dict[str, Any], fmu_path: str | Path, frames: dict[str, Any],
-                spans_s: dict[str, list[list[float]]] | None = None, calibration: Any = None,
-                sources: dict[str, str] | None = None) -> CaseInputs:
-    """A case's diagnosis inputs from maneuvers in memory.
-
-    Args:
-        config: validated case config (its ``maneuvers`` name each maneuver's role).
-        fmu_path: the case's FMU.
-        frames: maneuver name -> ingested frame (``time_s`` (s) and one column per signal, in model units;
-            :func:`hybridfmu.data.ingest.ingest_log`), one for every maneuver of the config.
-        spans_s: maneuver name -> informative segments [[t_start_s, t_end_s], ...] (s); a maneuver not
-            listed is used whole.
-        calibration: :class:`hybridfmu.calibration.result.Calibration` (its parameters and unmeasured initial
-            states), or None for the FMU with ``config.fmu.parameters``.
-        sources: maneuver name -> where its frame comes from, for messages.
-    """
-    from hybridfmu.data.roles import case_roles, model_interface
-    from hybridfmu.fmu import load_fmu
-
-    settings = diagnosis_settings(config)
-    parameters = dict(config.get("fmu", {}).get("parameters", {}) or {})
-    if calibration is not None:
-        parameters.update(calibration.parameters)
-    model = load_fmu(fmu_path, parameters=parameters or None)
-    helper = load_fmu(fmu_path, parameters=parameters or None)
-    case_config = dict(config)
-    case_config["fmu"] = {**config.get("fmu", {}), "source": "path", "path": str(fmu_path)}
-    interface = model_interface(case_config)
-    roles = case_roles(case_config, interface)
-    problem = build_problem(roles, model, settings, model.get_parameters(), (config.get("model") or {}).get("end_stop"))
-    maneuver_roles = {name: m["role"] for name, m in config["maneuvers"].items()}
-    missing = [n for n in maneuver_roles if n not in frames]
-    if missing:
-        raise ValueError(f"diagnosis: no ingested data given for maneuver(s) {missing}")
-    measured = {}
-    for name, role in maneuver_roles.items():
-        unmeasured = [problem.state_names[i] for i in problem.unmeasured]
-        x0 = calibration.unmeasured_initial_states(name, config, interface.start_values, unmeasured) \
-            if calibration is not None else {s: float(interface.start_values.get(s, 0.0)) for s in unmeasured}
-        measured[name] = maneuver_from_frame(name, role, frames[name], (spans_s or {}).get(name), problem, x0,
-                                             (sources or {}).get(name, ""))
-    return CaseInputs(problem=problem, model=model, helper=helper, measured=measured, parameters=parameters,
-                      calibration=calibration, settings=settings)
 
 
 def analyse(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, str | Path],

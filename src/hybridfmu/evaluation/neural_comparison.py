@@ -24,7 +24,9 @@ from hybridfmu.diagnosis.corrected_model import simulator_for, target_errors
 from hybridfmu.diagnosis.export import load_diagnosed
 from hybridfmu.evaluation.learned_correction import compare_learned_correction, load_neural_fmu, simulate_neural
 from hybridfmu.diagnosis.report import format_number, json_safe, table_cell
-from hybridfmu.diagnosis.run import load_inputs, mean_errors, prepare_all, reference_states
+from hybridfmu.diagnosis.inputs import load_inputs
+from hybridfmu.diagnosis.open_loop import mean_errors, reference_states
+from hybridfmu.diagnosis.run import prepare_all
 from hybridfmu.io import read_json, write_json_atomic, write_text_atomic
 from hybridfmu.model.delay import format_delay
 

@@ -1,0 +1,169 @@
+"""The diagnosis' open-loop check: how far the gap shrinks on held-out maneuvers, and where the error grows.
+
+``how_far`` simulates the model open loop on the test maneuvers (whole records and windows restarted from the
+measured state), alone and after each chosen effect in rank order, each variant recalibrated with its effects
+when ``diagnosis.open_loop.refit`` is on, and ends with the diagnosed model (FMU + effects). ``error_growth``
+gives, per maneuver and target, when the model's normalised open-loop error first exceeds a threshold.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from hybridfmu.diagnosis.corrected_model import CorrectedModel, open_loop_errors, simulate
+from hybridfmu.diagnosis.export import DiagnosedModel
+from hybridfmu.diagnosis.joint import effect_equations
+from hybridfmu.diagnosis.prepare import MeasuredManeuver, PreparedManeuver
+from hybridfmu.diagnosis.problem import Problem
+from hybridfmu.diagnosis.refit import Refit, RefitSpec, parameters_set, refit_terms, simulate_corrected
+from hybridfmu.diagnosis.selection import Term
+
+LOGGER = logging.getLogger("hybridfmu.diagnosis")
+
+
+def reference_states(meas: MeasuredManeuver, starts: np.ndarray, problem: Problem) -> np.ndarray:
+    """Measured states to compare with: as logged, differentiated states smoothed like the start states."""
+    ref = np.array(meas.x, dtype=float)
+    for state in problem.settings.get("state_from_derivative") or {}:
+        i = problem.state_names.index(state)
+        ref[:, i] = starts[:, i]
+    return ref
+
+
+def equation_label(effect: Any, problem: Problem) -> str:
+    """``d<state>/dt`` of the equation(s) an effect acts on, joined by commas."""
+    return ", ".join(f"d{problem.state_names[eq]}/dt" for eq in effect_equations(effect))
+
+
+def mean_errors(per: dict[str, dict[str, float]]) -> dict[str, float]:
+    """Mean over maneuvers of each error of ``per`` (maneuver -> error name -> value), window counts left out."""
+    keys = next(iter(per.values())).keys()
+    return {k: float(np.mean([v[k] for v in per.values()])) for k in keys if k != "n_windows"}
+
+
+def _refit_record(refit: Refit) -> dict[str, Any]:
+    return {"cost_start": refit.cost_start, "cost": refit.cost, "evaluations": refit.evaluations,
+            "elapsed_s": round(refit.elapsed_s, 2), "parameters": refit.parameters,
+            "initial_states": refit.initial_states,
+            "variables": {name: {"start": a, "fitted": b} for name, (a, b) in refit.variables.items()}}
+
+
+def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
+            test_names: list[str], terms: list[Term], problem: Problem,
+            refit: RefitSpec | None = None, refit_names: list[str] | None = None) -> dict[str, Any]:
+    """Open-loop errors on the test maneuvers: the model, and after each chosen effect (cumulative, rank order).
+    Returns steps, ``before``/``after`` (``<signal>_rmse``, ``<signal>_mae``, ``gap``).
+
+    With ``refit`` (:func:`hybridfmu.diagnosis.refit.refit_spec`), every variant, the model alone among them,
+    is first recalibrated with its effects by output error on the maneuvers ``refit_names``
+    (:mod:`hybridfmu.diagnosis.refit`); each step then carries its ``refit`` record."""
+    window_s = problem.settings["open_loop"].get("window_s")
+    steps = []
+    trajectories: dict[str, dict[str, np.ndarray]] = {name: {} for name in test_names}
+    variants = [("FMU", [])] + [(f"+ {t.effect.name} ({equation_label(t.effect, problem)})", terms[:k + 1])
+                                for k, t in enumerate(terms)]
+    notes: list[str] = []
+    fitted = None
+    for label, active in variants:
+        names = [t.effect.name for t in active]
+        if refit is not None:
+            absorbed = active and _refitted_parameter(active[-1], refit)
+            if not (absorbed and fitted is not None):  # an absorbed parameter error leaves the variant as it was
+                fitted = refit_terms(model, helper, simulate_fn, [prepared[n].measured for n in refit_names or []],
+                                     active, problem, refit, label=f"refit {label}")
+            active = fitted.terms
+        corrected = CorrectedModel(active, problem, helper) if active else None
+        if corrected is not None:
+            notes = corrected.notes
+        per = {}
+        with parameters_set([model, helper], fitted.parameters if fitted is not None else {}):
+            for name in test_names:
+                meas = prepared[name].measured
+                starts = prepared[name].starts
+                if fitted is not None:
+                    starts = _refit_starts(model, simulate_fn, meas, starts, corrected,
+                                           fitted.initial_states_of(name, refit), problem)
+                started = time.perf_counter()
+                errors, whole = open_loop_errors(model, simulate_fn, meas.time_s, reference_states(meas, starts, problem),
+                                                 meas.u, starts, problem, corrected, window_s)
+                LOGGER.info("open loop %s on %s: normalised gap %.4g (%.1f s)", label, name, errors["gap"],
+                            time.perf_counter() - started)
+                per[name] = errors
+                trajectories[name][label] = whole
+        step = {"model": label, "effects": names, "per_maneuver": per, **mean_errors(per)}
+        if fitted is not None:
+            step["refit"] = _refit_record(fitted)
+        steps.append(step)
+    before, after = steps[0], steps[len(terms)]
+    keys = [k for k in before if k not in ("model", "effects", "per_maneuver")]
+    diagnosed = DiagnosedModel(list(active), dict(fitted.parameters) if fitted is not None else {}, problem,
+                               [t.effect.name for t in terms],
+                               {name: dict(fitted.initial_states_of(name, refit)) for name in prepared
+                                if fitted.initial_states_of(name, refit)} if fitted is not None else {})
+    result = {"steps": steps, "before": {k: before[k] for k in keys}, "after": {k: after[k] for k in keys},
+              "gap_before": before["gap"], "gap_after": after["gap"],
+              "shrink_factor": before["gap"] / after["gap"] if after["gap"] and after["gap"] > 0 else float("inf"),
+              "notes": notes, "trajectories": trajectories, "diagnosed": diagnosed}
+    if "window_gap" in before:
+        result["window_gap_before"], result["window_gap_after"] = before["window_gap"], after["window_gap"]
+    return result
+
+
+def _refitted_parameter(term: Term, refit: RefitSpec) -> bool:
+    """Whether ``term`` is an error of a parameter the refit fits anyway (it adds nothing to the variant)."""
+    change = term.effect.parameter_change(term.coef, term.setting)
+    return change is not None and change[0] in refit.parameter_bounds
+
+
+def _refit_starts(model: Any, simulate_fn: Callable, meas: MeasuredManeuver, starts: np.ndarray,
+                  corrected: CorrectedModel | None, initial_states: dict[str, float], problem: Problem) -> np.ndarray:
+    """Start states (T, n_x) of a recalibrated variant: its unmeasured initial states, and the unmeasured states
+    along its own open-loop simulation (the windows restart from them)."""
+    if not problem.unmeasured:
+        return starts
+    out = np.array(starts, dtype=float)
+    for i in problem.unmeasured:
+        out[0, i] = float(initial_states.get(problem.state_names[i], out[0, i]))
+    whole = simulate_corrected(model, simulate_fn, meas.time_s, meas.u, out[0], corrected)
+    out[:, problem.unmeasured] = whole[:, problem.unmeasured]
+    return out
+
+
+def error_growth(model: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
+                 problem: Problem) -> list[dict[str, Any]]:
+    """Where the model's open-loop error grows: per maneuver and target, the normalised |error| over time and
+    the first time it exceeds ``open_loop.growth_threshold_relative`` (of the target's spread)."""
+    threshold = float(problem.settings["open_loop"].get("growth_threshold_relative", 0.1))
+    out = []
+    for name, p in prepared.items():
+        meas = p.measured
+        starts = p.starts
+        whole = simulate(model, simulate_fn, meas.time_s, meas.u, starts[0], None)
+        ref = reference_states(meas, starts, problem)
+        item = {"maneuver": name, "role": meas.role, "threshold_relative": threshold, "targets": {},
+                "normalised_error": {}}
+        for state in problem.target_weights:
+            i = problem.state_names.index(state)
+            err = np.abs(whole[:, i] - ref[:, i]) / (float(np.std(ref[:, i])) or 1.0)
+            exceeded = np.flatnonzero(~(err <= threshold))
+            item["targets"][problem.state_signal[state]] = {
+                "exceeds_threshold_at_s": float(meas.time_s[exceeded[0]]) if len(exceeded) else None,
+                "final_normalised_error": float(err[-1]) if np.isfinite(err[-1]) else None}
+            item["normalised_error"][problem.state_signal[state]] = err
+        out.append(item)
+    return out
+
+
+def how_far_not_run(test_names: list[str], open_loop: bool = True) -> str | None:
+    """Why the held-out check ("how far") is not run, in words for the report, or None when it runs."""
+    if not test_names:
+        from hybridfmu.data.roles import NO_TEST_MANEUVER
+
+        return f"There is no test maneuver: {NO_TEST_MANEUVER}."
+    if not open_loop:
+        return "The open-loop simulation was switched off, so the held-out check on the test maneuver(s) was not run."
+    return None
