@@ -1,7 +1,8 @@
 """Every check of a case that needs no job to run, before the workflow starts.
 
-The case's roles against the FMU (:func:`hybridfmu.data.roles.case_roles`), the search's Hyperband budget,
-the training's gradient engine against the model, and the maneuvers' raw logs (no data in two roles). Each
+The case's roles against the FMU (:func:`hybridfmu.data.roles.case_roles`), every FMU variable another section
+names, the search's Hyperband budget and search space, the training's gradient engine against the model, and
+the maneuvers' raw logs (no data in two roles). Each
 failure is a :class:`hybridfmu.config.ConfigError` that names the config file and field.
 
 API::
@@ -18,7 +19,7 @@ from typing import Any
 
 from hybridfmu.config import ConfigError
 from hybridfmu.data.errors import DataError
-from hybridfmu.data.roles import NO_TEST_MANEUVER, CaseRoles, case_roles, maneuver_source
+from hybridfmu.data.roles import NO_TEST_MANEUVER, CaseRoles, ModelInterface, case_roles, maneuver_source, model_interface
 
 
 def check_case(config: dict[str, Any], config_file: str = "") -> CaseRoles:
@@ -30,7 +31,9 @@ def check_case(config: dict[str, Any], config_file: str = "") -> CaseRoles:
     try:
         check_hpo(config)
         check_gradients(config)
-        roles = case_roles(config)
+        interface = model_interface(config)
+        roles = case_roles(config, interface)
+        check_names(config, interface, roles)
         check_maneuvers(config, roles)
         return roles
     except ConfigError as err:
@@ -72,6 +75,63 @@ def check_hpo(config: dict[str, Any]) -> None:
             check_budget(R, eta, names=(f"{where}.R", f"{where}.eta"))
         except ValueError as err:
             raise ConfigError(str(err)) from None
+    spaces = [("config.hpo.search_space", hpo.get("search_space") or {})]
+    spaces += [(f"config.hpo.searches.{search}.search_space", (own or {})["search_space"])
+               for search, own in (hpo.get("searches") or {}).items() if "search_space" in (own or {})]
+    for where, space in spaces:
+        for name, distribution in space.items():
+            low, high = distribution.get("low"), distribution.get("high")
+            if low is not None and high is not None and not float(low) <= float(high):
+                raise ConfigError(f"{where}.{name}: low = {low} is above high = {high}; expected low <= high")
+
+
+def check_names(config: dict[str, Any], interface: ModelInterface, roles: CaseRoles) -> None:
+    """Every FMU variable a config section names exists, before any job runs (not only when the stage that reads
+    it starts, after the search): ``fmu.parameters`` (names and finite values), the states and inputs of
+    ``model`` (corrected states, ANN inputs, end stop, input-delay groups) and of ``diagnosis`` (equations,
+    states from derivatives, one-step states, input lags).
+
+    Raises:
+        ConfigError: naming the field, the FMU and the names it has.
+    """
+    source = interface.source
+    states, inputs, parameters = interface.state_names, interface.input_names, interface.parameter_names
+
+    def known(where: str, names: Any, available: list[str], kind: str) -> None:
+        if names == "all":
+            return
+        unknown = [name for name in ([names] if isinstance(names, str) else names or []) if name not in available]
+        if unknown:
+            raise ConfigError(f"{where}: {unknown} {'is' if len(unknown) == 1 else 'are'} not {kind} of the FMU "
+                              f"({source}); expected some of {available}")
+
+    for name, value in ((config.get("fmu") or {}).get("parameters") or {}).items():
+        known(f"config.fmu.parameters.{name}", [name], parameters, "a parameter")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ConfigError(f"config.fmu.parameters.{name}: {value!r}; expected a finite number")
+    model = config.get("model") or {}
+    known("config.model.corrected_states", model.get("corrected_states"), states, "a state")
+    ann = model.get("ann_inputs") or {}
+    known("config.model.ann_inputs.states", ann.get("states"), states, "a state")
+    known("config.model.ann_inputs.derivatives", ann.get("derivatives"), states, "a state")
+    known("config.model.ann_inputs.inputs", ann.get("inputs"), inputs, "an input")
+    stop = model.get("end_stop") or {}
+    for field in ("state", "rate_state"):
+        if field in stop:
+            known(f"config.model.end_stop.{field}", [stop[field]], states, "a state")
+    for field in ("min_parameter", "max_parameter"):
+        if field in stop:
+            known(f"config.model.end_stop.{field}", [stop[field]], parameters, "a parameter")
+    for group, names in ((model.get("input_delay") or {}).get("groups") or {}).items():
+        known(f"config.model.input_delay.groups.{group}", names, inputs, "an input")
+    diagnosis = config.get("diagnosis") or {}
+    measured, kind = list(roles.measured_states), "a measured state (config.roles.states)"
+    known("config.diagnosis.equations", diagnosis.get("equations"), measured, kind)
+    known("config.diagnosis.one_step_states", diagnosis.get("one_step_states"), states, "a state")
+    derived = diagnosis.get("state_from_derivative") or {}
+    known("config.diagnosis.state_from_derivative", [*derived, *derived.values()], measured, kind)
+    known("config.diagnosis.input_lag_compensation_s", list(diagnosis.get("input_lag_compensation_s") or {}),
+          inputs, "an input")
 
 
 def check_maneuvers(config: dict[str, Any], roles: CaseRoles) -> None:
