@@ -3,6 +3,7 @@ interface (values, Jacobians, parameters, input changes), and a neural FMU train
 
 from __future__ import annotations
 
+import os
 import pickle
 
 import numpy as np
@@ -166,6 +167,9 @@ def test_saved_model_loads_back_and_bad_files_are_named(diagnosed, tmp_path):
     np.testing.assert_allclose(CorrectedModel(loaded.terms, loaded.problem).additive_batch(x, u),
                                CorrectedModel(diagnosed.terms, diagnosed.problem).additive_batch(x, u))
     assert [p.name for p in path.parent.iterdir()] == ["diagnosed_model.pkl"]  # no temporary file left
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # as any file the user writes, not owner-only
     with pytest.raises(FileNotFoundError, match="no diagnosed model; run the diagnosis"):
         load_diagnosed(tmp_path / "missing.pkl")
     garbage = tmp_path / "garbage.pkl"

@@ -11,9 +11,7 @@ beside the FMU and the neural FMU, and a hybrid model (``model.physics_terms``) 
 
 from __future__ import annotations
 
-import os
 import pickle
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,6 +21,7 @@ import numpy as np
 from hybridfmu.diagnosis.corrected_model import CorrectedModel
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.selection import Term
+from hybridfmu.io import atomic_path
 
 #: File name of the diagnosed model in the diagnosis folder.
 DIAGNOSED_MODEL = "diagnosed_model.pkl"
@@ -102,17 +101,11 @@ class DiagnosedModel:
 
 
 def save_diagnosed(model: DiagnosedModel, path: str | Path) -> Path:
-    """Write ``model`` to ``path`` atomically (temporary file, then rename)."""
+    """Write ``model`` to ``path`` atomically (temporary file, then rename), readable as any file the user writes
+    (the umask's mode, not a temporary file's owner-only 0600)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "wb") as stream:
-            pickle.dump({"format_version": FORMAT_VERSION, "model": model}, stream)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp, tmp.open("wb") as stream:
+        pickle.dump({"format_version": FORMAT_VERSION, "model": model}, stream)
     return path
 
 
