@@ -227,6 +227,27 @@ def test_one_log_in_slices_and_side_by_side_records_is_legitimate(monkeypatch):
     check_case(config, str(TANKS))
 
 
+def test_a_copy_of_a_log_under_another_name_in_another_role_is_an_error(monkeypatch, tmp_path):
+    """The test maneuver's log is the validation log's bytes under another file name: the same data in two roles.
+    A log that differs in one byte is another log."""
+    from hybridfmu.case_checks import check_case
+
+    monkeypatch.chdir(REPO)
+    config = _tanks()
+    original = REPO / config["maneuvers"]["validation"]["raw"]
+    copy_path = tmp_path / "test_log.csv"
+    copy_path.write_bytes(original.read_bytes())
+    config["maneuvers"]["test"] = {**config["maneuvers"]["validation"], "role": "test", "raw": str(copy_path)}
+    with pytest.raises(ConfigError, match=rf"^tanks\.yaml: config\.maneuvers\.test: role test reads '{copy_path}', "
+                                          r"a byte-identical copy of 'config/cases/tanks/dataBenchmark\.csv', with "
+                                          r"the same channels as config\.maneuvers\.validation"):
+        check_case(config, "tanks.yaml")
+    changed = bytearray(original.read_bytes())
+    changed[-2:-1] = b"7" if changed[-2:-1] != b"7" else b"8"
+    copy_path.write_bytes(bytes(changed))
+    check_case(config, "tanks.yaml")
+
+
 def test_overlap_of_a_slice_and_same_channels_in_two_roles_is_an_error(monkeypatch):
     from hybridfmu.case_checks import check_case
 

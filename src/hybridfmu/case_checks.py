@@ -13,6 +13,7 @@ API::
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 from typing import Any
@@ -135,7 +136,8 @@ def check_names(config: dict[str, Any], interface: ModelInterface, roles: CaseRo
 
 
 def check_maneuvers(config: dict[str, Any], roles: CaseRoles) -> None:
-    """Each maneuver's source in its raw log, and no log data in two roles.
+    """Each maneuver's source in its raw log, and no log data in two roles (the same file, or a copy of it under
+    another name).
 
     A maneuver's data are its raw file, the raw channel of each logged signal (``config.signals`` with the
     maneuver's ``channels`` overrides) and its slice ``t_start_s``..``t_end_s``. Two maneuvers of different
@@ -158,7 +160,7 @@ def check_maneuvers(config: dict[str, Any], roles: CaseRoles) -> None:
     for k, first in enumerate(names):
         for second in names[k + 1:]:
             a, b = maneuvers[first], maneuvers[second]
-            if a["role"] == b["role"] or _raw_key(a["raw"]) != _raw_key(b["raw"]):
+            if a["role"] == b["role"] or not _same_log(a["raw"], b["raw"]):
                 continue
             sa, sb = sources[first], sources[second]
             if sa.channels != sb.channels:
@@ -166,8 +168,10 @@ def check_maneuvers(config: dict[str, Any], roles: CaseRoles) -> None:
             start = max(_bound(sa.t_start_s, 0.0), _bound(sb.t_start_s, 0.0))
             end = min(_bound(sa.t_end_s, math.inf), _bound(sb.t_end_s, math.inf))
             if start < end:
+                log = f"the same raw log {b['raw']!r}" if _raw_key(a["raw"]) == _raw_key(b["raw"]) else \
+                    f"{b['raw']!r}, a byte-identical copy of {a['raw']!r},"
                 raise ConfigError(
-                    f"config.maneuvers.{second}: role {b['role']} reads the same raw log {b['raw']!r} with the same "
+                    f"config.maneuvers.{second}: role {b['role']} reads {log} with the same "
                     f"channels as config.maneuvers.{first} (role {a['role']}) over an overlapping time span "
                     f"({_span(sa)} and {_span(sb)}), so its data would be {a['role']} data too; expected another "
                     "raw file, t_start_s/t_end_s slices that do not overlap, or other channels")
@@ -176,6 +180,25 @@ def check_maneuvers(config: dict[str, Any], roles: CaseRoles) -> None:
 def _raw_key(raw: str) -> str:
     """The raw file a path names (relative paths from the working directory, links resolved)."""
     return os.path.realpath(os.path.expanduser(str(raw)))
+
+
+def _same_log(first: str, second: str) -> bool:
+    """Whether two raw paths hold the same log: the same file, or two existing files with the same bytes (a copy
+    under another name). Files that do not exist yet (logs a rule writes) are compared by path only."""
+    a, b = _raw_key(first), _raw_key(second)
+    if a == b:
+        return True
+    if not (os.path.isfile(a) and os.path.isfile(b)) or os.path.getsize(a) != os.path.getsize(b):
+        return False
+    return _file_digest(a) == _file_digest(b)
+
+
+def _file_digest(path: str) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def _bound(value: float | None, default: float) -> float:
