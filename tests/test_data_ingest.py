@@ -296,6 +296,9 @@ BAD_MDF = {
                                                               r"config.signals.speed.unit says 'rpm'"),
     "unit disagrees with config": (_unit("MotPos_Angle", "rad"), r"MotPos_Angle \(angle\): the file says unit "
                                                                  r"'rad' but config.signals.angle.unit says 'deg'"),
+    "stuck phase sensor": (lambda s: s["MotCur_IPhA"][1].__setitem__(slice(None), 0.0),
+                           r"config\.transforms: park: phases \['i_a', 'i_b', 'i_c'\] sum to .* \['i_a'\] never "
+                           r"changes; expected about 0 .* a phase sensor stuck"),
 }
 
 
@@ -420,3 +423,19 @@ def test_corrupt_or_empty_parquet_and_unknown_format(tmp_path):
     other.write_bytes(b"PK")
     with pytest.raises(DataError, match=r"unknown log format '.xlsx'"):
         ingest_log(other, CONFIG)
+
+
+def test_phases_of_an_idle_machine_or_with_offsets_pass_the_phase_sum_check():
+    """Noise only (an idle machine), or running phases with a few per cent of offset: no error. One phase at a
+    fifth of its scale while the machine runs: an error."""
+    from hybridfmu.data.transforms.base import TransformError
+    from hybridfmu.data.transforms.motor import check_phase_sum
+
+    rng = np.random.default_rng(3)
+    noise = [0.05 * rng.standard_normal(5000) for _ in range(3)]
+    check_phase_sum(noise, ["a", "b", "c"], "A")
+    t = np.arange(5000) * 1e-4
+    running = [20 * np.cos(2 * np.pi * 50 * t - k * 2 * np.pi / 3) + 0.5 + noise[k] for k in range(3)]
+    check_phase_sum(running, ["a", "b", "c"], "A")
+    with pytest.raises(TransformError, match=r"park: phases \['a', 'b', 'c'\] sum to .* expected about 0"):
+        check_phase_sum([0.2 * running[0], running[1], running[2]], ["a", "b", "c"], "A")
