@@ -190,6 +190,27 @@ def test_check_tracking_store_fails_fast_and_creates_nothing(tmp_path):
     assert not (tmp_path / "new").exists()
 
 
+def test_a_password_in_the_tracking_uri_is_never_echoed():
+    """A server URI with credentials: the check probes the server without them in the host, and the message
+    shows the user but not the password."""
+    import socket
+
+    from hybridfmu.config import ConfigError
+    from hybridfmu.tracking import check_tracking_store, redacted_uri
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    uri = f"https://alice:s3cret@127.0.0.1:{port}/mlflow"
+    with pytest.raises(ConfigError) as raised:
+        check_tracking_store(uri, "c.yaml", timeout_s=2.0)
+    message = str(raised.value)
+    assert "s3cret" not in message and f"https://alice:***@127.0.0.1:{port}/mlflow" in message
+    assert "does not answer" in message and "Connection refused" in message  # the server probed, not "alice"
+    assert redacted_uri("sqlite:////tmp/a.db") == "sqlite:////tmp/a.db"
+    assert redacted_uri("http://bob@host/") == "http://bob@host/"
+
+
 def test_retry_budget_bounds_the_wait():
     import time
 

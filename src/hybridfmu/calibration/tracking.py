@@ -39,7 +39,7 @@ def flat_metrics(calibration: Calibration) -> dict[str, float]:
 
 def log_calibration_run(config: dict[str, Any], calibration: Calibration, artifacts: Iterable[str | Path]) -> str:
     """Create the run ``calibration`` and log params, metrics and ``artifacts``; return its run id."""
-    from hybridfmu.tracking import Tracker, experiment_name, tracking_uri
+    from hybridfmu.tracking import Tracker, experiment_name, redacted_uri, tracking_uri
 
     uri = tracking_uri(config.get("mlflow"), config.get("results_dir", "results"))
     experiment = experiment_name(config.get("mlflow"), config["case"])
@@ -57,5 +57,5 @@ def log_calibration_run(config: dict[str, Any], calibration: Calibration, artifa
         tracker.set_status(run_id, "FAILED")
         raise
     tracker.set_status(run_id, "FINISHED")
-    LOG.info("MLflow calibration run %s in experiment %r (%s)", run_id, experiment, uri)
+    LOG.info("MLflow calibration run %s in experiment %r (%s)", run_id, experiment, redacted_uri(uri))
     return run_id

@@ -327,7 +327,7 @@ def write_outputs(result: dict[str, Any], config: dict[str, Any], out_dir: str |
 
 def log_to_mlflow(record: dict[str, Any], paths: dict[str, Any], config: dict[str, Any]) -> str:
     """Log the diagnosis as an MLflow run (tag ``hybridfmu.role = diagnosis``); return the run id."""
-    from hybridfmu.tracking import Tracker, experiment_name, tracking_uri
+    from hybridfmu.tracking import Tracker, experiment_name, redacted_uri, tracking_uri
 
     uri = tracking_uri(config.get("mlflow"), Path(config.get("results_dir", "results")).resolve())
     tracker = Tracker(uri)
@@ -359,7 +359,7 @@ def log_to_mlflow(record: dict[str, Any], paths: dict[str, Any], config: dict[st
         tracker.set_status(run_id, "FAILED")
         raise
     tracker.set_status(run_id, "FINISHED")
-    LOGGER.info("MLflow diagnosis run %s (%s)", run_id, uri)
+    LOGGER.info("MLflow diagnosis run %s (%s)", run_id, redacted_uri(uri))
     return run_id
 
 

@@ -61,7 +61,7 @@ def log_evaluation_run(run_path: str | Path, tracking_uri: str, experiment: str,
         params: parameters of the run (hyperparameters of the best trial, learned dt ...).
         best_trial_run_id: MLflow run id of the best training trial (tag ``best_trial_run_id``), or None.
     """
-    from hybridfmu.tracking import Tracker
+    from hybridfmu.tracking import Tracker, redacted_uri
     from hybridfmu.tracking.jobs import owner_tags
     from hybridfmu.training.search_tracking import end_stale_runs
 
@@ -86,7 +86,7 @@ def log_evaluation_run(run_path: str | Path, tracking_uri: str, experiment: str,
     tracker.set_status(run_id, "FINISHED")
     info = {"tracking_uri": tracking_uri, "experiment": experiment, "experiment_id": experiment_id, "run_id": run_id}
     write_json_atomic(run_path, info)
-    LOG.info("MLflow evaluation run %s in experiment %r (%s)", run_id, experiment, tracking_uri)
+    LOG.info("MLflow evaluation run %s in experiment %r (%s)", run_id, experiment, redacted_uri(tracking_uri))
     return info
 
 

@@ -4,7 +4,7 @@ store). The stages log their own runs on top of it: a search's parent and child 
 :mod:`hybridfmu.training.search_tracking`, the calibration, diagnosis and evaluation runs beside their stages."""
 
 from .mlflow_store import (Tracker, check_tracking_store, default_tracking_uri, experiment_name, git_commit,
-                           retry_locked, retry_settings, tracking_uri)
+                           redacted_uri, retry_locked, retry_settings, tracking_uri)
 
-__all__ = ["Tracker", "check_tracking_store", "default_tracking_uri", "experiment_name", "git_commit", "retry_locked",
-           "retry_settings", "tracking_uri"]
+__all__ = ["Tracker", "check_tracking_store", "default_tracking_uri", "experiment_name", "git_commit", "redacted_uri",
+           "retry_locked", "retry_settings", "tracking_uri"]

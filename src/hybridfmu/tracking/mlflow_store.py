@@ -165,7 +165,8 @@ class Tracker:
             self.client = MlflowClient(tracking_uri=uri)
         else:
             if not create and not database.is_file():
-                raise FileNotFoundError(f"{database}: MLflow store (tracking URI {uri}) does not exist any more")
+                raise FileNotFoundError(f"{database}: MLflow store (tracking URI {redacted_uri(uri)}) does not "
+                                        "exist any more")
             # The store is created (schema migrations) on first use: do it under an exclusive file lock,
             # so that jobs opening a fresh database at the same time do not race.
             with _file_lock(database.with_name(database.name + ".lock")):
@@ -238,6 +239,21 @@ class Tracker:
             self.call("set_terminated", run_id, status=status)
 
 
+def redacted_uri(uri: str) -> str:
+    """``uri`` for messages and logs: a password in it (``https://user:password@host/``) replaced by ``***``."""
+    from urllib.parse import urlsplit, urlunsplit
+
+    try:
+        parts = urlsplit(str(uri))
+        password = parts.password
+    except ValueError:
+        return str(uri)
+    if not password:
+        return str(uri)
+    host = parts.netloc.rsplit("@", 1)[1]
+    return urlunsplit(parts._replace(netloc=f"{parts.username}:***@{host}"))
+
+
 def _nearest_existing(path: Path) -> Path:
     while not path.exists() and path != path.parent:
         path = path.parent
@@ -267,8 +283,12 @@ def _store_problem(uri: str, timeout_s: float) -> str | None:
         import urllib.error
         import urllib.request
 
+        from urllib.parse import urlsplit, urlunsplit
+
+        parts = urlsplit(uri)  # the probe without credentials in the URL (urllib reads them as part of the host)
+        probe = urlunsplit(parts._replace(netloc=parts.netloc.rsplit("@", 1)[-1]))
         try:
-            with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=timeout_s):
+            with urllib.request.urlopen(probe.rstrip("/") + "/health", timeout=timeout_s):
                 return None
         except urllib.error.HTTPError:
             return None  # the server answers (an MLflow server without /health, a proxy asking to log in ...)
@@ -290,4 +310,5 @@ def check_tracking_store(uri: str, config_file: str | Path, timeout_s: float = 5
 
     problem = _store_problem(uri, timeout_s)
     if problem is not None:
-        raise ConfigError(f"{config_file}: config.mlflow.tracking_uri: the MLflow store {uri} cannot be used: {problem}")
+        raise ConfigError(f"{config_file}: config.mlflow.tracking_uri: the MLflow store {redacted_uri(uri)} cannot be "
+                          f"used: {problem.replace(uri, redacted_uri(uri))}")

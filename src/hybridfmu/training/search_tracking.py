@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from hybridfmu.io import read_json, write_json_atomic
-from hybridfmu.tracking.mlflow_store import Tracker, git_commit
+from hybridfmu.tracking.mlflow_store import Tracker, git_commit, redacted_uri
 
 LOG = logging.getLogger(__name__)
 
@@ -36,7 +36,7 @@ def start_search(uri: str, experiment: str, search_id: str, case: str, params: d
     if commit:
         extra["git_commit"] = commit
     tracker.log(run_id, params=params, tags=extra)
-    LOG.info("MLflow search run %s in experiment %r (%s)", run_id, experiment, uri)
+    LOG.info("MLflow search run %s in experiment %r (%s)", run_id, experiment, redacted_uri(uri))
     return {"uri": uri, "experiment": experiment, "experiment_id": experiment_id, "parent_run_id": run_id}
 
 
