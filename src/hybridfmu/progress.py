@@ -11,6 +11,7 @@ import logging
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from hybridfmu.numerics import describe_numerics
 
@@ -18,7 +19,9 @@ LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 
 
 def setup_rule_logging(log_path: str | Path | None, level: int = logging.INFO) -> logging.Logger:
-    """Configure the root logger to write to ``log_path`` (if given) and to stderr.
+    """Configure the root logger to write to ``log_path`` (if given) and to stderr, and log an error that ends
+    the process (an uncaught exception, with its traceback) there too: the rule's log file says why its job
+    failed, not only Snakemake's output.
 
     Returns the ``hybridfmu`` logger. Safe to call more than once (handlers are replaced).
     """
@@ -36,9 +39,20 @@ def setup_rule_logging(log_path: str | Path | None, level: int = logging.INFO) -
         file_handler.setFormatter(formatter)
         root.addHandler(file_handler)
     root.setLevel(level)
+    sys.excepthook = _log_uncaught
     logger = logging.getLogger("hybridfmu")
     logger.info(describe_numerics())
     return logger
+
+
+def _log_uncaught(kind: type[BaseException], error: BaseException, trace: Any) -> None:
+    """``sys.excepthook`` of a rule's process: the error and its traceback through the logging handlers (the
+    rule's log file and stderr); an interrupt is left to Python's own hook."""
+    if issubclass(kind, KeyboardInterrupt):
+        sys.__excepthook__(kind, error, trace)
+        return
+    logging.getLogger("hybridfmu").critical("the job failed: %s: %s", kind.__name__, error,
+                                            exc_info=(kind, error, trace))
 
 
 class Progress:
