@@ -340,6 +340,8 @@ SECTION_CHANGES = {
     "results_dir": (lambda config: _rename_results(config, config["case"], "results_moved"), ALL_RULES),
     "seed": (_set("seed", 12), FROM_EMULATION),
     "mlflow": (_set("mlflow", "experiment", "tiny_renamed"), FROM_CALIBRATION),
+    # the client's retry and timeout settings: how a job talks to the store, not what it computes
+    "mlflow.retries": (_set("mlflow", "retry_budget_s", 5.0), set()),
     "fmu": (_set("fmu", "parameters", {"R": 0.031}), FROM_EMULATION),
     "maneuvers": (_set("maneuvers", "test", "t_end_s", 2.5), FROM_INGEST),
     "signals": (_set("signals", "speed", "label", "motor speed"), FROM_INGEST),

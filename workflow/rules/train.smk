@@ -121,7 +121,6 @@ rule hpo_plan:
         case_sections=case_sections(),
         tracking_uri=tracking_uri(config.get("mlflow"), config.get("results_dir", "results")),
         experiment=experiment_name(config.get("mlflow"), CASE),
-        mlflow=config.get("mlflow", {}),  # the MLflow client's settings (retries, timeouts)
     wildcard_constraints:
         search="|".join(SEARCHES),
     log:
@@ -227,7 +226,6 @@ rule train_rung:
         model=lambda wildcards: SEARCH_MODELS[wildcards.search],
         training=TRAINING,
         case=case_sections(),
-        mlflow=config.get("mlflow", {}),  # the MLflow client's settings (retries, timeouts)
     wildcard_constraints:
         search="|".join(SEARCHES),
         bracket=r"\d+",
@@ -342,7 +340,6 @@ rule select_best:
         summary=f"{RESULTS}/{{search}}/summary.json",
     params:
         case=CASE,
-        mlflow=config.get("mlflow", {}),  # the MLflow client's settings (retries, timeouts)
     wildcard_constraints:
         search="|".join(SEARCHES),
     log:
