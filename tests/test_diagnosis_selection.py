@@ -104,3 +104,10 @@ def test_unmeasured_states_come_from_the_simulation_and_are_reported():
     assert result["where"]["states"]["x"]["depends_on_unmeasured"] == ["v"]
     assert np.all(np.isfinite(result["prepared"]["train"].measured.x[:, 1]))
     assert _names(result) == []
+
+
+def test_waterfall_bars_say_whether_each_step_helped():
+    from hybridfmu.diagnosis.figures import FMU_COLOUR, HELPED_COLOUR, HURT_COLOUR, step_colours
+
+    assert step_colours([0.5, 0.1, 0.2, 0.2, float("nan"), 0.05]) == [
+        FMU_COLOUR, HELPED_COLOUR, HURT_COLOUR, HELPED_COLOUR, HURT_COLOUR, HELPED_COLOUR]

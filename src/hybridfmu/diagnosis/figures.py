@@ -125,8 +125,23 @@ def effects_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
     return _save(fig, path, dpi)
 
 
+#: Waterfall colours: the FMU, a step that shrank the gap, a step that widened it.
+FMU_COLOUR, HELPED_COLOUR, HURT_COLOUR = "C0", "C2", "C3"
+
+
+def step_colours(values: list[float]) -> list[str]:
+    """Bar colours of a waterfall of gaps (the FMU first, then each cumulative step): a step is green when its gap
+    is at most the step before's, red when it is larger (or not finite)."""
+    colours = [FMU_COLOUR]
+    for before, after in zip(values, values[1:]):
+        helped = np.isfinite(after) and (not np.isfinite(before) or after <= before)
+        colours.append(HELPED_COLOUR if helped else HURT_COLOUR)
+    return colours
+
+
 def waterfall_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
-    """Normalised open-loop gap on the test maneuver(s): the FMU and after each effect."""
+    """Normalised open-loop gap on the test maneuver(s): the FMU and after each effect (green: the step shrank
+    the gap, red: it widened it)."""
     steps = result["how_far"]["steps"]
     keys = [("gap", "whole maneuver")] + ([("window_gap", "restarted windows")] if "window_gap" in steps[0] else [])
     fig, axes = plt.subplots(1, len(keys), figsize=(5.5 * len(keys), 4.0), squeeze=False)
@@ -134,12 +149,14 @@ def waterfall_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
     for ax, (key, title) in zip(axes[0], keys):
         values = [s.get(key, np.nan) for s in steps]
         finite = [v if v is not None and np.isfinite(v) else np.nan for v in values]
-        ax.bar(range(len(values)), finite, color=["C3"] + ["C2"] * (len(values) - 1))
+        ax.bar(range(len(values)), finite, color=step_colours(finite))
         for k, v in enumerate(finite):
             ax.text(k, 0 if np.isnan(v) else v, f"{v:.3g}", ha="center", va="bottom", fontsize=7)
         ax.set_xticks(range(len(labels)), labels, rotation=25, ha="right", fontsize=6)
         ax.set_ylabel("normalised gap (weighted MAE / spread)")
         ax.set_title(f"Open-loop gap on the test data, {title}", fontsize=9)
+    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in (FMU_COLOUR, HELPED_COLOUR, HURT_COLOUR)]
+    axes[0][0].legend(handles, ["FMU", "step shrank the gap", "step widened the gap"], loc="upper right", fontsize=7)
     return _save(fig, path, dpi)
 
 
