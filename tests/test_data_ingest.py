@@ -290,6 +290,9 @@ BAD_MDF = {
     "nan run": (lambda s: s["MotCur_IPhA"][1].__setitem__(slice(300, 320), np.nan),
                 r"MotCur_IPhA \(i_a\): 20 consecutive NaN/inf samples"),
     "inf sample": (_set("Hyd_Pressure", 10, np.inf), r"Hyd_Pressure \(pressure\): 1 consecutive NaN/inf"),
+    "log slower than the gap limit": (_time("Hyd_Pressure", lambda t: (t - t[0]) * 20 + t[0]),
+                                      r"Hyd_Pressure \(pressure\): sampled every 0.02 s \(median step\), slower than "
+                                      r"config.ingest.max_gap_s = 0.01 s allows"),
     "long gap": (_time("Hyd_Pressure", _gap), r"Hyd_Pressure \(pressure\): gap of 0.051 s after 0.1995 s exceeds "
                                               r".*max_gap_s = 0.01"),
     "unit of another dimension": (_unit("MotPos_Speed", "N"), r"MotPos_Speed \(speed\): the file says unit 'N' but "

@@ -165,6 +165,12 @@ def checked_samples(path: Path, channel: RawChannel, signal: str, time_factor: f
         if len(time_s) < 2:
             raise DataError(f"{where}: fewer than 2 finite samples; expected a time series")
     steps = np.diff(time_s)
+    typical_s = float(np.median(steps))
+    if typical_s > max_gap_s:  # not a gap: the whole log is sampled slower than the limit
+        raise DataError(f"{where}: sampled every {typical_s:.6g} s (median step), slower than "
+                        f"config.ingest.max_gap_s = {max_gap_s:g} s allows between two samples; expected "
+                        f"config.ingest.max_gap_s above the log's own sample step (or a time column in s: "
+                        "check config.ingest.time)")
     if steps.max() > max_gap_s:
         index = int(np.argmax(steps))
         raise DataError(f"{where}: gap of {steps[index]:.6g} s after {time_s[index]:.6g} s exceeds "
