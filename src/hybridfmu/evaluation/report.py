@@ -253,7 +253,8 @@ def delay_lines(dt_s: dict[str, float] | None, true_dt_s: dict[str, float | None
     if true_dt_s is not None:
         lines.append(f"True offsets from {truth_source} (convention u_true(t) = u_logged(t + Δt)).")
     else:
-        lines.append("The case has no ground truth for the time offset (no truth file beside the raw logs).")
+        lines.append("The true time offsets are unknown, as for any measured case; only an emulated bench writes "
+                     "them beside its logs, for scoring.")
     if (reference or {}).get("input_delay_s") is not None:
         lines.append(f"{reference.get('name', 'reference')}: Δt ≈ {format_delay(reference['input_delay_s'])} "
                      "(one delay for all inputs).")
