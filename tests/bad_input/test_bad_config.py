@@ -296,46 +296,40 @@ def test_snakemake_on_malformed_yaml_stops_and_the_check_names_file_and_line(out
     assert any(f"{path}:{n}:" in check.stderr for n in (line, line + 1)), check.stderr
 
 
-def _set(*path_and_value):
-    *path, value = path_and_value
-
-    def edit(config):
-        node = config
-        for key in path[:-1]:
-            node = node.setdefault(key, {})
-        node[path[-1]] = value
-    return edit
-
-
 #: A name or value another section gives that the FMU does not have, refused before any job (not when the stage
-#: that reads it starts, after the search): (edit, the field named, the words expected in the message).
+#: that reads it starts, after the search): (key path, value, the field named, the words expected in the message).
 FMU_NAME_MISTAKES = {
-    "diagnosis equation": (_set("diagnosis", "equations", ["omegaa"]), "config.diagnosis.equations",
-                           "'omegaa'", "measured state"),
-    "corrected state": (_set("model", "corrected_states", ["omegaa"]), "config.model.corrected_states", "'omegaa'",
+    "diagnosis equation": (("diagnosis", "equations"), ["omegaa"], "config.diagnosis.equations", "'omegaa'",
+                           "measured state"),
+    "corrected state": (("model", "corrected_states"), ["omegaa"], "config.model.corrected_states", "'omegaa'",
                         "not a state of the FMU"),
-    "ANN input": (_set("model", "ann_inputs", "inputs", ["d_x"]), "config.model.ann_inputs.inputs", "'d_x'",
+    "ANN input": (("model", "ann_inputs", "inputs"), ["d_x"], "config.model.ann_inputs.inputs", "'d_x'",
                   "not an input of the FMU"),
-    "delay group input": (_set("model", "input_delay", "groups", {"duties": ["d_a", "d_z"]}),
+    "delay group input": (("model", "input_delay", "groups"), {"duties": ["d_a", "d_z"]},
                           "config.model.input_delay.groups.duties", "'d_z'", "not an input"),
-    "end-stop parameter": (_set("model", "end_stop", {"state": "theta", "rate_state": "omega",
-                                                      "min_parameter": "theta_lo", "max_parameter": "theta_max"}),
+    "end-stop parameter": (("model", "end_stop"), {"state": "theta", "rate_state": "omega",
+                                                   "min_parameter": "theta_lo", "max_parameter": "theta_max"},
                            "config.model.end_stop.min_parameter", "'theta_lo'", "not a parameter"),
-    "state from derivative": (_set("diagnosis", "state_from_derivative", {"omega": "angle"}),
+    "state from derivative": (("diagnosis", "state_from_derivative"), {"omega": "angle"},
                               "config.diagnosis.state_from_derivative", "'angle'", "measured state"),
-    "FMU parameter": (_set("fmu", "parameters", {"Rs": 0.1}), "config.fmu.parameters.Rs", "'Rs'",
+    "FMU parameter": (("fmu", "parameters"), {"Rs": 0.1}, "config.fmu.parameters.Rs", "'Rs'",
                       "not a parameter of the FMU"),
-    "FMU parameter value": (_set("fmu", "parameters", {"R": float("nan")}), "config.fmu.parameters.R", "nan",
+    "FMU parameter value": (("fmu", "parameters"), {"R": float("nan")}, "config.fmu.parameters.R", "nan",
                             "expected a finite number"),
-    "search space bounds": (_set("hpo", "search_space", "window_s", {"distribution": "uniform", "low": 0.1,
-                                                                   "high": 0.01}),
+    "search space bounds": (("hpo", "search_space", "window_s"), {"distribution": "uniform", "low": 0.1, "high": 0.01},
                             "config.hpo.search_space.window_s", "low = 0.1", "expected low <= high"),
 }
 
 
 @pytest.mark.parametrize("mistake", sorted(FMU_NAME_MISTAKES))
 def test_a_name_the_fmu_does_not_have_is_refused_at_start(tmp_path, outputs, mistake):
-    edit, field, *words = FMU_NAME_MISTAKES[mistake]
+    keys, value, field, *words = FMU_NAME_MISTAKES[mistake]
+
+    def edit(config):
+        node = config
+        for key in keys[:-1]:
+            node = node.setdefault(key, {})
+        node[keys[-1]] = value
     path = edited_tiny(tmp_path, edit)
     assert_names(config_error(path, outputs), str(path), field, *words, "expected")
 
