@@ -2,8 +2,8 @@
 
 The case's roles against the FMU (:func:`hybridfmu.data.roles.case_roles`), every FMU variable another section
 names, the search's Hyperband budget and search space, the training's gradient engine against the model, and
-the maneuvers' raw logs (no data in two roles). Each
-failure is a :class:`hybridfmu.config.ConfigError` that names the config file and field.
+the maneuvers' raw logs (no data in two roles). Each failure is a :class:`hybridfmu.config.ConfigError` that
+names the config file and field.
 
 API::
 
@@ -20,11 +20,12 @@ from typing import Any
 
 from hybridfmu.config import ConfigError
 from hybridfmu.data.errors import DataError
-from hybridfmu.data.roles import NO_TEST_MANEUVER, CaseRoles, ModelInterface, case_roles, maneuver_source, model_interface
+from hybridfmu.data.roles import (NO_TEST_MANEUVER, CaseRoles, ModelInterface, case_roles, maneuver_source,
+                                  model_interface)
 
 
 def check_case(config: dict[str, Any], config_file: str = "") -> CaseRoles:
-    """Every check of a case that needs no job to run (roles against the FMU, units), before the workflow starts.
+    """Every check of a case that needs no job to run (module docstring), before the workflow starts.
 
     Raises:
         ConfigError: the message starts with the config file (when given) and names the field.
