@@ -51,7 +51,7 @@ def test_report_without_truth():
     fmu = {"angle_mae": 1.0, "angle_mse": 1.0, "speed_mae": 1.0, "speed_mse": 1.0}
     text = render_report("user", {"test": _metrics("test", fmu, fmu)}, {}, {}, dt_s={"inputs": 1e-6}, gates=None,
                          true_dt_s=None, truth_source=None, figures=[], mlflow_run=None)
-    assert "no ground truth" in text and "| validation |" not in text
+    assert "true time offsets are unknown" in text and "| validation |" not in text
     assert "paper" not in text  # no reference configured: nothing to compare with
 
 
