@@ -118,7 +118,7 @@ class Diagnosis:
 
     @property
     def effects(self) -> list[str]:
-        """The named effects and parameter errors, in the order of selection."""
+        """The named effects and parameter errors, in rank order (as the verdict lists them)."""
         return list(self.record["which"]["found_effects"])
 
 
