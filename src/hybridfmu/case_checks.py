@@ -13,7 +13,6 @@ API::
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 from typing import Any
@@ -22,6 +21,7 @@ from hybridfmu.config import ConfigError
 from hybridfmu.data.errors import DataError
 from hybridfmu.data.roles import (NO_TEST_MANEUVER, CaseRoles, ModelInterface, case_roles, maneuver_source,
                                   model_interface)
+from hybridfmu.io import file_sha256
 
 
 def check_case(config: dict[str, Any], config_file: str = "") -> CaseRoles:
@@ -191,15 +191,7 @@ def _same_log(first: str, second: str) -> bool:
         return True
     if not (os.path.isfile(a) and os.path.isfile(b)) or os.path.getsize(a) != os.path.getsize(b):
         return False
-    return _file_digest(a) == _file_digest(b)
-
-
-def _file_digest(path: str) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+    return file_sha256(a) == file_sha256(b)
 
 
 def _bound(value: float | None, default: float) -> float:

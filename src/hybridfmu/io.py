@@ -7,6 +7,7 @@ destination only when the content is complete (``os.replace`` is atomic on POSIX
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import secrets
@@ -71,6 +72,15 @@ def write_parquet_atomic(destination: str | Path, frame: Any) -> Path:
     with atomic_path(destination) as tmp:
         frame.to_parquet(tmp, index=False)
     return Path(destination)
+
+
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 hex digest of the file at ``path`` (read in 1 MiB blocks)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def read_json(path: str | Path) -> Any:

@@ -38,11 +38,8 @@ def load_inputs(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[s
         from hybridfmu.calibration.result import Calibration
 
         calibration = Calibration.load(calibration_path)
-    missing = [n for n in config["maneuvers"] if n not in data_paths]
-    if missing:
-        raise ValueError(f"diagnosis: no ingested data given for maneuver(s) {missing}")
     frames, spans = {}, {}
-    for name in config["maneuvers"]:
+    for name in [name for name in config["maneuvers"] if name in data_paths]:  # a missing one: case_inputs says so
         data_path = Path(data_paths[name])
         if not data_path.is_file():
             raise FileNotFoundError(f"{data_path}: ingested data of maneuver {name!r} does not exist")
@@ -72,6 +69,10 @@ def case_inputs(config: dict[str, Any], fmu_path: str | Path, frames: dict[str, 
     from hybridfmu.data.roles import case_roles, model_interface
     from hybridfmu.fmu import load_fmu
 
+    maneuver_roles = {name: m["role"] for name, m in config["maneuvers"].items()}
+    missing = [n for n in maneuver_roles if n not in frames]
+    if missing:
+        raise ValueError(f"diagnosis: no ingested data given for maneuver(s) {missing}")
     settings = diagnosis_settings(config)
     parameters = dict(config.get("fmu", {}).get("parameters", {}) or {})
     if calibration is not None:
@@ -83,10 +84,6 @@ def case_inputs(config: dict[str, Any], fmu_path: str | Path, frames: dict[str, 
     interface = model_interface(case_config)
     roles = case_roles(case_config, interface)
     problem = build_problem(roles, model, settings, model.get_parameters(), (config.get("model") or {}).get("end_stop"))
-    maneuver_roles = {name: m["role"] for name, m in config["maneuvers"].items()}
-    missing = [n for n in maneuver_roles if n not in frames]
-    if missing:
-        raise ValueError(f"diagnosis: no ingested data given for maneuver(s) {missing}")
     measured = {}
     for name, role in maneuver_roles.items():
         unmeasured = [problem.state_names[i] for i in problem.unmeasured]

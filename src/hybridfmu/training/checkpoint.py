@@ -8,7 +8,6 @@ without importing the training job.
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 from typing import Any
 
@@ -16,16 +15,6 @@ import torch
 
 #: Version of the checkpoint's layout.
 CHECKPOINT_FORMAT = 1
-
-
-def file_sha256(path: str | Path) -> str:
-    """SHA-256 hex digest of the file at ``path`` (read in 1 MiB blocks)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
 
 #: Fields every trial checkpoint holds.
 CHECKPOINT_FIELDS = ("format", "status", "bracket", "rung", "config", "spec", "model", "validations")

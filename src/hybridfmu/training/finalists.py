@@ -184,7 +184,8 @@ def write_physical_layer_checkpoint(*, plan_path: str | Path, train_arrays_path:
 
     from hybridfmu.io import atomic_path
     from hybridfmu.training.physical_layer_rollout import untrained_is_physical_layer
-    from hybridfmu.training.checkpoint import CHECKPOINT_FORMAT, file_sha256
+    from hybridfmu.io import file_sha256
+    from hybridfmu.training.checkpoint import CHECKPOINT_FORMAT
     from hybridfmu.training.trial import first_configuration, trial_model
 
     plan = read_json(plan_path)

@@ -19,11 +19,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from hybridfmu.io import atomic_path, read_json, write_json_atomic
+from hybridfmu.io import atomic_path, file_sha256, read_json, write_json_atomic
 from hybridfmu.model.delay import describe_delays
 from hybridfmu.progress import Progress
 from hybridfmu.training.build import build_neural_fmu, model_spec
-from hybridfmu.training.checkpoint import CHECKPOINT_FORMAT, file_sha256, load_checkpoint
+from hybridfmu.training.checkpoint import CHECKPOINT_FORMAT, load_checkpoint
 from hybridfmu.training.data import ManeuverArrays
 from hybridfmu.training.losses import objective_from_config
 from hybridfmu.training.plan import plan_entry
