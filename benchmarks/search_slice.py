@@ -13,8 +13,8 @@ benchmark): start-up = process start to the first training step (interpreter, im
 checkpoint), the open-loop validations' seconds, and the process's wall time.
 
 With several ``--jobs`` (e.g. ``--jobs 1 --jobs 2``) the slice runs at each; ``--markdown FILE`` writes the
-scaling table of the first checkout for the README (rung-job seconds at each -j, the projected wall time of
-the ``--project`` search here and on N nodes like this one; ``python -m hybridfmu.evaluation.summary README.md
+scaling table of the first checkout for the documentation (rung-job seconds at each -j, the projected wall time of
+the ``--project`` search here and on N nodes like this one; ``python -m hybridfmu.evaluation.measured_blocks
 --block search_scaling=FILE``).
 
 Prints a table (medians over the repeats) and, last line, a JSON object:
@@ -277,7 +277,7 @@ def project_nodes(figures: dict, config_path: Path, workers: int) -> float:
 
 
 def scaling_markdown(summary: dict, jobs_list: list[int], args: argparse.Namespace) -> str:
-    """The README's scaling table from one checkout's figures at each ``-j``."""
+    """The documentation's scaling table from one checkout's figures at each ``-j``."""
     what = (f"rung 0 of configurations 0..{args.configs - 1}" if args.configs
             else f"bracket {args.bracket}, rungs 0..{args.rung}")
     lines = [f"Search jobs measured on this machine ({os.cpu_count()} cores; `benchmarks/search_slice.py "

@@ -10,7 +10,7 @@ that names nothing in every none case. Both methods are measured on the cases ab
 detection limits (:func:`hybridfmu_bench.withheld.report.aggregate`).
 
 Prints a table; the last line is a JSON object with the figures. ``--markdown FILE`` writes the table for the
-README (block ``sparse_selection``).
+documentation (block ``sparse_selection``).
 
     python benchmarks/sparse_selection.py [--config config/config.yaml] [--withheld results/withheld]
         [--jobs 2] [--cases PATTERN] [--markdown FILE]

@@ -7,7 +7,7 @@ and reverse sweep in C, ``hybridfmu.fmu.neural``), the same adjoint with its sta
 derivatives-and-Jacobians kernel (``adjoint_numpy``) and as torch operations (``adjoint_torch``), plain
 autograd through the hand-written RK4, and the library: torchdiffeq's fixed-grid RK4 with backpropagation through
 its steps (``torchdiffeq``) and with its adjoint (``torchdiffeq_adjoint``). ``--markdown FILE`` writes the table
-for the README (``python -m hybridfmu.evaluation.summary README.md --block train_step=FILE``).
+for the documentation (``python -m hybridfmu.evaluation.measured_blocks --block train_step=FILE``).
 Prints a table; the last line is a JSON object (``samples_per_s_b1``, ``samples_per_s_b64`` of the training
 path, and every row as ``<gradients>_w<width>_d<depth>_b<B>``).
 

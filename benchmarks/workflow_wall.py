@@ -7,7 +7,7 @@ shares the machine's load. Progress lines go to stderr (the jobs finished so far
 
 Prints a table and, last line, a JSON object: per commit the wall times (s), the number of jobs Snakemake ran,
 and the median. ``--markdown FILE`` writes the table as Markdown (for the README: ``python -m
-hybridfmu.evaluation.summary README.md --block workflow_wall=FILE``). ``--keep DIR`` keeps the last run's
+hybridfmu.evaluation.measured_blocks --block workflow_wall=FILE``). ``--keep DIR`` keeps the last run's
 ``results`` folder of each commit in DIR/<commit>.
 
     python benchmarks/workflow_wall.py [--commit 6b70e2d --commit HEAD] [--configfile config/paper.yaml]

@@ -1,9 +1,10 @@
-"""The README's measured figures: rendered from a run's metrics and diagnosis, copied between markers."""
+"""The documentation's measured figures: rendered from a run's metrics and diagnosis, copied between markers."""
 
 import numpy as np
 import pytest
 
-from hybridfmu.evaluation.summary import case_summary, replace_block, update_readme
+from hybridfmu.evaluation.measured_blocks import check_documents, main, replace_block, update_documents
+from hybridfmu.evaluation.summary import case_summary
 
 TEST_METRICS = {"maneuvers": ["test"], "duration_s": 4092.0, "signals": ["level"],
                 "fmu": {"level_rmse": 0.76, "level_mae": 0.58}, "neural_fmu": {"level_rmse": 0.38, "level_mae": 0.3}}
@@ -35,7 +36,7 @@ def test_readme_block_is_replaced_between_its_markers_only(tmp_path):
     case_dir = tmp_path / "results" / "tanks"
     case_dir.mkdir(parents=True)
     (case_dir / "summary.md").write_text("new 2.0\n")
-    update_readme(readme, [case_dir])
+    assert update_documents([readme], [case_dir]) == [readme]
     assert readme.read_text() == "intro\n<!-- measured:tanks -->\nnew 2.0\n<!-- /measured:tanks -->\nrest\n"
 
 
@@ -45,26 +46,24 @@ def test_missing_markers_and_missing_summary_are_named(tmp_path):
     readme = tmp_path / "README.md"
     readme.write_text("<!-- measured:ipb -->\n<!-- /measured:ipb -->\n")
     with pytest.raises(FileNotFoundError, match="summary.md"):
-        update_readme(readme, [tmp_path / "ipb"])
+        update_documents([readme], [tmp_path / "ipb"])
 
 
 def test_a_benchmark_block_is_copied_from_its_file(tmp_path):
     """``--block NAME=FILE``: a benchmark script's Markdown goes into the README's block NAME; a missing file is
     named and leaves the README as it was."""
-    from hybridfmu.evaluation.summary import main
-
     readme = tmp_path / "README.md"
     original = "a\n<!-- measured:workflow_wall -->\nold\n<!-- /measured:workflow_wall -->\nb\n"
     readme.write_text(original)
     with pytest.raises(FileNotFoundError, match="wall.md"):
-        main([str(readme), "--block", f"workflow_wall={tmp_path / 'wall.md'}"])
+        main(["--docs", str(readme), "--block", f"workflow_wall={tmp_path / 'wall.md'}"])
     assert readme.read_text() == original
     (tmp_path / "wall.md").write_text("| commit | wall time |\n| abc | 9.5 min |\n")
-    assert main([str(readme), "--block", f"workflow_wall={tmp_path / 'wall.md'}"]) == 0
+    assert main(["--docs", str(readme), "--block", f"workflow_wall={tmp_path / 'wall.md'}"]) == 0
     assert readme.read_text() == ("a\n<!-- measured:workflow_wall -->\n| commit | wall time |\n| abc | 9.5 min |\n"
                                   "<!-- /measured:workflow_wall -->\nb\n")
     with pytest.raises(SystemExit):
-        main([str(readme), "--block", "no-equals-sign"])
+        main(["--docs", str(readme), "--block", "no-equals-sign"])
 
 
 def test_summary_quotes_the_learned_delays_beside_the_truth(tmp_path):
@@ -95,8 +94,6 @@ def test_summary_quotes_the_learned_delays_beside_the_truth(tmp_path):
 def test_check_names_a_block_edited_by_hand_and_changes_nothing(tmp_path, capsys):
     """``--check``: a README that quotes its run as written passes; one number typed over fails, naming the
     block, its file and the changed line; the README itself is never written."""
-    from hybridfmu.evaluation.summary import check_readme, main
-
     readme = tmp_path / "README.md"
     case_dir = tmp_path / "results" / "tanks"
     case_dir.mkdir(parents=True)
@@ -104,16 +101,16 @@ def test_check_names_a_block_edited_by_hand_and_changes_nothing(tmp_path, capsys
     (tmp_path / "wall.md").write_text("| abc | 9.5 min |\n")
     readme.write_text("a\n<!-- measured:tanks -->\nold\n<!-- /measured:tanks -->\n"
                       "<!-- measured:wall -->\nold\n<!-- /measured:wall -->\nb\n")
-    args = [str(readme), str(case_dir), "--block", f"wall={tmp_path / 'wall.md'}"]
+    args = ["--docs", str(readme), str(case_dir), "--block", f"wall={tmp_path / 'wall.md'}"]
     assert main(args + ["--check"]) == 1
     assert "'tanks' differs" in capsys.readouterr().out
     assert main(args) == 0
     written = readme.read_text()
-    assert check_readme(readme, [case_dir], {"wall": tmp_path / "wall.md"}) == []
+    assert check_documents([readme], [case_dir], {"wall": tmp_path / "wall.md"}) == (2, [])
     assert main(args + ["--check"]) == 0
     assert "2 of 2 block(s)" in capsys.readouterr().out
     readme.write_text(written.replace("0.38 V", "0.30 V"))
-    differences = check_readme(readme, [case_dir], {"wall": tmp_path / "wall.md"})
+    count, differences = check_documents([readme], [case_dir], {"wall": tmp_path / "wall.md"})
     assert len(differences) == 1 and "block 'tanks'" in differences[0] and str(case_dir / "summary.md") in differences[0]
     assert "-| level | hybrid | 0.30 V |" in differences[0] and "+| level | hybrid | 0.38 V |" in differences[0]
     before = readme.read_text()
@@ -123,7 +120,7 @@ def test_check_names_a_block_edited_by_hand_and_changes_nothing(tmp_path, capsys
     other_case.mkdir()
     (other_case / "summary.md").write_text("x\n")
     with pytest.raises(ValueError, match="measured:ipb"):
-        check_readme(readme, [other_case])
+        check_documents([readme], [other_case])
 
 
 def test_summary_tables_the_closed_loop_errors_when_the_metrics_have_them():
@@ -142,3 +139,76 @@ def test_summary_tables_the_closed_loop_errors_when_the_metrics_have_them():
     open_only = role_metrics("test", [ManeuverRun("a", t, ["angle", "speed"], data, data + 1.0, data + 0.5)],
                              {"length_s": 0.5}, {})
     assert "closed" not in case_summary("demo", open_only, None, {"angle": "rad", "speed": "rad/s"})
+
+
+def test_blocks_are_found_in_whichever_document_holds_them_and_only_in_one(tmp_path):
+    """A case's block goes into the page that has its markers (README or docs/), its pooled seed study into
+    ``<case>_robustness``; a block opened in two documents, or in none, is an error naming them, and nothing
+    is written."""
+    readme, docs = tmp_path / "README.md", tmp_path / "docs"
+    docs.mkdir()
+    readme.write_text("top\n<!-- measured:wall -->\n<!-- /measured:wall -->\n")
+    page = docs / "results.md"
+    page.write_text("<!-- measured:ipb -->\nold\n<!-- /measured:ipb -->\n"
+                    "<!-- measured:ipb_robustness -->\n<!-- /measured:ipb_robustness -->\n")
+    case_dir = tmp_path / "results" / "ipb"
+    (case_dir / "robustness").mkdir(parents=True)
+    (case_dir / "summary.md").write_text("one seed\n")
+    (case_dir / "robustness" / "summary.md").write_text("three seeds\n")
+    (tmp_path / "wall.md").write_text("28 min\n")
+    written = update_documents([readme, docs], [case_dir], {"wall": tmp_path / "wall.md"})
+    assert sorted(written) == sorted([readme, page])
+    assert "one seed" in page.read_text() and "three seeds" in page.read_text() and "28 min" in readme.read_text()
+    assert update_documents([readme, docs], [case_dir], {"wall": tmp_path / "wall.md"}) == []  # nothing changed
+    (docs / "other.md").write_text("<!-- measured:wall -->\n<!-- /measured:wall -->\n")
+    before = page.read_text()
+    with pytest.raises(ValueError, match="in .*README.md and again in .*other.md"):
+        update_documents([readme, docs], [case_dir], {"wall": tmp_path / "wall.md"})
+    (docs / "other.md").unlink()
+    (tmp_path / "bench.md").write_text("x\n")
+    with pytest.raises(ValueError, match="block\\(s\\) bench"):
+        update_documents([readme, docs], [case_dir], {"bench": tmp_path / "bench.md"})
+    assert page.read_text() == before
+
+
+def _distribution(median, low, high, n=6):
+    return {"median": median, "min": low, "max": high, "n": n}
+
+
+def test_the_headline_tables_every_case_from_its_pooled_or_single_run(tmp_path):
+    """The README's results table: a case with a seed study is quoted over every (seed, maneuver), one without
+    from its run's test metrics; each case's caveats (models worse than their physics, the reference) follow;
+    a case folder without either file is named."""
+    import json
+
+    from hybridfmu.evaluation.headline import headline_markdown
+
+    pooled_dir, single_dir = tmp_path / "ipb", tmp_path / "tanks"
+    (pooled_dir / "robustness").mkdir(parents=True)
+    (single_dir / "metrics").mkdir(parents=True)
+    models = {m: {"angle_mae_factor": _distribution(f, f / 2, f * 3, 12), "in_tolerance_share": _distribution(0.8, 0.5, 1.0)}
+              for m, f in (("neural_fmu", 6.7), ("fmu_effects", 4.96), ("hybrid", 5.42), ("ceiling", 2e4))}
+    (pooled_dir / "robustness" / "summary.json").write_text(json.dumps({
+        "seeds": [1, 2], "maneuvers": ["a", "b", "c"], "signals": ["angle"], "models": models,
+        "hybrid_worse_than_fmu_effects": [{"seed": 1, "maneuver": "a", "signal": "angle"}],
+        "reference_name": "paper", "reference": [{"metric": "angle_mae", "factor": 5.4, "neural_fmu_median": 6.7,
+                                                  "reached": True}]}))
+    (single_dir / "metrics" / "test.json").write_text(json.dumps({
+        "signals": ["level"], "maneuvers": ["test"], "warnings": ["test: hybrid is worse than fmu_effects"],
+        "distribution": {"fmu": {"level_mae": _distribution(0.5, 0.5, 0.5, 1)},
+                         "neural_fmu": {"level_mae_factor": _distribution(1.37, 1.37, 1.37, 1)},
+                         "hybrid": {"level_mae_factor": _distribution(1.98, 1.98, 1.98, 1)}}}))
+    text = headline_markdown([pooled_dir, single_dir])
+    assert "| `ipb` | 3 test maneuvers × 2 seeds | angle MAE vs FMU | ×6.7 [×3.35 – ×20.1] | ×4.96 [×2.48 – ×14.9] |" in text
+    assert "|  |  | within tolerance | 80 % [50 % – 100 %] |" in text
+    assert "| `tanks` | 1 test maneuver | level MAE vs FMU | ×1.37 | – | ×1.98 | – |" in text
+    assert "in 1 of 6 (seed, maneuver, signal)" in text and "×6.7 against the reference's ×5.4 (paper): reached" in text
+    assert "1 warning(s) of a model worse than its own physics on a test maneuver: test: hybrid" in text
+    with pytest.raises(FileNotFoundError, match="robustness/summary.json.*metrics/test.json"):
+        headline_markdown([tmp_path / "empty"])
+    readme = tmp_path / "README.md"
+    readme.write_text("<!-- measured:headline -->\n<!-- /measured:headline -->\n")
+    (pooled_dir / "summary.md").write_text("x\n")
+    (single_dir / "summary.md").write_text("y\n")
+    with pytest.raises(ValueError, match="block\\(s\\) ipb"):  # the cases' own blocks have no place here
+        main(["--docs", str(readme), "--headline", str(pooled_dir), str(single_dir)])

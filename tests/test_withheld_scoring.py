@@ -11,7 +11,7 @@ import pytest
 from hybridfmu_bench.withheld.report import (aggregate, above_limits, confusion_matrix, detection_limit,
                                                  detection_limits, summarise)
 from hybridfmu_bench.withheld.scoring import effect_size, rejected_candidates, score_case
-from hybridfmu.evaluation.summary import replace_block
+from hybridfmu.evaluation.measured_blocks import replace_block
 from hybridfmu.io import write_json_atomic
 
 J = 2.0e-4

@@ -37,7 +37,7 @@ def validate_case_config(config: dict[str, Any], schema_path: str | Path = SCHEM
         _default_filling_validator(path).validate(config)
     except jsonschema.ValidationError as err:
         raise ConfigError(f"invalid case config: {_format_error(err)}") from None
-    fill_defaults(config, _bundled_schema(path))  # fill_defaults copies the defaults it sets
+    fill_defaults(config, bundled_schema(path))  # fill_defaults copies the defaults it sets
     return config
 
 
@@ -80,7 +80,7 @@ def _default_filling_validator(path: str) -> Any:
 
 
 @functools.lru_cache(maxsize=None)
-def _bundled_schema(path: str) -> dict[str, Any]:
+def bundled_schema(path: str) -> dict[str, Any]:
     """The schema at the absolute ``path`` with every ``$ref`` to a local file replaced by that file's content
     (built once; callers must not change it).
 

@@ -1,5 +1,5 @@
-# The run's measured test figures as the README quotes them (rule summary); copy them into the README
-# with `python -m hybridfmu.evaluation.summary README.md results/<case>`.
+# The run's measured test figures as the documentation quotes them (rule summary); copy them into it
+# with `python -m hybridfmu.evaluation.measured_blocks results/<case>`.
 
 if "test" in EVAL_ROLES:
 

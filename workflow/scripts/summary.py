@@ -1,4 +1,4 @@
-"""Rule summary: the run's measured test figures as the README quotes them."""
+"""Rule summary: the run's measured test figures as the documentation quotes them."""
 
 from hybridfmu.data.roles import case_roles
 from hybridfmu.evaluation.summary import write_case_summary

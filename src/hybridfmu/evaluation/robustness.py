@@ -159,7 +159,7 @@ def reference_comparison(summary: Mapping[str, Any], reference: Mapping[str, Any
 
 
 def summary_markdown(case: str, summary: Mapping[str, Any], wall_s: Mapping[int, float] | None = None) -> str:
-    """The summary as the README quotes it: one row per model, median [min – max] over every (seed, maneuver)."""
+    """The summary as the documentation quotes it: one row per model, median [min – max] over every (seed, maneuver)."""
     from hybridfmu.evaluation.report import MODEL_TITLES, spread_text
 
     signals = summary["signals"]
@@ -211,7 +211,7 @@ def write_summary(case: str, metrics_paths: Mapping[int, str | Path], summary_pa
                   reference: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Rule ``robustness_summary``: :func:`summarize` of the seeds' test metrics (seed -> ``test.json``), with the
     neural FMU beside ``reference`` (config ``evaluation.reference``, :func:`reference_comparison`), written as
-    JSON and as the README's Markdown."""
+    JSON and as the documentation's Markdown."""
     summary = summarize({int(seed): read_json(path) for seed, path in metrics_paths.items()})
     if reference and reference.get("factors"):
         summary["reference_name"] = reference.get("name") or "the reference"

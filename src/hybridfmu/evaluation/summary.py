@@ -1,21 +1,14 @@
-"""The measured figures of one case's run, as the README quotes them, and the README's update from them.
+"""The measured figures of one case's run, as the documentation quotes them.
 
 Rule ``summary`` renders ``{RESULTS}/summary.md`` from the run's own outputs: the open-loop test errors
 of the (calibrated) FMU, the neural FMU and the diagnosis-corrected FMU per target signal, and the
-improvement factors. ``python -m hybridfmu.evaluation.summary README.md results/<case> ...`` copies
-each case's ``summary.md`` into the README between the markers
-``<!-- measured:<case> -->`` and ``<!-- /measured:<case> -->``, and ``--block NAME=FILE`` the Markdown a
-benchmark script wrote into the block NAME, so no measured number in the README is typed by hand.
-``--check`` changes nothing: it compares each of those blocks with its file and exits 1 naming every block
-that differs (with a diff), so a README edited by hand or left behind a newer run is caught.
+improvement factors. :mod:`hybridfmu.evaluation.measured_blocks` copies it into the documentation's block
+``<case>``, so no measured number there is typed by hand.
 """
 
 from __future__ import annotations
 
-import argparse
-import difflib
 import math
-import re
 from pathlib import Path
 from typing import Any
 
@@ -148,128 +141,3 @@ def write_case_summary(out_path: str | Path, case: str, test_metrics_path: str |
     with atomic_path(out_path) as tmp:
         Path(tmp).write_text(text)
     return Path(out_path)
-
-
-def _markers(name: str) -> tuple[str, str]:
-    """The opening and closing marker of the README block ``name``."""
-    return f"<!-- measured:{name} -->", f"<!-- /measured:{name} -->"
-
-
-def replace_block(document: str, case: str, block: str) -> str:
-    """``document`` with the text between the case's markers replaced by ``block``.
-
-    Raises:
-        ValueError: the document has no (or an unterminated) block for ``case``.
-    """
-    block_text(document, case)  # raises when the markers are missing
-    start, end = _markers(case)
-    pattern = re.compile(re.escape(start) + r".*?" + re.escape(end), re.DOTALL)
-    return pattern.sub(lambda _: f"{start}\n{block.rstrip()}\n{end}", document, count=1)
-
-
-def block_text(document: str, name: str) -> str:
-    """The text between the markers of block ``name`` (without the markers and their line breaks).
-
-    Raises:
-        ValueError: the document has no (or an unterminated) block ``name``.
-    """
-    start, end = _markers(name)
-    found = re.search(re.escape(start) + r"\n?(.*?)\n?" + re.escape(end), document, re.DOTALL)
-    if not found:
-        raise ValueError(f"no block {start} ... {end} in the document; add both markers where the figures go")
-    return found.group(1)
-
-
-def _sources(case_dirs: list[str | Path], blocks: dict[str, str | Path] | None) -> dict[str, Path]:
-    """Block name -> the file whose text belongs in it: each case's ``summary.md``, then ``blocks``.
-
-    Raises:
-        FileNotFoundError: a case has no ``summary.md`` (run its workflow first) or a block's file is missing;
-            names the file.
-    """
-    sources: dict[str, Path] = {}
-    for case_dir in case_dirs:
-        summary = Path(case_dir) / "summary.md"
-        if not summary.is_file():
-            raise FileNotFoundError(f"{summary}: no summary of case {Path(case_dir).name}; run its workflow first")
-        sources[Path(case_dir).name] = summary
-    for name, path in (blocks or {}).items():
-        if not Path(path).is_file():
-            raise FileNotFoundError(f"{path}: no such file for the README's block {name!r}; run its benchmark first")
-        sources[name] = Path(path)
-    return sources
-
-
-def update_readme(readme_path: str | Path, case_dirs: list[str | Path],
-                  blocks: dict[str, str | Path] | None = None) -> Path:
-    """Copy ``<case_dir>/summary.md`` of each case into the README's block of that case, and each file of
-    ``blocks`` (block name -> Markdown file written by a benchmark script) into its block (atomic write).
-
-    Raises:
-        FileNotFoundError: a case has no ``summary.md`` (run its workflow first) or a block's file is missing;
-            names the file. The README is left as it was.
-    """
-    readme_path = Path(readme_path)
-    document = readme_path.read_text()
-    for name, path in _sources(case_dirs, blocks).items():
-        document = replace_block(document, name, path.read_text())
-    with atomic_path(readme_path) as tmp:
-        Path(tmp).write_text(document)
-    return readme_path
-
-
-def check_readme(readme_path: str | Path, case_dirs: list[str | Path],
-                 blocks: dict[str, str | Path] | None = None) -> list[str]:
-    """Compare the README's blocks with the files :func:`update_readme` would copy into them.
-
-    Returns:
-        One message per block that differs (its name, its file and a unified diff from the README's text to the
-        file's); empty when the README quotes every file as written.
-
-    Raises:
-        FileNotFoundError: as :func:`update_readme`.
-        ValueError: the README lacks a block's markers.
-    """
-    readme_path = Path(readme_path)
-    document = readme_path.read_text()
-    differences = []
-    for name, path in _sources(case_dirs, blocks).items():
-        quoted, written = block_text(document, name).rstrip(), path.read_text().rstrip()
-        if quoted != written:
-            diff = "\n".join(difflib.unified_diff(quoted.splitlines(), written.splitlines(),
-                                                   f"{readme_path} (block {name})", str(path), lineterm=""))
-            differences.append(f"{readme_path}: block {name!r} differs from {path}:\n{diff}")
-    return differences
-
-
-def _block(text: str) -> tuple[str, str]:
-    name, sep, path = text.partition("=")
-    if not sep or not name or not path:
-        raise argparse.ArgumentTypeError(f"--block: expected NAME=FILE, got {text!r}")
-    return name, path
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Copy the measured figures of finished runs into the README.")
-    parser.add_argument("readme", help="README.md")
-    parser.add_argument("case_dirs", nargs="*", help="results/<case> folders with a summary.md")
-    parser.add_argument("--block", type=_block, action="append", default=[], metavar="NAME=FILE",
-                        help="a Markdown file written by a benchmark script, for the README's block NAME")
-    parser.add_argument("--check", action="store_true",
-                        help="change nothing; exit 1 naming each block that differs from its file")
-    args = parser.parse_args(argv)
-    if not args.case_dirs and not args.block:
-        parser.error("nothing to copy: give results/<case> folders and/or --block NAME=FILE")
-    if args.check:
-        differences = check_readme(args.readme, args.case_dirs, dict(args.block))
-        for message in differences:
-            print(message)
-        names = list(_sources(args.case_dirs, dict(args.block)))
-        print(f"{args.readme}: {len(names) - len(differences)} of {len(names)} block(s) quote their file as written")
-        return 1 if differences else 0
-    update_readme(args.readme, args.case_dirs, dict(args.block))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

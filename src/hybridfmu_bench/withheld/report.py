@@ -16,8 +16,8 @@ Every case is scored by :func:`hybridfmu_bench.withheld.scoring.score_case`; thi
   ``diagnosis.selection``;
 - the motor parameter offsets every case carries: how often each was found and its error.
 
-``summary.md`` has no heading of its own, so it can be copied into the README's block ``withheld``
-(``python -m hybridfmu.evaluation.summary README.md --block withheld=results/withheld/summary.md``).
+``summary.md`` has no heading of its own, so it can be copied into the documentation's block ``withheld``
+(``python -m hybridfmu.evaluation.measured_blocks --block withheld=results/withheld/summary.md``).
 """
 
 from __future__ import annotations
