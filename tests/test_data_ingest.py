@@ -195,14 +195,30 @@ def test_csv_without_units_and_time_in_ms(tmp_path):
     pd.testing.assert_frame_equal(ingest_log(in_ms, config), plain, rtol=1e-9, atol=1e-9)
 
 
+def test_the_time_column_is_found_by_its_name_with_the_unit_it_names(tmp_path):
+    """Without config.ingest.time, a column named ``time_ms`` is the time base in ms, ``Time [s]`` in s: the same
+    frame as with the column and unit configured."""
+    plain = ingest_log(write_table(tmp_path / "log.csv", raw_signals(), units_row=False), CONFIG)
+    in_ms = write_table(tmp_path / "log_ms.csv", raw_signals(), units_row=False, time_factor=1e3)
+    in_ms.write_text(in_ms.read_text().replace("time", "time_ms", 1))
+    pd.testing.assert_frame_equal(ingest_log(in_ms, CONFIG), plain, rtol=1e-9, atol=1e-9)
+    bracketed = tmp_path / "bracketed.csv"
+    bracketed.write_text((tmp_path / "log.csv").read_text().replace("time", "Time [s]", 1))
+    pd.testing.assert_frame_equal(ingest_log(bracketed, CONFIG), plain, rtol=1e-9, atol=1e-9)
+    with pytest.raises(DataError, match="the file says unit 'ms' but config.ingest.time.unit says 's'"):
+        ingest_log(in_ms, case_config(ingest={"time": {"unit": "s"}}))
+
+
 def test_sample_period_without_time_column(tmp_path):
     path = write_table(tmp_path / "log.csv", raw_signals(), time_column=False)
     frame = ingest_log(path, case_config(ingest={"sample_period_s": 1e-4}))
     assert len(frame) == 5000 and frame["time_s"].iloc[-1] == pytest.approx(0.4999)
     t_abs = frame["time_s"].to_numpy() + 0.0002  # sample 0 was taken at 0.2 ms
     np.testing.assert_allclose(frame["speed"], omega_rad_s(t_abs), atol=0.05)
-    with pytest.raises(DataError, match=r"time column 'time' not found.*sample_period_s"):
+    with pytest.raises(DataError, match=r"no column is named as a time.*sample_period_s"):
         ingest_log(path, CONFIG)
+    with pytest.raises(DataError, match=r"time column 'zeit' \(config.ingest.time.channel\) not found"):
+        ingest_log(path, case_config(ingest={"time": {"channel": "zeit"}}))
 
 
 def test_parquet_with_units_in_column_names(tmp_path):
@@ -400,7 +416,8 @@ def test_bad_csv_inputs(tmp_path):
         "text.csv": (_replace_cell(good, row=12, column=3, cell="n/a"), r"column MotCtl_DutyC: row 11 holds "
                                                                        r"'n/a'; expected a number"),
         "missing.csv": (good.replace("MotPos_Angle", "MotPos_Winkel"), "MotPos_Angle not found; the file has: "),
-        "notime.csv": (good.replace("time", "zeit", 1), "time column 'time' not found"),
+        "notime.csv": (good.replace("time", "stamp", 1), "no column is named as a time"),
+        "twotimes.csv": (good.replace("MotCtl_DutyA", "t", 1), r"2 columns \(time, t\) are named as a time"),
     }
     for name, (text, message) in cases.items():
         raw = tmp_path / name

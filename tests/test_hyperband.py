@@ -93,9 +93,32 @@ def test_sampling_is_seeded_and_within_the_space():
         sample_configuration({"lr": {"distribution": "normal"}}, 0, 0, 0)
 
 
-def test_paper_plan_from_default_sections():
+def test_the_default_search_is_sized_by_the_data():
+    """The schema's defaults leave the budget and the windows to the data: 10 passes over the selected training
+    data per configuration, windows of 100-400 grid samples; a configured value wins; a missing figure is named."""
+    from hybridfmu.training.search_defaults import chosen_search_settings
+
     hpo, training = section_settings({}, "hpo"), section_settings({}, "training")
-    assert hpo["R"] == 81 and hpo["eta"] == 3 and hpo["max_resource_s"] == 100.0
+    assert hpo["R"] == 9 and hpo["eta"] == 3 and hpo["max_resource_s"] is None
+    chosen, notes = chosen_search_settings(hpo, sample_period_s=1e-3, training_data_s=8.0)
+    assert chosen["max_resource_s"] == pytest.approx(80.0) and "window_samples" not in chosen["search_space"]
+    assert chosen["search_space"]["window_s"] == {"distribution": "uniform", "low": pytest.approx(0.1),
+                                                  "high": pytest.approx(0.4)}
+    assert len(notes) == 2 and "8 s of selected training data" in notes[0] and "window_samples" in notes[1]
+    plan = search_plan(chosen, training, seed=3, search_id="x")
+    assert plan["n_configurations"] == 17 and plan["unit_s"] == pytest.approx(80 / 9)
+    windows = [c["hyperparameters"]["window_s"] for b in plan["brackets"] for c in b["configs"]]
+    assert all(0.1 <= w <= 0.4 for w in windows) and max(c["hyperparameters"]["lr"] for b in plan["brackets"]
+                                                          for c in b["configs"]) <= 1e-2
+    configured = dict(hpo, max_resource_s=5.0, search_space=PAPER_SEARCH_SPACE)
+    assert chosen_search_settings(configured, 1e-3, 8.0) == (configured, [])
+    with pytest.raises(ValueError, match="config.hpo.max_resource_s"):
+        chosen_search_settings(hpo, 1e-3, None)
+
+
+def test_paper_plan_from_the_papers_sections():
+    hpo = section_settings({"R": 81, "max_resource_s": 100.0, "search_space": PAPER_SEARCH_SPACE}, "hpo")
+    training = section_settings({}, "training")
     plan = search_plan(hpo, training, seed=3, search_id="x")
     assert plan["n_configurations"] == 143 == sum(len(b["configs"]) for b in plan["brackets"])
     assert plan["unit_s"] == pytest.approx(100 / 81)

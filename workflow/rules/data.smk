@@ -17,9 +17,32 @@ def data_job_config(wildcards, *sections, maneuver_entry=True):
     return job_config
 
 
+# Without config.ingest.rate_hz the grid's rate is chosen once from the logs of the train and validation
+# maneuvers (rule choose_grid; the test maneuvers inform no choice) and read by each ingest job; with it, no job
+# reads the logs for that.
+GRID_CHOICE = ([] if _section_settings(config.get("ingest"), "ingest")["rate_hz"] is not None
+               else [f"{RESULTS}/data/grid.json"])
+GRID_MANEUVERS = [name for name in MANEUVERS if config["maneuvers"][name]["role"] != "test"]
+
+
+rule choose_grid:
+    input:
+        raw=[config["maneuvers"][name]["raw"] for name in GRID_MANEUVERS],
+    output:
+        grid=f"{RESULTS}/data/grid.json",
+    params:
+        config=lambda wildcards: {**config_sections("ingest", "signals", "transforms", "roles"), "fmu": fmu_interface(),
+                                  "maneuvers": {name: config["maneuvers"][name] for name in GRID_MANEUVERS}},
+    log:
+        f"{RESULTS}/logs/choose_grid.log",
+    script:
+        "../scripts/choose_grid.py"
+
+
 rule ingest:
     input:
         raw=raw_log,
+        grid=GRID_CHOICE,
     output:
         data=f"{RESULTS}/data/{{maneuver}}.parquet",
     params:

@@ -173,6 +173,8 @@ rule report:
         hybrid_time_offset=HYBRID_TIME_OFFSET,
         figures=list(evaluation_figures().values()),
         truth=truth_files(),
+        # what the stages chose from the data where the config leaves it out (the grid, the searches' plans)
+        chosen=lambda wildcards: GRID_CHOICE + [f"{RESULTS}/{search}/plan.json" for search in SEARCHES],
     output:
         report(f"{RESULTS}/report.md", caption="../report/report_md.rst", category="Evaluation",
                subcategory="report"),

@@ -1,8 +1,10 @@
 """Rule ingest: one raw log -> the case's signals in their model units on the case's grid (Parquet)."""
 
+from hybridfmu.data.grid import grid_rate_hz
 from hybridfmu.data.ingest import ingest_to_parquet
 from hybridfmu.progress import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
-ingest_to_parquet(snakemake.input.raw, snakemake.output.data, dict(snakemake.params.config),
-                  snakemake.wildcards.maneuver)
+config = dict(snakemake.params.config)
+ingest_to_parquet(snakemake.input.raw, snakemake.output.data, config, snakemake.wildcards.maneuver,
+                  grid_rate_hz(config, snakemake.input.grid[0] if snakemake.input.grid else None))

@@ -17,4 +17,5 @@ write_report(
     roles=case_roles(snakemake.params.case_sections),
     reference=snakemake.params.reference,
     hybrid_time_offset_path=next(iter(snakemake.input.hybrid_time_offset), None),  # a list: empty or the file
+    chosen_paths=list(snakemake.input.chosen),
 )

@@ -2,6 +2,7 @@
 killed jobs left RUNNING in the case's experiment are ended as KILLED first)."""
 
 from hybridfmu.data.roles import case_roles
+from hybridfmu.io import read_json
 from hybridfmu.progress import setup_rule_logging
 from hybridfmu.tracking import retry_settings
 from hybridfmu.tracking.mlflow_store import bound_http_requests
@@ -22,4 +23,6 @@ plan_search(
     experiment=snakemake.params.experiment,
     roles=case_roles(snakemake.params.case_sections),
     time_offset_path=next(iter(snakemake.input.time_offset), None),  # a list input: empty or the summary
+    sample_period_s=read_json(snakemake.input.statistics).get("sample_period_s"),
+    training_data_s=read_json(snakemake.input.statistics).get("selected_duration_s"),
 )

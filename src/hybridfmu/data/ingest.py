@@ -37,12 +37,13 @@ import pandas as pd
 
 from hybridfmu.data.roles import CaseRoles, Signal, case_roles, maneuver_source
 from hybridfmu.data.errors import DataError
+from hybridfmu.data.grid import choose_rate_hz, median_step_s
 from hybridfmu.data.readers import MDF_SUFFIXES, RawChannel, read_channels
 from hybridfmu.data.plausibility import check_kinematic_pairs, check_outliers, check_range, kinematic_pairs
 from hybridfmu.data.resample import common_grid, linear, zero_order_hold
 from hybridfmu.data.settings import section_settings
 from hybridfmu.data.transforms import TransformError, apply_transforms
-from hybridfmu.io import write_parquet_atomic
+from hybridfmu.io import write_json_atomic, write_parquet_atomic
 from hybridfmu.units import UnitError, converter, parse_unit
 
 LOG = logging.getLogger(__name__)
@@ -52,19 +53,64 @@ RESAMPLERS = {"hold": zero_order_hold, "linear": linear}
 
 
 def ingest_to_parquet(raw_path: str | Path, output_path: str | Path, config: dict[str, Any],
-                      maneuver: str | None = None) -> Path:
+                      maneuver: str | None = None, rate_hz: float | None = None) -> Path:
     """Ingest ``raw_path`` (see :func:`ingest_log`) and write the frame atomically to ``output_path``.
 
     Nothing is written when any check fails.
     """
-    frame = ingest_log(raw_path, config, maneuver)
+    frame = ingest_log(raw_path, config, maneuver, rate_hz)
     write_parquet_atomic(output_path, frame)
     LOG.info("wrote %s: %d samples x %d columns (%.3f s)", output_path, len(frame), frame.shape[1],
              frame["time_s"].iloc[-1])
     return Path(output_path)
 
 
-def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | None = None) -> pd.DataFrame:
+def read_logged_channels(raw_path: str | Path, config: dict[str, Any], maneuver: str | None = None
+                         ) -> tuple[dict[str, RawChannel], dict[str, float]]:
+    """The raw channels of the logged signals of ``raw_path`` and each channel's factor to seconds of its time
+    stamps (channel -> factor).
+
+    Raises:
+        DataError: naming the file (and channel) for a file that cannot be read or a time column that does not
+            fit the config.
+    """
+    raw_path = Path(raw_path)
+    settings = section_settings(config.get("ingest"), "ingest")
+    source = maneuver_source(config, case_roles(config), maneuver)
+    raw = read_channels(raw_path, sorted(set(source.channels.values())), time_column=settings["time"]["channel"],
+                        csv_delimiter=settings["csv"]["delimiter"], csv_decimal=settings["csv"]["decimal"],
+                        sample_period_s=settings["sample_period_s"])
+    return raw, {name: _time_factor(raw_path, settings, channel) for name, channel in raw.items()}
+
+
+def logged_time_bases(raw_path: str | Path, config: dict[str, Any], maneuver: str | None = None
+                      ) -> dict[str, np.ndarray]:
+    """Time stamps (s) of each logged (not derived) signal's channel in ``raw_path``: signal -> (n,) array.
+
+    Raises:
+        DataError: as :func:`hybridfmu.data.ingest.ingest_log` for the file's reading and its time column.
+    """
+    raw, factors = read_logged_channels(raw_path, config, maneuver)
+    source = maneuver_source(config, case_roles(config), maneuver)
+    return {name: np.asarray(raw[channel].time_s, dtype=float) * factors[channel]
+            for name, channel in source.channels.items() if channel in raw}
+
+
+def choose_grid(raw_paths: dict[str, str | Path], config: dict[str, Any], out_path: str | Path) -> dict[str, Any]:
+    """Rule ``choose_grid``: the grid rate from the given maneuvers' logs (maneuver -> raw path; the workflow gives
+    the train and validation maneuvers, never a test maneuver), written atomically to ``out_path`` as
+    ``{"rate_hz", "chosen_from": "data", "text", "maneuvers": {name: {"median_step_s"}}}``."""
+    steps = {name: median_step_s(path, logged_time_bases(path, config, name)) for name, path in raw_paths.items()}
+    rate_hz, text = choose_rate_hz(steps)
+    record = {"rate_hz": rate_hz, "chosen_from": "data", "text": text,
+              "maneuvers": {name: {"median_step_s": step} for name, step in steps.items()}}
+    write_json_atomic(out_path, record)
+    LOG.info("grid rate chosen from the data: %s", text)
+    return record
+
+
+def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | None = None,
+               rate_hz: float | None = None) -> pd.DataFrame:
     """Read, check, resample, transform and convert a raw log (steps in the module docstring).
 
     Args:
@@ -73,6 +119,8 @@ def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | Non
             and, for ``maneuver``, ``maneuvers``); schema defaults of ``ingest`` are filled in here.
         maneuver: name of the maneuver in ``config.maneuvers`` (its channel overrides and slice), or
             None for the log as a whole.
+        rate_hz: the grid's rate (Hz) where ``config.ingest.rate_hz`` leaves it out (chosen from the case's logs,
+            :func:`choose_grid`); the config's rate wins; without either, the rate of this log's fastest channel.
 
     Returns:
         DataFrame of T rows: ``time_s`` (s, from 0, step ``1 / rate_hz``), then one float64 column per
@@ -86,13 +134,16 @@ def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | Non
     settings = section_settings(config.get("ingest"), "ingest")
     roles = case_roles(config)
     source = maneuver_source(config, roles, maneuver)
-    rate_hz = float(settings["rate_hz"])
+    if settings["rate_hz"] is not None:
+        rate_hz = float(settings["rate_hz"])
     logged = {name: signal for name, signal in roles.signals.items() if not signal.derived}
 
-    raw = read_channels(raw_path, sorted(set(source.channels.values())), time_column=settings["time"]["channel"],
-                        csv_delimiter=settings["csv"]["delimiter"], csv_decimal=settings["csv"]["decimal"],
-                        sample_period_s=settings["sample_period_s"])
-    time_factor = {name: _time_factor(raw_path, settings, channel) for name, channel in raw.items()}
+    raw, time_factor = read_logged_channels(raw_path, config, maneuver)
+    if rate_hz is None:  # neither configured nor chosen from the case's logs: this log's own
+        rate_hz, text = choose_rate_hz({raw_path.name: median_step_s(raw_path, {
+            name: raw[channel].time_s * time_factor[channel] for name, channel in source.channels.items()
+            if name in logged and channel in raw})})
+        LOG.info("%s: grid rate chosen from this log: %s", raw_path.name, text)
     log_start_s = min(float(channel.time_s[0]) * time_factor[name] for name, channel in raw.items()
                       if len(channel.time_s))
     start_s = None if source.t_start_s is None else log_start_s + source.t_start_s
@@ -102,7 +153,7 @@ def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | Non
     for name, signal in logged.items():
         channel = raw[source.channels[name]]
         time_s, values = checked_samples(raw_path, channel, name, time_factor[channel.name],
-                                         float(settings["max_gap_s"]), int(settings["max_nonfinite_samples"]),
+                                         settings["max_gap_s"], int(settings["max_nonfinite_samples"]),
                                          start_s, end_s)
         check_file_unit(raw_path, channel, signal)
         check_outliers(raw_path, channel.name, name, signal.natural_unit, time_s, values,
@@ -134,7 +185,11 @@ def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | Non
     return frame
 
 
-def checked_samples(path: Path, channel: RawChannel, signal: str, time_factor: float, max_gap_s: float,
+#: Without config.ingest.max_gap_s, a channel may pause this many of its own median steps between two samples.
+GAP_STEPS = 10
+
+
+def checked_samples(path: Path, channel: RawChannel, signal: str, time_factor: float, max_gap_s: float | None,
                     max_nonfinite_samples: int, start_s: float | None = None,
                     end_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Check one channel's time base and samples; return (time_s (n,), values (n,)) without NaN/inf.
@@ -144,7 +199,8 @@ def checked_samples(path: Path, channel: RawChannel, signal: str, time_factor: f
 
     Raises:
         DataError: naming file and channel for too few samples, non-finite / duplicated / decreasing
-            time stamps, a NaN/inf run longer than ``max_nonfinite_samples``, a gap over ``max_gap_s``.
+            time stamps, a NaN/inf run longer than ``max_nonfinite_samples``, a gap over ``max_gap_s`` (None:
+            over :data:`GAP_STEPS` of the channel's own median steps).
     """
     where = f"{path}: channel {channel.name} ({signal})"
     time_s = np.asarray(channel.time_s, dtype=np.float64) * time_factor
@@ -166,6 +222,14 @@ def checked_samples(path: Path, channel: RawChannel, signal: str, time_factor: f
             raise DataError(f"{where}: fewer than 2 finite samples; expected a time series")
     steps = np.diff(time_s)
     typical_s = float(np.median(steps))
+    if max_gap_s is None:
+        limit_s = GAP_STEPS * typical_s
+        if steps.max() > limit_s:
+            index = int(np.argmax(steps))
+            raise DataError(f"{where}: gap of {steps[index]:.6g} s after {time_s[index]:.6g} s, more than "
+                            f"{GAP_STEPS} of the channel's median step {typical_s:.6g} s; expected continuous "
+                            "samples (config.ingest.max_gap_s sets the longest gap allowed)")
+        return time_s, values
     if typical_s > max_gap_s:  # not a gap: the whole log is sampled slower than the limit
         raise DataError(f"{where}: sampled every {typical_s:.6g} s (median step), slower than "
                         f"config.ingest.max_gap_s = {max_gap_s:g} s allows between two samples; expected "
@@ -247,19 +311,20 @@ def model_frame(path: Path, roles: CaseRoles, time_s: np.ndarray, columns: dict[
 def _time_factor(path: Path, settings: dict[str, Any], channel: RawChannel) -> float:
     """Factor to seconds of a channel's time stamps: 1 for MDF4 and ``sample_period_s``; else the time unit.
 
-    The time column's unit comes from the file where it has one (checked against ``config.ingest.time.unit``),
-    else from the config.
+    The time column's unit comes from the file where it has one (its units row, a ``name [unit]`` header, or
+    a name such as ``time_ms``; checked against ``config.ingest.time.unit`` where that is set), else from the
+    config, else seconds.
     """
     if path.suffix.lower() in MDF_SUFFIXES or settings["sample_period_s"] is not None:
         return 1.0
     time_cfg = settings["time"]
-    config_unit = time_cfg["unit"]
-    where = f"{path}: time column {time_cfg['channel']}"
+    file_unit = (channel.time_unit or "").strip()
+    config_unit = time_cfg["unit"] or (file_unit if file_unit and _known_unit(file_unit) else "s")
+    where = f"{path}: time column {time_cfg['channel'] or '(found by its name)'}"
     try:
         factor, offset = converter(config_unit, "s")
     except UnitError as err:
         raise DataError(f"config.ingest.time.unit: {err}; expected a unit of time") from None
-    file_unit = (channel.time_unit or "").strip()
     if file_unit and not _known_unit(file_unit):
         LOG.warning("%s: unit %r from the file is unknown; using %r from config.ingest.time.unit", where,
                     file_unit, config_unit)

@@ -5,7 +5,9 @@ from the file if it has one). Nothing is resampled or converted here. Format by 
 ``.mf4``/``.mdf`` (MDF4; every channel has its own time base and rate), ``.csv``/``.txt`` (a time
 column and channel columns; units from a second header row or ``name [unit]`` headers), ``.parquet``/
 ``.pq`` (same layout as CSV; units from ``name [unit]`` column names, else the config's). Table logs
-without a time column give ``sample_period_s``: sample k is then at ``k * sample_period_s``.
+without a time column give ``sample_period_s``: sample k is then at ``k * sample_period_s``. Without a
+configured time column, the table's one column named as a time (``time``, ``t``, ``timestamp``, optionally
+with a unit: ``time_ms``, ``Time [s]``) is used, its unit from the file or the name.
 
 Every failure raises :class:`~hybridfmu.data.errors.DataError` naming the file, and the channel where
 one is concerned: an empty file, a truncated or corrupt file, a missing channel (with the list of
@@ -32,6 +34,9 @@ MDF_SUFFIXES = (".mf4", ".mdf")
 CSV_SUFFIXES = (".csv", ".txt")
 PARQUET_SUFFIXES = (".parquet", ".pq")
 _HEADER_UNIT = re.compile(r"^\s*(?P<name>.*?)\s*[\[(](?P<unit>[^\])]*)[\])]\s*$")
+#: A column named as a time, with an optional unit suffix (``time``, ``t``, ``timestamp``, ``time_s``, ``time_ms``).
+TIME_NAME = re.compile(r"^(?:time|t|timestamps?|zeit)(?:[ _.-]?(?:in[ _])?(?P<unit>s|sec|ms|us|µs|ns|min|h))?$",
+                       re.IGNORECASE)
 
 
 @dataclass
@@ -53,7 +58,37 @@ class RawChannel:
     time_unit: str | None = "s"
 
 
-def read_channels(path: str | Path, names: list[str], time_column: str = "time",
+def time_column_of(path: Path, time_column: str | None, names_in_file: list[str]) -> tuple[str, str | None]:
+    """The time column of a table and the unit its name gives (``time_ms`` -> ms; None without one).
+
+    Args:
+        time_column: the configured column, or None to find the one column named as a time (:data:`TIME_NAME`).
+
+    Raises:
+        DataError: the configured column is missing, or none or several columns are named as a time; names the
+            file and its columns.
+    """
+    if time_column is not None:
+        if time_column not in names_in_file:
+            raise DataError(f"{path}: time column {time_column!r} (config.ingest.time.channel) not found; the file "
+                            f"has columns {names_in_file} (set config.ingest.sample_period_s for logs without a "
+                            "time column)")
+        return time_column, None
+    found = [(name, TIME_NAME.match(name.strip())) for name in names_in_file]
+    found = [(name, match) for name, match in found if match]
+    if len(found) != 1:
+        what = "no column is" if not found else f"{len(found)} columns ({', '.join(n for n, _ in found)}) are"
+        raise DataError(f"{path}: {what} named as a time (time, t, timestamp, optionally with a unit such as "
+                        f"time_ms); the file has columns {names_in_file}; set config.ingest.time.channel to the "
+                        "time column, or config.ingest.sample_period_s for logs without one")
+    name, match = found[0]
+    unit = match.group("unit")
+    unit = {"sec": "s", "us": "µs"}.get(unit.lower(), unit) if unit else None
+    LOG.info("%s: time column %r found by its name%s", path, name, f" (unit {unit})" if unit else "")
+    return name, unit
+
+
+def read_channels(path: str | Path, names: list[str], time_column: str | None = None,
                   csv_delimiter: str = ",", csv_decimal: str = ".",
                   sample_period_s: float | None = None) -> dict[str, RawChannel]:
     """Read channels ``names`` from a raw log; return ``{name: RawChannel}``.
@@ -61,7 +96,8 @@ def read_channels(path: str | Path, names: list[str], time_column: str = "time",
     Args:
         path: the log (``.mf4``/``.mdf``, ``.csv``/``.txt``, ``.parquet``/``.pq``).
         names: raw channel names to read.
-        time_column: time column of CSV/Parquet logs (ignored for MDF4).
+        time_column: time column of CSV/Parquet logs (ignored for MDF4); None: the one column named as a time
+            (:func:`time_column_of`).
         csv_delimiter, csv_decimal: CSV field separator and decimal mark.
         sample_period_s: table logs without a time column: sample k is at ``k * sample_period_s`` (s);
             ``time_column`` is then ignored. MDF4 channels always keep their own time bases.
@@ -124,7 +160,7 @@ def read_mdf(path: Path, names: list[str]) -> dict[str, RawChannel]:
             mdf.close()
 
 
-def read_csv(path: Path, names: list[str], time_column: str = "time", delimiter: str = ",",
+def read_csv(path: Path, names: list[str], time_column: str | None = None, delimiter: str = ",",
              decimal: str = ".", sample_period_s: float | None = None) -> dict[str, RawChannel]:
     """Read channels from a CSV table (see :func:`read_channels`).
 
@@ -144,8 +180,9 @@ def read_csv(path: Path, names: list[str], time_column: str = "time", delimiter:
     if not lines[0].strip() or not lines[1].strip():
         raise DataError(f"{path}: the file is empty (no data rows); expected a header row and samples")
     names_in_file, header_units = _split_header(header)
+    name_unit = None
     if sample_period_s is None:
-        _require_time_column(path, time_column, names_in_file)
+        time_column, name_unit = time_column_of(path, time_column, names_in_file)
     second = [field.strip().strip('"') for field in lines[1].rstrip("\r\n").split(delimiter)]
     if sample_period_s is None:
         units_row = len(second) == len(header) and not _is_number(second[names_in_file.index(time_column)], decimal)
@@ -165,10 +202,12 @@ def read_csv(path: Path, names: list[str], time_column: str = "time", delimiter:
     if frame.empty:
         raise DataError(f"{path}: the file is empty (no data rows); expected samples below the header")
     units = dict(zip(names_in_file, header_units))
+    if name_unit and not units.get(time_column):
+        units[time_column] = name_unit
     return _table_channels(path, frame, names, time_column, units, decimal, sample_period_s)
 
 
-def read_parquet(path: Path, names: list[str], time_column: str = "time",
+def read_parquet(path: Path, names: list[str], time_column: str | None = None,
                  sample_period_s: float | None = None) -> dict[str, RawChannel]:
     """Read channels from a Parquet table (see :func:`read_channels`)."""
     import pandas as pd
@@ -181,17 +220,12 @@ def read_parquet(path: Path, names: list[str], time_column: str = "time",
     frame.columns = names_in_file
     if frame.empty or not names_in_file:
         raise DataError(f"{path}: the file is empty (no rows); expected samples")
+    units = dict(zip(names_in_file, header_units))
     if sample_period_s is None:
-        _require_time_column(path, time_column, names_in_file)
-    return _table_channels(path, frame, names, time_column, dict(zip(names_in_file, header_units)), ".",
-                           sample_period_s)
-
-
-def _require_time_column(path: Path, time_column: str, names_in_file: list[str]) -> None:
-    if time_column not in names_in_file:
-        raise DataError(f"{path}: time column {time_column!r} not found; the file has columns {names_in_file} "
-                        "(set config.ingest.time.channel, or config.ingest.sample_period_s for logs without "
-                        "a time column)")
+        time_column, name_unit = time_column_of(path, time_column, names_in_file)
+        if name_unit and not units.get(time_column):
+            units[time_column] = name_unit
+    return _table_channels(path, frame, names, time_column, units, ".", sample_period_s)
 
 
 def _table_channels(path: Path, frame, names: list[str], time_column: str, units: dict[str, str | None],

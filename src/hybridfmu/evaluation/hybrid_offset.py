@@ -43,7 +43,7 @@ def physics_group_estimates(physics: Any, measured: Any, roles: Any, x0: np.ndar
     Raises:
         FloatingPointError: the physical layer diverged (names the window).
     """
-    from hybridfmu.evaluation.offset import group_estimates
+    from hybridfmu.evaluation.offset import group_estimates, time_offset_settings
 
     diagnosed = physics.diagnosed
 
@@ -58,7 +58,7 @@ def physics_group_estimates(physics: Any, measured: Any, roles: Any, x0: np.ndar
         x = np.where(np.isfinite(x), x, simulate(measured.time_s, measured.u, np.asarray(x0, dtype=float),
                                                  f"{maneuver} physical layer open loop"))
     step_s = float(np.median(np.diff(measured.time_s)))
-    max_lag_s = float(options.get("max_lag_s", 1e-3))
+    max_lag_s = float(time_offset_settings(options, step_s)["max_lag_s"])
     return group_estimates(simulate, measured, x, roles, maneuver, options, delay_config, max_lag_s,
                            step_s / int(resolution), step_s)
 

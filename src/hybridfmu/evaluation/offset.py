@@ -19,8 +19,24 @@ import pandas as pd
 
 from hybridfmu.evaluation.zoom import window_samples
 from hybridfmu.io import write_json_atomic, write_parquet_atomic
+from hybridfmu.model.settings import input_delay_settings
 
 LOG = logging.getLogger(__name__)
+
+
+#: Without ``evaluation.time_offset.length_s`` / ``max_lag_s``: the window and the largest shift, in grid samples.
+WINDOW_SAMPLES, MAX_LAG_SAMPLES = 200, 10
+
+
+def time_offset_settings(options: dict[str, Any], sample_period_s: float) -> dict[str, Any]:
+    """``evaluation.time_offset`` with ``length_s`` and ``max_lag_s`` chosen from the grid where the config leaves
+    them out (null): :data:`WINDOW_SAMPLES` and :data:`MAX_LAG_SAMPLES` samples of ``sample_period_s`` (s)."""
+    chosen = dict(options or {})
+    if chosen.get("length_s") is None:
+        chosen["length_s"] = WINDOW_SAMPLES * float(sample_period_s)
+    if chosen.get("max_lag_s") is None:
+        chosen["max_lag_s"] = MAX_LAG_SAMPLES * float(sample_period_s)
+    return chosen
 
 
 def steepest_window(time_s: np.ndarray, targets: np.ndarray, length_s: float,
@@ -126,13 +142,14 @@ def run_time_offset(fmu_path: str | Path, calibration_path: str | Path | None, d
     from hybridfmu.evaluation.baseline import simulate_fmu_open_loop
     from hybridfmu.training.measured import initial_state, load_calibrated_fmu, load_calibration, read_measured
 
-    length_s = float(options.get("length_s", 0.02))
-    max_lag_s = float(options.get("max_lag_s", 1e-3))
     calibration = load_calibration(calibration_path)
     with load_calibrated_fmu(fmu_path, calibration) as model:
         state_names = list(model.state_names)
         measured = read_measured(data_path, roles)
         time_s, u = measured.time_s, measured.u
+        step_s = float(np.median(np.diff(time_s)))
+        window = time_offset_settings(options, step_s)
+        length_s, max_lag_s = float(window["length_s"]), float(window["max_lag_s"])
         signals = measured.target_signals
         target_index = [state_names.index(name) for name in measured.target_states]
         scales = normalising_scales(measured.targets)
@@ -150,7 +167,6 @@ def run_time_offset(fmu_path: str | Path, calibration_path: str | Path | None, d
         if last - first < 3:
             raise ValueError(f"time-offset window [{t_start_s}, {t_end_s}] s of {maneuver!r} holds {last - first} "
                              "samples; at least 3 are needed (config.evaluation.time_offset.length_s)")
-        step_s = float(np.median(np.diff(time_s)))
         x_start = measured.x[first].copy()
         if roles.unmeasured_states:  # the unmeasured states where the baseline from the calibration has them
             x0 = initial_state(model, measured.x[0], roles, calibration, maneuver, maneuvers)
@@ -191,6 +207,11 @@ def run_time_offset(fmu_path: str | Path, calibration_path: str | Path | None, d
                "cost_with_delay": float(np.sum(mse_delayed / scales ** 2)),
                "groups": groups,
                "convention": "the FMU sees the logged inputs as u(t + input_delay_s), as the neural FMU's delay"}
+    chosen = [f"evaluation.time_offset.{key} = {window[key] * 1e3:.4g} ms: {count} samples of the grid"
+              for key, count in (("length_s", WINDOW_SAMPLES), ("max_lag_s", MAX_LAG_SAMPLES))
+              if options.get(key) is None]
+    if chosen:
+        summary["chosen_from_data"] = chosen
     write_json_atomic(summary_path, summary)
     LOG.info("%s: time-offset window %.4f-%.4f s, estimated input delay %.3g s", maneuver, t[0], t[-1], delay_s)
     return summary
@@ -246,8 +267,8 @@ def group_estimates(simulate: Any, measured: Any, x: np.ndarray, roles: Any, man
     configured = dict((delay_config or {}).get("groups") or {})
     groups = ({name: [input_names.index(i) for i in inputs] for name, inputs in configured.items()}
               if configured else {"inputs": list(range(len(input_names)))})
-    low_s = float((delay_config or {}).get("min_s", -max_lag_s))
-    high_s = float((delay_config or {}).get("max_s", max_lag_s))
+    bounds = input_delay_settings(delay_config, step_s) if delay_config else {"min_s": -max_lag_s, "max_s": max_lag_s}
+    low_s, high_s = float(bounds["min_s"]), float(bounds["max_s"])
     if not high_s > low_s:
         return {name: {"inputs": [input_names[c] for c in columns], "delay_s": low_s, "windows": 0,
                        "cost_without_delay": None, "cost_with_delay": None, "note": "the delay is fixed"}

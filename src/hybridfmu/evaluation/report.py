@@ -508,10 +508,26 @@ def hybrid_estimates(path: str | Path | None) -> dict[str, dict[str, Any]] | Non
     return dict(read_json(path).get("groups") or {})
 
 
+def chosen_from_data_lines(record_paths: list[str | Path]) -> list[str]:
+    """Markdown list items of every setting a stage chose from the data where the config left it out: the grid
+    (``data/grid.json``'s ``text``) and each record's ``chosen_from_data`` sentences (a search's plan, the
+    time-offset stage), in the order given; [] when the config set everything."""
+    from hybridfmu.io import read_json
+
+    lines = []
+    for path in record_paths:
+        record = read_json(path)
+        if record.get("chosen_from") == "data" and record.get("text"):
+            lines.append(f"- ingest.rate_hz = {record['text']}")
+        lines += [f"- {sentence}" for sentence in record.get("chosen_from_data") or []]
+    return lines
+
+
 def write_report(report_path: str | Path, case: str, metrics_paths: list[str], best_path: str | Path,
                  run_path: str | Path, time_offset_summary_path: str | Path, figure_paths: dict[str, str],
                  truth_paths: list[str], roles: Any, reference: dict[str, Any] | None = None,
-                 log_to_mlflow: bool = True, hybrid_time_offset_path: str | Path | None = None) -> Path:
+                 log_to_mlflow: bool = True, hybrid_time_offset_path: str | Path | None = None,
+                 chosen_paths: list[str] | None = None) -> Path:
     """Write ``report.md`` (figures linked relative to it) and add it and the figures to the evaluation's
     MLflow run.
 
@@ -524,6 +540,8 @@ def write_report(report_path: str | Path, case: str, metrics_paths: list[str], b
         reference: config ``evaluation.reference`` (factors and figures to compare with), or None.
         hybrid_time_offset_path: the time-offset estimates on the hybrid's physical layer (rule
             ``hybrid_time_offset``, where the hybrid's delays start), or None.
+        chosen_paths: records of the settings chosen from the data (``data/grid.json``, the searches' plans;
+            :func:`chosen_from_data_lines`); the time-offset summary's are added.
     """
     import os
 
@@ -555,15 +573,23 @@ def write_report(report_path: str | Path, case: str, metrics_paths: list[str], b
         f"{signal} MSE {_number(time_offset['mse_without_delay'][signal])} → "
         f"{_number(time_offset['mse_with_delay'][signal])} {squared_unit(units.get(signal, ''))}"
         for signal in time_offset.get("signals", []))
+    max_lag_s = time_offset.get("max_lag_s")
+    edge_text = (f"That is the edge of the ±{max_lag_s * 1e6:.1f} µs searched (config.evaluation.time_offset."
+                 "max_lag_s): the best shift lies there or beyond, or the FMU's other errors decide it. "
+                 if max_lag_s and abs(abs(time_offset["input_delay_s"]) - max_lag_s) <= 1e-3 * max_lag_s else "")
     text += ("\n## Time offset seen from the FMU alone\n\n"
              f"Fitting an input delay to the FMU on a short window of '{time_offset['maneuver']}' "
              f"({time_offset['t_start_s']:.4f}–{time_offset['t_end_s']:.4f} s) gives "
-             f"{time_offset['input_delay_s'] * 1e6:.1f} µs ({changes}). "
+             f"{time_offset['input_delay_s'] * 1e6:.1f} µs ({changes}). " + edge_text +
              "On one window the delay also absorbs the FMU's other errors there, so this "
              "estimate is indicative only. Each input group's estimate over many short windows after its inputs "
              "change (the start of the learned delays when `model.input_delay.init_s` is `time_offset`): "
              + "; ".join(group_estimate_text(group, entry)
                          for group, entry in (time_offset.get("groups") or {}).items()) + ".\n")
+    chosen = chosen_from_data_lines([*(chosen_paths or []), time_offset_summary_path])
+    if chosen:
+        text += ("\n## Chosen from the data\n\nSettings the case config leaves out, chosen from this case's logs "
+                 "and grid (a value in the config always wins):\n\n" + "\n".join(chosen) + "\n")
     write_text_atomic(report_path, text)
     if log_to_mlflow:
         from hybridfmu.evaluation.tracking import log_report_artifacts

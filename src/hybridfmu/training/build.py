@@ -7,6 +7,7 @@ from typing import Any
 import torch
 
 from hybridfmu.model.neural_fmu import NeuralFmu
+from hybridfmu.model.settings import input_delay_settings
 from hybridfmu.model.spec import EndStop, NeuralFmuSpec
 
 
@@ -34,7 +35,7 @@ def model_spec(model_config: dict[str, Any], fmu_model: Any, sample_period_s: fl
     (``PhysicsModel.effects``), None for the paper's neural FMU; a hybrid's coefficients train with
     ``model.physics_coefficient_step`` (null: fixed)."""
     states, inputs = list(fmu_model.state_names), list(fmu_model.input_names)
-    delay = model_config["input_delay"]
+    delay = input_delay_settings(model_config["input_delay"], sample_period_s)
     init_s = delay["init_s"]
     if init_s == "time_offset":
         if delay_init_s is None:

@@ -11,11 +11,13 @@ from pathlib import Path
 from typing import Any
 
 from hybridfmu.model.delay import describe_delays
+from hybridfmu.model.settings import DELAY_BOUND_SAMPLES, input_delay_settings
 from hybridfmu.io import atomic_path, read_json, write_json_atomic
 from hybridfmu.training.data import build_maneuver_arrays
 from hybridfmu.training.candidates import PHYSICAL_LAYER_ID
 from hybridfmu.training.hyperband import rank_results, select_survivors
 from hybridfmu.training.plan import search_plan
+from hybridfmu.training.search_defaults import chosen_search_settings
 from hybridfmu.training.statistics import data_statistics
 
 LOG = logging.getLogger(__name__)
@@ -83,8 +85,8 @@ def search_id(case: str, seed: int, sections: dict[str, Any]) -> str:
 
 def plan_search(*, case: str, seed: int, hpo_config: dict[str, Any], training_config: dict[str, Any],
                 model_config: dict[str, Any], plan_path: str | Path, tracking_uri: str | None,
-                experiment: str | None, roles: Any = None, time_offset_path: str | Path | None = None
-                ) -> dict[str, Any]:
+                experiment: str | None, roles: Any = None, time_offset_path: str | Path | None = None,
+                sample_period_s: float | None = None, training_data_s: float | None = None) -> dict[str, Any]:
     """Write the search plan (brackets, rungs, sampled configurations) and create the MLflow parent run
     (skipped when ``tracking_uri`` is None). With ``roles`` the target weights ``w_<state>`` of the search
     space and the objective are checked against the case's target states.
@@ -92,12 +94,22 @@ def plan_search(*, case: str, seed: int, hpo_config: dict[str, Any], training_co
     When ``model.input_delay.init_s`` is ``time_offset``, the plan's ``initial_delays_s`` ({group: s}) are
     the time-offset stage's estimates (``time_offset_path``, rule ``time_offset``), the start of every
     configuration's delays; with ``input_delay.within_standard_errors`` its ``delay_bounds_s`` ({group:
-    [low, high]}) hold each identified group's delay within that many standard errors of its estimate."""
+    [low, high]}) hold each identified group's delay within that many standard errors of its estimate;
+    ``sample_period_s`` (the grid's step) sizes the delays' range and the windows, ``training_data_s`` (the selected
+    training data, s) the budget, where the config leaves them out (:mod:`hybridfmu.training.search_defaults`; the
+    plan's ``chosen_from_data`` says how)."""
+    hpo_config, chosen = chosen_search_settings(hpo_config, sample_period_s, training_data_s)
+    delay_config = model_config.get("input_delay") or {}
+    if sample_period_s is not None and any(delay_config.get(key) is None for key in ("min_s", "max_s", "scale_s")):
+        resolved = input_delay_settings(delay_config, sample_period_s)
+        chosen.append(f"model.input_delay: within {resolved['min_s'] * 1e3:.4g} … {resolved['max_s'] * 1e3:.4g} ms "
+                      f"(±{DELAY_BOUND_SAMPLES} samples of the grid), scale_s {resolved['scale_s'] * 1e3:.4g} ms "
+                      "(one sample), where the config leaves them out")
     sections = {"hpo": hpo_config, "training": training_config, "model": model_config}
     initial_delays = initial_delays_from_time_offset(model_config, time_offset_path)
     if initial_delays is not None:
         sections["initial_delays_s"] = initial_delays
-    delay_bounds = delay_bounds_from_time_offset(model_config, time_offset_path)
+    delay_bounds = delay_bounds_from_time_offset(model_config, time_offset_path, sample_period_s)
     if delay_bounds is not None:
         sections["delay_bounds_s"] = delay_bounds
     if roles is not None:
@@ -109,6 +121,10 @@ def plan_search(*, case: str, seed: int, hpo_config: dict[str, Any], training_co
         plan["initial_delays_s"] = initial_delays
     if delay_bounds is not None:
         plan["delay_bounds_s"] = delay_bounds
+    if chosen:
+        plan["chosen_from_data"] = chosen
+        for note in chosen:
+            LOG.info("chosen from the data: %s", note)
     if tracking_uri:
         from hybridfmu.training.search_tracking import start_search
 
@@ -151,14 +167,15 @@ def initial_delays_from_time_offset(model_config: dict[str, Any],
     return {name: float(groups[name]["delay_s"]) for name in expected}
 
 
-def delay_bounds_from_time_offset(model_config: dict[str, Any],
-                                  time_offset_path: str | Path | None) -> dict[str, list[float]] | None:
+def delay_bounds_from_time_offset(model_config: dict[str, Any], time_offset_path: str | Path | None,
+                                  sample_period_s: float | None = None) -> dict[str, list[float]] | None:
     """{group: [low, high]} (s) for every group the time-offset stage identified, when
     ``model.input_delay.within_standard_errors`` (k) is set: its estimate ± k bootstrap standard errors,
     within ``[min_s, max_s]``. The training loss compares only the target states, where a delay can trade
     off against the model's other errors; the band keeps the learned delay where the time-offset stage's
     windows (every measured state, right after the inputs change) put it. Groups not identified keep
-    ``[min_s, max_s]``. None when k is not set.
+    ``[min_s, max_s]`` (where the config leaves them out, chosen from ``sample_period_s``,
+    :func:`hybridfmu.model.settings.input_delay_settings`). None when k is not set.
 
     Raises:
         ValueError: k is set but ``init_s`` is not ``time_offset``, or the summary lacks an identified group's
@@ -174,6 +191,11 @@ def delay_bounds_from_time_offset(model_config: dict[str, Any],
                          f"{delay.get('init_s')!r}")
     initial = initial_delays_from_time_offset(model_config, time_offset_path)
     groups = read_json(time_offset_path)["groups"]
+    if delay.get("min_s") is None or delay.get("max_s") is None:
+        if sample_period_s is None:
+            raise ValueError("config.model.input_delay.min_s/max_s are chosen from the data's sample period, "
+                             "which the search's plan was not given")
+        delay = input_delay_settings(delay, sample_period_s)
     low_s, high_s = float(delay["min_s"]), float(delay["max_s"])
     bounds = {}
     for name, estimate_s in initial.items():

@@ -21,6 +21,7 @@ import torch
 
 from hybridfmu.io import atomic_path, file_sha256, read_json, write_json_atomic
 from hybridfmu.model.delay import describe_delays
+from hybridfmu.model.settings import learns_delays
 from hybridfmu.progress import Progress
 from hybridfmu.training.build import build_neural_fmu, model_spec
 from hybridfmu.training.checkpoint import CHECKPOINT_FORMAT, load_checkpoint
@@ -98,8 +99,7 @@ def hybrid_physics(model_config: dict[str, Any], fmu_path: str | Path, fmu_param
     if diagnosed_path is None:
         raise ValueError(f"config.model.physics_terms is {model_config['physics_terms']!r}: a hybrid needs the "
                          "diagnosed model (diagnosis/diagnosed_model.pkl, rule diagnose)")
-    delay = model_config.get("input_delay") or {}
-    learned_delay = float(delay.get("max_s", 0.0)) > float(delay.get("min_s", 0.0))
+    learned_delay = learns_delays(model_config.get("input_delay"))
     physics = physics_model(fmu_path, fmu_parameters, diagnosed_path, physics_effects(model_config["physics_terms"]),
                             DELAY_KINDS if learned_delay else ())
     LOG.info("physical layer: %s (parameters %s)", ", ".join(physics.effects) or "no effects", physics.parameters)

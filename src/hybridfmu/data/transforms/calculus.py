@@ -11,6 +11,10 @@ from hybridfmu.data.transforms.base import Transform, TransformError
 from hybridfmu.units import UnitError, parse_quantity, parse_unit, unit_string
 
 
+#: Without ``window_s``, a derivative's Savitzky-Golay window spans this many samples of the grid.
+DERIVATIVE_WINDOW_SAMPLES = 20
+
+
 class Scale(Transform):
     """``output = input * factor``; config: ``{kind: scale, input, output, factor: "<number> <unit>"}``.
 
@@ -47,8 +51,8 @@ class Scale(Transform):
 class Derivative(Transform):
     """``output = d input / dt``; config: ``{kind: derivative, input, output, window_s, polyorder}``.
 
-    Savitzky-Golay differentiation over ``window_s`` (default 0.002 s) with polynomial degree
-    ``polyorder`` (default 2), zero phase. The output's unit is the input's per second.
+    Savitzky-Golay differentiation over ``window_s`` (default: :data:`DERIVATIVE_WINDOW_SAMPLES` samples of the
+    grid) with polynomial degree ``polyorder`` (default 2), zero phase. The output's unit is the input's per second.
     """
 
     kind = "derivative"
@@ -60,7 +64,7 @@ class Derivative(Transform):
         return [spec["output"]]
 
     def output_units(self, spec: dict[str, Any], units: dict[str, str], where: str) -> dict[str, str]:
-        window_s = float(spec.get("window_s", 0.002))
+        window_s = float(spec.get("window_s") or 1.0)  # the default is sized by the grid in apply
         if window_s <= 0:
             raise TransformError(f"{where}.window_s: {window_s}; expected a positive window (s)")
         rate = parse_unit(units[spec["input"]]) / parse_unit("s")
@@ -69,6 +73,7 @@ class Derivative(Transform):
     def apply(self, spec: dict[str, Any], columns: dict[str, np.ndarray], units: dict[str, str],
               rate_hz: float) -> dict[str, np.ndarray]:
         values = np.asarray(columns[spec["input"]], dtype=np.float64)
-        rate = smoothing_derivative(values, rate_hz, float(spec.get("window_s", 0.002)),
-                                    int(spec.get("polyorder", 2)))
+        window_s = spec.get("window_s")
+        window_s = DERIVATIVE_WINDOW_SAMPLES / rate_hz if window_s is None else float(window_s)
+        rate = smoothing_derivative(values, rate_hz, window_s, int(spec.get("polyorder", 2)))
         return {spec["output"]: rate}
