@@ -158,3 +158,64 @@ def test_the_identified_input_delay_is_within_one_sample_of_zero(new_user_run):
     metrics = json.loads((results / "metrics" / "test.json").read_text())
     for group, delay_s in metrics["dt_s"].items():
         assert abs(delay_s) <= 1e-3, (group, delay_s)
+
+
+def markdown_rows(text: str, header_start: str) -> list[dict[str, str]]:
+    """The rows of the first Markdown table whose header row starts with ``header_start``: column -> cell."""
+    lines = text.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(header_start))
+    header = [cell.strip() for cell in lines[start].strip("|").split("|")]
+    rows = []
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        rows.append(dict(zip(header, (cell.strip() for cell in line.strip("|").split("|")))))
+    return rows
+
+
+def number(cell: str) -> float:
+    """The leading number of a table cell ("0.0247 m", "0.000322 m (×76.7)", "×10.5")."""
+    return float(cell.lstrip("×").split()[0])
+
+
+def agrees(coarse: str, fine: float) -> bool:
+    """Whether a number printed with fewer digits is ``fine`` rounded to those digits."""
+    mantissa = coarse.lstrip("×").split()[0].split("e")[0].lstrip("-").replace(".", "").lstrip("0")
+    return f"{fine:.{max(len(mantissa), 1)}g}" == f"{number(coarse):.{max(len(mantissa), 1)}g}"
+
+
+def test_the_report_the_summary_and_the_diagnosis_quote_the_same_figures(new_user_run):
+    """Every figure that appears twice is the same figure: the test errors of each model in report.md (improvement
+    and all-models tables) and summary.md against metrics/test.json, the factors over the maneuvers in both, and
+    the diagnosis' held-out errors in diagnosis/report.md against diagnosis.json."""
+    _, results = new_user_run
+    metrics = json.loads((results / "metrics" / "test.json").read_text())
+    report, summary = (results / "report.md").read_text(), (results / "summary.md").read_text()
+    models = {"FMU": "fmu", "neural FMU": "neural_fmu", "FMU + diagnosed effects": "fmu_effects"}
+    compared = 0
+    for row in markdown_rows(summary, "| signal | model | RMSE | MAE |"):
+        key = next(value for label, value in models.items() if row["model"] == label or
+                   (label == "FMU + diagnosed effects" and row["model"].startswith(label)))
+        for measure in ("RMSE", "MAE"):
+            assert agrees(row[measure], metrics[key][f"{row['signal']}_{measure.lower()}"]), (row, measure)
+            compared += 1
+    for row in markdown_rows(report, "| data | signal | measure | FMU | FMU + diagnosed effects |"):
+        if row["data"] != "test":
+            continue
+        for label, key in models.items():
+            assert agrees(row[label], metrics[key][f"{row['signal']}_{row['measure'].lower()}"]), (row, label)
+            compared += 1
+    for row in markdown_rows(report, "| data | signal | measure | FMU | neural FMU |"):
+        if row["data"] == "test":
+            assert agrees(row["neural FMU"], metrics["neural_fmu"][f"{row['signal']}_{row['measure'].lower()}"])
+            compared += 1
+    spread_report = [row for row in markdown_rows(report, "| data | maneuvers | model |") if row["data"] == "test"]
+    assert spread_report == markdown_rows(summary, "| data | maneuvers | model |")
+    record = json.loads((results / "diagnosis" / "diagnosis.json").read_text())
+    diagnosis_report = (results / "diagnosis" / "report.md").read_text()
+    steps = {step["model"]: step for step in record["how_far"]["steps"]}
+    for row in markdown_rows(diagnosis_report, "| model | position RMS"):
+        step = steps[row["model"].replace("\\|", "|")]
+        assert agrees(row["position RMS [m]"], step["position_rmse"]) and agrees(row["normalised gap"], step["gap"])
+        compared += 1
+    assert compared >= 20

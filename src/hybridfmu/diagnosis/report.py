@@ -270,8 +270,10 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                "unmeasured initial states; diagnosis.open_loop.refit)") if refitted else \
             "the equation-error fits of the effects added to the calibrated model"
         lines += ["## How far", "",
-                  "Open loop on the held-out test maneuver(s) (no fit saw them) from the measured initial state "
-                  "(unmeasured states from the calibration), with the chosen effects added one at a time in rank order: "
+                  "Open loop on the held-out test maneuver(s) (no fit saw them) from the smoothed measured initial "
+                  "state (a local polynomial fit over diagnosis.smoothing_s, so that one noisy sample does not decide "
+                  "the start; unmeasured states from the calibration), with the chosen effects added one at a time in "
+                  "rank order: "
                   "additive terms in their equations, input effects on the logged inputs, parameter errors as corrected "
                   f"parameters; {how}. The normalised gap is the target-weighted MAE over the spread of each target.",
                   "", f"| model | {head} | normalised gap |" + (" windowed gap |" if windowed else "") +
@@ -284,7 +286,9 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                          (f" {format_number(s.get('window_gap'))} |" if windowed else "") +
                          (f" {format_number(s['refit']['cost'])} |" if "refit" in s else (" - |" if refitted else "")))
         lines += ["", f"Normalised gap: {format_number(far['gap_before'])} -> {format_number(far['gap_after'])}, factor "
-                      f"{format_number(far['shrink_factor'], 3)}."]
+                      f"{format_number(far['shrink_factor'], 3)}. The evaluation (report.md, summary.md) simulates the "
+                      "same FMU + effects from the raw first sample of each maneuver, as it does every model, so its "
+                      "errors differ from these by what the start's noise makes."]
         last = next((s for s in reversed(far["steps"]) if "refit" in s), None)
         if last is not None:
             lines += ["", f"Recalibrated variables of the last variant ({table_cell(last['model'])}; train cost "

@@ -328,10 +328,12 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
                                                "(whole-record MAE of every target signal)."]) + [""]
     models = models_table(metrics_by_role, units)
     if models:
+        has_hybrid = any(metrics.get("hybrid") for metrics in metrics_by_role.values())
         out += ["## All models", "",
-                "The FMU plus the effects the diagnosis identified (with the diagnosis' fitted values), the neural "
-                "FMU as in the paper, and the hybrid: the same ANN trained on top of the FMU plus the effects. In "
-                "brackets: the FMU's error over the model's.", ""] + models + [""]
+                "The FMU plus the effects the diagnosis identified (with the diagnosis' fitted values) and the neural "
+                "FMU as in the paper" + (", and the hybrid: the same ANN trained on top of the FMU plus the effects"
+                                         if has_hybrid else " (the case trains no hybrid: model.physics_terms is none)")
+                + ". In brackets: the FMU's error over the model's.", ""] + models + [""]
     out += ["## Zoomed intervals", "",
             "Chosen where the FMU and the data part most, from the FMU's error alone (`auto`), or set in the "
             "config (`config`).", ""]
