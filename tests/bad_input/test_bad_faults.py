@@ -43,6 +43,51 @@ def test_store_folder_that_cannot_be_created(outputs):
     assert_intact(outputs, before)
 
 
+@pytest.mark.parametrize("uri", ["sqllite:////tmp/results/mlflow.db", "htp://127.0.0.1:5000"])
+def test_tracking_uri_with_a_scheme_typo(outputs, uri):
+    before = snapshot(outputs)
+    with pytest.raises(ConfigError) as raised:
+        check_tracking_store(uri, "case.yaml", timeout_s=2.0)
+    assert_names(str(raised.value), "case.yaml", "config.mlflow.tracking_uri", uri, "no tracking store scheme",
+                 "sqlite, file, http")
+    assert_intact(outputs, before)
+
+
+def test_store_folder_where_no_file_can_be_created(outputs):
+    """The permission bits say a root process may write to /proc; creating a file there fails. The check tries it
+    and leaves nothing behind."""
+    before = snapshot(outputs)
+    uri = "sqlite:////proc/hybridfmu-results/mlflow.db"
+    with pytest.raises(ConfigError) as raised:
+        check_tracking_store(uri, "case.yaml")
+    assert_names(str(raised.value), "case.yaml", "config.mlflow.tracking_uri", uri, "no file can be created in /proc")
+    assert_intact(outputs, before)
+    check_tracking_store(default_tracking_uri(outputs / "store"), "case.yaml")
+    assert_intact(outputs, before)  # the probe of a usable folder leaves no file either
+
+
+def test_tracking_uri_of_a_web_server_that_is_no_mlflow_server(outputs, tmp_path):
+    import functools
+    import http.server
+    import threading
+
+    class Quiet(http.server.SimpleHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+    handler = functools.partial(Quiet, directory=str(tmp_path))
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        uri = f"http://127.0.0.1:{server.server_address[1]}"
+        with pytest.raises(ConfigError) as raised:
+            check_tracking_store(uri, "case.yaml", timeout_s=2.0)
+    finally:
+        server.shutdown()
+    assert_names(str(raised.value), "case.yaml", "config.mlflow.tracking_uri", uri, "HTTP 404",
+                 "no MLflow tracking API")
+
+
 def test_corrupt_checkpoint(outputs):
     from hybridfmu.training.checkpoint import load_checkpoint
 

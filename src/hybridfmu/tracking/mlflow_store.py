@@ -260,8 +260,67 @@ def _nearest_existing(path: Path) -> Path:
     return path
 
 
+#: URI schemes of the tracking stores MLflow offers (a database URI may name its driver: ``postgresql+psycopg2``).
+TRACKING_SCHEMES = ("sqlite", "file", "http", "https", "postgresql", "mysql", "mssql", "databricks", "databricks-uc")
+
+
+def _scheme_problem(uri: str) -> str | None:
+    """Why the URI's scheme names no MLflow store (a typo such as ``sqllite:`` or ``htp:``), or None."""
+    if "://" not in uri and not uri.startswith("sqlite:"):
+        return None  # a plain path: a local folder store
+    scheme = uri.split(":", 1)[0].lower()
+    if scheme.split("+", 1)[0] in TRACKING_SCHEMES:
+        return None
+    return f"{scheme!r} is no tracking store scheme; expected one of {', '.join(TRACKING_SCHEMES)}"
+
+
+def _writable_folder_problem(folder: Path) -> str | None:
+    """Why no file can be created in the existing ``folder``, or None: a file is created and removed there (the
+    permission bits alone do not say it for root, a read-only mount or a full disk)."""
+    import tempfile
+
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".hybridfmu-probe-"):
+            pass
+    except OSError as err:
+        return f"no file can be created in {folder} ({err.strerror or err})"
+    return None
+
+
+def _http_problem(probe: str, timeout_s: float) -> str | None:
+    """Why the HTTP(S) server at ``probe`` is no usable MLflow tracking server, or None."""
+    import urllib.error
+    import urllib.request
+
+    try:
+        with urllib.request.urlopen(probe.rstrip("/") + "/health", timeout=timeout_s):
+            pass
+    except urllib.error.HTTPError:
+        pass  # an MLflow server without /health, a proxy asking to log in: the API call below decides
+    except (urllib.error.URLError, OSError, ValueError) as err:
+        reason = getattr(err, "reason", err)
+        return f"the server does not answer within {timeout_s:g} s ({reason})"
+    api = probe.rstrip("/") + "/api/2.0/mlflow/experiments/search?max_results=1"
+    try:
+        with urllib.request.urlopen(api, timeout=timeout_s):
+            return None
+    except urllib.error.HTTPError as err:
+        if err.code in (401, 403):
+            return None  # it asks for credentials: MLflow's client sends them (MLFLOW_TRACKING_USERNAME/PASSWORD)
+        if err.code == 404:
+            return (f"the server answers but has no MLflow tracking API (HTTP 404 at {api}); expected the address "
+                    "of an MLflow tracking server (mlflow server)")
+        return None  # other answers (a method the server refuses, a server error) are the first use's to report
+    except (urllib.error.URLError, OSError, ValueError) as err:
+        reason = getattr(err, "reason", err)
+        return f"the server's MLflow API does not answer within {timeout_s:g} s ({reason})"
+
+
 def _store_problem(uri: str, timeout_s: float) -> str | None:
-    """Why the store at ``uri`` cannot be used, or None (creates nothing)."""
+    """Why the store at ``uri`` cannot be used, or None (creates nothing that stays)."""
+    scheme = _scheme_problem(uri)
+    if scheme is not None:
+        return scheme
     database = sqlite_database(uri)
     if uri.startswith("sqlite:") and database is None:
         return "a SQLite URI must be sqlite:///<absolute path of the database file>"
@@ -278,29 +337,20 @@ def _store_problem(uri: str, timeout_s: float) -> str | None:
             return f"{existing} is not a folder, so {target} cannot be created"
         if not os.access(existing, os.W_OK | os.X_OK):
             return f"the folder {existing} is not writable"
-        return None
+        return _writable_folder_problem(existing)
     if uri.startswith(("http://", "https://")):
-        import urllib.error
-        import urllib.request
-
         from urllib.parse import urlsplit, urlunsplit
 
         parts = urlsplit(uri)  # the probe without credentials in the URL (urllib reads them as part of the host)
-        probe = urlunsplit(parts._replace(netloc=parts.netloc.rsplit("@", 1)[-1]))
-        try:
-            with urllib.request.urlopen(probe.rstrip("/") + "/health", timeout=timeout_s):
-                return None
-        except urllib.error.HTTPError:
-            return None  # the server answers (an MLflow server without /health, a proxy asking to log in ...)
-        except (urllib.error.URLError, OSError, ValueError) as err:
-            reason = getattr(err, "reason", err)
-            return f"the server does not answer within {timeout_s:g} s ({reason})"
+        return _http_problem(urlunsplit(parts._replace(netloc=parts.netloc.rsplit("@", 1)[-1])), timeout_s)
     return None  # other stores (databases, Databricks ...) are checked by their first use
 
 
 def check_tracking_store(uri: str, config_file: str | Path, timeout_s: float = 5.0) -> None:
-    """Fail fast when the tracking store cannot be used: a SQLite store whose folder cannot be created or
-    written, an HTTP(S) server that does not answer within ``timeout_s``. Creates nothing (safe in a dry run).
+    """Fail fast when the tracking store cannot be used: a URI scheme no MLflow store has (a typo), a SQLite or
+    folder store whose folder cannot be created or written (a file is created there and removed again), an
+    HTTP(S) server that does not answer within ``timeout_s`` or answers without MLflow's tracking API. Leaves
+    nothing behind (safe in a dry run).
 
     Raises:
         hybridfmu.config.ConfigError: one line naming ``config_file``, ``config.mlflow.tracking_uri``, the URI
