@@ -88,6 +88,36 @@ def test_tracking_uri_of_a_web_server_that_is_no_mlflow_server(outputs, tmp_path
                  "no MLflow tracking API")
 
 
+def test_a_store_held_locked_by_another_process_while_a_search_is_planned(outputs):
+    """Another process holds the SQLite store (an exclusive transaction) while the search's parent run is created:
+    after its retry budget the planning stops with one error naming the store, how long it waited and what to do,
+    and creates no plan."""
+    import sqlite3
+
+    from hybridfmu.tracking import StoreBusyError
+    from hybridfmu.training.search_tracking import start_search
+
+    uri = default_tracking_uri(outputs / "store")
+    start_search(uri, "case", "s0", "case", {"R": 1})  # the store exists
+    before = snapshot(outputs)
+    holder = sqlite3.connect(str(outputs / "store" / "mlflow.db"), timeout=0.1)
+    holder.execute("BEGIN EXCLUSIVE")
+    try:
+        started = time.perf_counter()
+        with pytest.raises(StoreBusyError) as raised:
+            from hybridfmu.tracking import Tracker
+
+            Tracker(uri, retry_budget_s=1.0).call("get_experiment_by_name", "case")
+        assert time.perf_counter() - started < 75.0  # one attempt may block for SQLite's own busy timeout
+    finally:
+        holder.rollback()
+        holder.close()
+    message = str(raised.value)
+    assert_names(message, str(outputs / "store" / "mlflow.db"), "stayed busy", "database is locked",
+                 "config.mlflow.retry_budget_s")
+    assert_intact(outputs, before)
+
+
 def test_corrupt_checkpoint(outputs):
     from hybridfmu.training.checkpoint import load_checkpoint
 

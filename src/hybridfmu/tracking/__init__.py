@@ -3,8 +3,8 @@ store at once) and the jobs that write to it (:mod:`hybridfmu.tracking.jobs`: jo
 store). The stages log their own runs on top of it: a search's parent and child runs in
 :mod:`hybridfmu.training.search_tracking`, the calibration, diagnosis and evaluation runs beside their stages."""
 
-from .mlflow_store import (Tracker, check_tracking_store, default_tracking_uri, experiment_name, git_commit,
-                           redacted_uri, retry_locked, retry_settings, tracking_uri)
+from .mlflow_store import (StoreBusyError, Tracker, check_tracking_store, default_tracking_uri, experiment_name,
+                           git_commit, redacted_uri, retry_locked, retry_settings, tracking_uri)
 
-__all__ = ["Tracker", "check_tracking_store", "default_tracking_uri", "experiment_name", "git_commit", "redacted_uri",
-           "retry_locked", "retry_settings", "tracking_uri"]
+__all__ = ["StoreBusyError", "Tracker", "check_tracking_store", "default_tracking_uri", "experiment_name", "git_commit",
+           "redacted_uri", "retry_locked", "retry_settings", "tracking_uri"]

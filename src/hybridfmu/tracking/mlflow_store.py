@@ -58,25 +58,43 @@ def experiment_name(mlflow_config: dict[str, Any] | None, case: str) -> str:
     return (mlflow_config or {}).get("experiment") or case
 
 
+class StoreBusyError(RuntimeError):
+    """The tracking store stayed locked or unreadable through every retry (another process holds it)."""
+
+
+def _busy(err: Exception, waited_s: float, attempts: int) -> StoreBusyError:
+    first = str(err).splitlines()[0][:200] if str(err) else type(err).__name__
+    return StoreBusyError(f"the MLflow store stayed busy through {attempts} attempts over {waited_s:.1f} s ({first}): "
+                          "another process holds it (a second workflow or an `mlflow ui` on the same SQLite file?); "
+                          "wait for it and rerun, give config.mlflow.retry_budget_s more seconds, or use a tracking "
+                          "server (docs/tracking.md)")
+
+
 def retry_locked(fn: Callable[..., T], *args: Any, attempts: int = 15, base_delay_s: float = 0.05,
                  max_delay_s: float = 5.0, budget_s: float | None = None, **kwargs: Any) -> T:
     """Call ``fn``; while it fails because the database is locked, wait (exponential backoff with jitter)
     and call again, up to ``attempts`` times and, with ``budget_s``, until the waits would exceed
-    ``budget_s`` seconds in all. Other errors propagate at once."""
-    waited = 0.0
+    ``budget_s`` seconds in all. Other errors propagate at once.
+
+    Raises:
+        StoreBusyError: the store was still locked at the last attempt (says how long it waited and what to do).
+    """
+    started = time.perf_counter()
     for attempt in range(attempts):
         try:
             return fn(*args, **kwargs)
         except Exception as err:  # MLflow wraps SQLAlchemy errors in its own exception types
             text = str(err).lower()
-            if attempt == attempts - 1 or not any(message in text for message in RETRYABLE_MESSAGES):
+            if not any(message in text for message in RETRYABLE_MESSAGES):
                 raise
+            waited = time.perf_counter() - started  # an attempt itself may block (SQLite's own busy timeout)
+            if attempt == attempts - 1:
+                raise _busy(err, waited, attempt + 1) from err
             delay = min(max_delay_s, base_delay_s * 2 ** attempt) * (0.5 + random.random())
             if budget_s is not None:
                 if waited >= budget_s:
-                    raise
+                    raise _busy(err, waited, attempt + 1) from err
                 delay = min(delay, budget_s - waited)
-            waited += delay
             LOG.info("MLflow store busy (%s); retrying in %.2f s", text.splitlines()[0][:120], delay)
             time.sleep(delay)
     raise AssertionError("unreachable")
@@ -171,11 +189,18 @@ class Tracker:
             # so that jobs opening a fresh database at the same time do not race.
             with _file_lock(database.with_name(database.name + ".lock")):
                 self.client = MlflowClient(tracking_uri=uri)
-                retry_locked(self.client.search_experiments, max_results=1, budget_s=retry_budget_s)
+                self.call("search_experiments", max_results=1)
 
     def call(self, method: str, *args: Any, **kwargs: Any) -> Any:
-        """``client.<method>(*args, **kwargs)`` with retries while the store is locked."""
-        return retry_locked(getattr(self.client, method), *args, budget_s=self.retry_budget_s, **kwargs)
+        """``client.<method>(*args, **kwargs)`` with retries while the store is locked.
+
+        Raises:
+            StoreBusyError: the store stayed locked; names the store's URI (without credentials).
+        """
+        try:
+            return retry_locked(getattr(self.client, method), *args, budget_s=self.retry_budget_s, **kwargs)
+        except StoreBusyError as err:
+            raise StoreBusyError(f"{redacted_uri(self.uri)}: {err}") from err.__cause__
 
     def experiment_id(self, name: str) -> str:
         """Id of experiment ``name``, created if missing (safe when another job creates it meanwhile)."""
