@@ -135,3 +135,28 @@ def test_refit_recovers_a_parameter_absorbed_by_the_calibration_and_the_overflow
     assert fitted.terms[0].coef[1] == pytest.approx(TRUE_SHARE, abs=0.05)
     assert fitted.terms[0].setting["level"] == pytest.approx(TRUE_LEVEL, rel=0.05)
     assert model.get_parameters(["k2"]) == {"k2": 0.06}  # restored after the fit
+
+
+def test_a_variant_never_ends_above_the_variant_before_it():
+    """The recalibrating check refits each variant from the one before. An additive effect with a poor start and a
+    fit cut short at its first simulation still ends no higher than the model alone (its start at zero is the
+    model alone at its optimum); an overflow, which acts at any coefficients, is flagged when it ends above."""
+    from hybridfmu.diagnosis.library import Viscous
+
+    measured = tank_maneuvers(overflow=True)
+    model, helper = TwoTanks(k2=0.06, k3=0.06), TwoTanks(k2=0.06, k3=0.06)
+    problem = tank_problem(model)
+    train = measured["train"]
+    fill_unmeasured(train, problem, model, rk4_simulate)
+    set_data_statistics(problem, [train.x], 2.0)
+    spec = RefitSpec(parameter_bounds={"k2": (0.01, 0.2), "k3": (0.01, 0.2)}, max_evaluations=30)
+    alone = refit_terms(model, helper, rk4_simulate, [train], [], problem, spec)
+    short = RefitSpec(parameter_bounds=spec.parameter_bounds, max_evaluations=1)
+    poor = Term(Viscous(problem, 1, 1), {}, np.array([0.5]))  # a strong damping of the lower level
+    cold = refit_terms(model, helper, rk4_simulate, [train], [poor], problem, short)
+    warm = refit_terms(model, helper, rk4_simulate, [train], [poor], problem, short, previous=alone)
+    assert cold.cost > alone.cost  # from its own start alone, the variant ends worse than the model alone
+    assert warm.cost <= alone.cost * (1 + 1e-9) and not warm.above_previous
+    overflow = Term(Overflow(problem, 1, 0, {"overflow_quantiles": [0.5, 0.9]}), {"level": 2.0}, np.array([1.0, 1.0]))
+    flagged = refit_terms(model, helper, rk4_simulate, [train], [overflow], problem, short, previous=alone)
+    assert flagged.above_previous == (flagged.cost > alone.cost * (1 + 1e-9))

@@ -256,6 +256,19 @@ def test_nothing_left_to_do(tiny_run):
     assert planned_rules(output.stdout) == set(), output.stdout[-4000:]
 
 
+def test_a_copied_project_has_nothing_to_rerun(tiny_run, tmp_path):
+    """A finished project copied elsewhere (mtimes kept, as ``cp -a`` or ``rsync -a`` do) and its MLflow artifacts
+    relocated: no job's params name the old place, so Snakemake finds nothing to do there."""
+    workdir, results, _, _ = tiny_run
+    moved = tmp_path / "moved"
+    shutil.copytree(workdir, moved, symlinks=True)
+    relocate = subprocess.run([str(PYTHON or sys.executable), "-m", "hybridfmu.tracking.relocate",
+                               str(moved / results.relative_to(workdir).parent)], capture_output=True, text=True)
+    assert relocate.returncode == 0, relocate.stderr
+    output = snakemake(moved, TINY, "-n")
+    assert planned_rules(output.stdout) == set(), output.stdout[-4000:]
+
+
 def evaluation_targets(workdir: Path, results: Path) -> list[str]:
     """The report and the figures, relative to the working directory as the rules name them: the
     evaluation's end of the DAG (training, evaluation and plots upstream)."""

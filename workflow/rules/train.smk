@@ -10,7 +10,7 @@
 # open loop over whole maneuvers (one job per finalist), score_finalists chooses and select_best takes that one.
 from hybridfmu.data.settings import section_settings
 from hybridfmu.io import read_json
-from hybridfmu.tracking import experiment_name, tracking_uri
+from hybridfmu.tracking import experiment_name
 from hybridfmu.training.maneuver_roles import role_maneuver
 from hybridfmu.training.plan import search_settings
 from hybridfmu.training.candidates import candidate_names
@@ -119,7 +119,9 @@ rule hpo_plan:
         training=TRAINING,
         model=lambda wildcards: SEARCH_MODELS[wildcards.search],
         case_sections=case_sections(),
-        tracking_uri=tracking_uri(config.get("mlflow"), config.get("results_dir", "results")),
+        # where the search's runs go, as configured (resolved by the job: a moved project plans nothing anew)
+        mlflow=mlflow_destination(),
+        results_dir=config.get("results_dir", "results"),
         experiment=experiment_name(config.get("mlflow"), CASE),
     wildcard_constraints:
         search="|".join(SEARCHES),

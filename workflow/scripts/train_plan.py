@@ -4,13 +4,14 @@ killed jobs left RUNNING in the case's experiment are ended as KILLED first)."""
 from hybridfmu.data.roles import case_roles
 from hybridfmu.io import read_json
 from hybridfmu.progress import setup_rule_logging
-from hybridfmu.tracking import retry_settings
+from hybridfmu.tracking import retry_settings, tracking_uri
 from hybridfmu.tracking.mlflow_store import bound_http_requests
 from hybridfmu.training.hpo import plan_search
 
 setup_rule_logging(snakemake.log[0])
 settings = retry_settings(snakemake.config.get("mlflow"))
-if snakemake.params.tracking_uri.startswith(("http://", "https://")):
+uri = tracking_uri(snakemake.params.mlflow, snakemake.params.results_dir)
+if uri.startswith(("http://", "https://")):
     bound_http_requests(settings["request_timeout_s"], settings["http_retries"])
 plan_search(
     case=snakemake.params.case,
@@ -19,7 +20,7 @@ plan_search(
     training_config=snakemake.params.training,
     model_config=snakemake.params.model,
     plan_path=snakemake.output.plan,
-    tracking_uri=snakemake.params.tracking_uri,
+    tracking_uri=uri,
     experiment=snakemake.params.experiment,
     roles=case_roles(snakemake.params.case_sections),
     time_offset_path=next(iter(snakemake.input.time_offset), None),  # a list input: empty or the summary

@@ -49,7 +49,8 @@ def _refit_record(refit: Refit) -> dict[str, Any]:
     return {"cost_start": refit.cost_start, "cost": refit.cost, "evaluations": refit.evaluations,
             "elapsed_s": round(refit.elapsed_s, 2), "parameters": refit.parameters,
             "initial_states": refit.initial_states,
-            "variables": {name: {"start": a, "fitted": b} for name, (a, b) in refit.variables.items()}}
+            "variables": {name: {"start": a, "fitted": b} for name, (a, b) in refit.variables.items()},
+            "above_previous": refit.above_previous}
 
 
 def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
@@ -59,7 +60,8 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
     Returns steps, ``before``/``after`` (``<signal>_rmse``, ``<signal>_mae``, ``gap``).
 
     With ``refit`` (:func:`hybridfmu.diagnosis.refit.refit_spec`), every variant, the model alone among them,
-    is first recalibrated with its effects by output error on the maneuvers ``refit_names``
+    is first recalibrated with its effects by output error on the maneuvers ``refit_names``, each variant from the
+    optimum of the one before it (its train cost never rises where the new effect can be switched off)
     (:mod:`hybridfmu.diagnosis.refit`); each step then carries its ``refit`` record."""
     window_s = problem.settings["open_loop"].get("window_s")
     steps = []
@@ -74,7 +76,7 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
             absorbed = active and _refitted_parameter(active[-1], refit)
             if not (absorbed and fitted is not None):  # an absorbed parameter error leaves the variant as it was
                 fitted = refit_terms(model, helper, simulate_fn, [prepared[n].measured for n in refit_names or []],
-                                     active, problem, refit, label=f"refit {label}")
+                                     active, problem, refit, label=f"refit {label}", previous=fitted)
             active = fitted.terms
         corrected = CorrectedModel(active, problem, helper) if active else None
         if corrected is not None:

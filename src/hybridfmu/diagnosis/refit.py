@@ -106,6 +106,9 @@ class Refit:
         cost_start, cost: half the weighted mean of the squared normalised errors, before and after.
         evaluations: simulations of all fitted maneuvers; elapsed_s: wall time.
         variables: name -> (start, fitted) of every variable.
+        above_previous: the fit ended above the cost of the variant before it (``previous`` of
+            :func:`refit_terms`): the new effect cannot be switched off by zero coefficients (a limit, an overflow)
+            and no start found a lower cost.
     """
 
     terms: list[Term]
@@ -116,6 +119,7 @@ class Refit:
     evaluations: int
     elapsed_s: float
     variables: dict[str, tuple[float, float]]
+    above_previous: bool = False
 
     def initial_states_of(self, maneuver: str, spec: RefitSpec) -> dict[str, float]:
         """Refitted unmeasured initial states of ``maneuver`` (own, else of its ``initial_states_from``), or {}."""
@@ -195,8 +199,17 @@ def _variables(terms: list[Term], spec: RefitSpec, model: Any, maneuvers: list[M
 
 
 def refit_terms(model: Any, helper: Any, simulate_fn: Callable, maneuvers: list[MeasuredManeuver],
-                terms: list[Term], problem: Problem, spec: RefitSpec, label: str = "refit") -> Refit:
+                terms: list[Term], problem: Problem, spec: RefitSpec, label: str = "refit",
+                previous: Refit | None = None) -> Refit:
     """Recalibrate the model with ``terms`` added on ``maneuvers`` (module docstring).
+
+    With ``previous`` (the refit of the same terms but the last), every variable it has starts at its optimum and
+    the fit runs from two starts, the new effect at its equation-error fit and at zero coefficients; the lower cost
+    wins. For an effect that zero coefficients switch off (an additive term, an input or parameter change) the
+    second start is the previous variant itself, so the variant never ends with a higher train cost than the one
+    before it, nor the first above the model alone's. An effect evaluated through the model (a limit, an overflow)
+    acts at any coefficients; a fit of it that still ends above the variant before is flagged
+    (``Refit.above_previous``) and logged.
 
     Args:
         model, helper: the simulating model instance and the helper of the terms (both get the trial parameters).
@@ -207,6 +220,7 @@ def refit_terms(model: Any, helper: Any, simulate_fn: Callable, maneuvers: list[
         problem: the problem (targets and their weights).
         spec: from :func:`refit_spec`.
         label: prefix of the progress lines.
+        previous: the refit of ``terms[:-1]`` (or of the model alone for a single term), or None.
     """
     from scipy.optimize import least_squares
 
@@ -266,19 +280,33 @@ def refit_terms(model: Any, helper: Any, simulate_fn: Callable, maneuvers: list[
     cost_start = 0.5 * float(np.sum(residuals(z0) ** 2))
     LOGGER.info("%s: %d variables (%s), %d maneuvers, start cost %.6g", label, len(variables),
                 ", ".join(v.name for v in variables), len(maneuvers), cost_start)
-    if variables:
-        result = least_squares(residuals, z0, bounds=(lower, upper), method="trf", diff_step=DIFF_STEP,
+    starts = [z0]
+    if previous is not None and variables:
+        warm = np.array([previous.variables[v.name][1] if v.name in previous.variables else v.start
+                         for v in variables], dtype=float)
+        quiet = np.array([0.0 if v.kind == "coef" and v.name not in previous.variables and v.low <= 0.0 <= v.high
+                          else value for v, value in zip(variables, warm)], dtype=float)
+        starts = [np.clip(warm, lower * scale, upper * scale) / scale,
+                  np.clip(quiet, lower * scale, upper * scale) / scale]
+    z, cost = z0, cost_start
+    for index, z_start in enumerate(starts if variables else []):
+        result = least_squares(residuals, z_start, bounds=(lower, upper), method="trf", diff_step=DIFF_STEP,
                                max_nfev=spec.max_evaluations, xtol=1e-8, ftol=1e-8, gtol=1e-8)
-        z, cost = result.x, float(result.cost)
-    else:
-        z, cost = z0, cost_start
+        LOGGER.info("%s: start %d of %d ends at cost %.6g", label, index + 1, len(starts), float(result.cost))
+        if index == 0 or float(result.cost) < cost:
+            z, cost = result.x, float(result.cost)
+    above = previous is not None and cost > previous.cost * (1.0 + 1e-9)
+    if above:
+        LOGGER.warning("%s: ends at train cost %.6g, above the variant before it (%.6g): the new effect acts even at "
+                       "zero coefficients and no start found a lower cost", label, cost, previous.cost)
     parameters, current, states = unpack(z)
     elapsed = time.perf_counter() - started
     LOGGER.info("%s: cost %.6g -> %.6g after %d simulations (%.1f s)", label, cost_start, cost, evaluations[0],
                 elapsed)
     return Refit(terms=current, parameters=parameters, initial_states=states, cost_start=cost_start, cost=cost,
                  evaluations=evaluations[0], elapsed_s=elapsed,
-                 variables={v.name: (v.start, float(value)) for v, value in zip(variables, z * scale)})
+                 variables={v.name: (v.start, float(value)) for v, value in zip(variables, z * scale)},
+                 above_previous=above)
 
 
 def initial_state(meas: MeasuredManeuver, initial_states: dict[str, float], problem: Problem) -> np.ndarray:

@@ -267,7 +267,9 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
         refitted = any("refit" in s for s in far["steps"])
         how = ("each variant, the model alone among them, recalibrated with its effects by output error on the train "
                "maneuver(s) (the calibration's parameters, the effects' coefficients and refined settings, the "
-               "unmeasured initial states; diagnosis.open_loop.refit)") if refitted else \
+               "unmeasured initial states; diagnosis.open_loop.refit), each from the optimum of the variant before "
+               "it and from the new effect at zero coefficients, so the train cost does not rise where zero switches the "
+               "effect off (an additive term, an input or parameter change)") if refitted else \
             "the equation-error fits of the effects added to the calibrated model"
         lines += ["## How far", "",
                   "Open loop on the held-out test maneuver(s) (no fit saw them) from the smoothed measured initial "
@@ -289,6 +291,11 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                       f"{format_number(far['shrink_factor'], 3)}. The evaluation (report.md, summary.md) simulates the "
                       "same FMU + effects from the raw first sample of each maneuver, as it does every model, so its "
                       "errors differ from these by what the start's noise makes."]
+        risen = [s["model"] for s in far["steps"] if (s.get("refit") or {}).get("above_previous")]
+        if risen:
+            lines += ["", "**The train cost rose** with " + ", ".join(table_cell(m) for m in risen) + ": the "
+                      "recalibration started from the variant before and could not bring it back, because the effect "
+                      "acts at any coefficients (a limit, an overflow); its figures are a local optimum."]
         last = next((s for s in reversed(far["steps"]) if "refit" in s), None)
         if last is not None:
             lines += ["", f"Recalibrated variables of the last variant ({table_cell(last['model'])}; train cost "
