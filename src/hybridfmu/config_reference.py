@@ -120,9 +120,8 @@ def reference_markdown(schema_path: str | Path = SCHEMA_PATH) -> str:
              "Every field of a case config (`config/config.yaml`, `config/cases/*.yaml`), rendered from the schemas "
              "it is validated against (`src/hybridfmu/schemas/`) by `python -m hybridfmu.config_reference "
              "docs/config.md`; a test fails when this page differs from them. `python -m hybridfmu.config "
-             "<case>.yaml` checks a config file against them; the workflow also checks it against the FMU, the logs and "
-             "the search budget before any job runs. "
-             "`<name>`: a key you choose; `[]`: each item of a list.", ""]
+             "<case>.yaml` checks a config file against them; the workflow also checks it against the FMU, the logs "
+             "and the search budget before any job runs. `<name>`: a key you choose; `[]`: each item of a list.", ""]
     required = set(schema.get("required") or [])
     table = ["| field | type | default | description |", "|---|---|---|---|"]
     sections = {name: sub for name, sub in schema["properties"].items() if len(field_rows(sub, name)) > 1}

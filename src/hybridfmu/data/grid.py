@@ -2,7 +2,8 @@
 
 Every maneuver is resampled onto one uniform grid. Its rate comes from the logs themselves: per train and
 validation maneuver (a test maneuver informs no choice) the median time step of each logged signal's channel,
-the fastest channel giving the maneuver's rate; over the maneuvers the highest rate, rounded to six significant digits (a 1 kHz logger's jittery stamps give 1000 Hz).
+the fastest channel giving the maneuver's rate; over the maneuvers the highest rate, rounded to six significant
+digits (a 1 kHz logger's jittery stamps give 1000 Hz).
 Rule ``choose_grid`` (:func:`hybridfmu.data.ingest.choose_grid`) writes the choice to ``{RESULTS}/data/grid.json``
 once, for every ingest job, and the report quotes it as chosen from the data.
 """
