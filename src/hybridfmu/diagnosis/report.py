@@ -239,7 +239,10 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                   "| parameter error | equation(s) | relative error | BIC drop | outcome |", "|---|---|---|---|---|"]
         for row in which["calibration"]:
             where = ", ".join(f"d{e}/dt" for e in row.get("equations") or [])
-            lines.append(f"| {table_cell(row['effect'])} | {where} | {format_number(row.get('relative_parameter_error'), 3)} | "
+            error = (f"not identifiable with these data (its sensitivity is a combination of "
+                     f"{', '.join(row['not_identifiable_with'])})" if row.get("not_identifiable_with")
+                     else format_number(row.get("relative_parameter_error"), 3))
+            lines.append(f"| {table_cell(row['effect'])} | {where} | {table_cell(error)} | "
                          f"{format_number(row.get('bic_drop'), 4)} | {table_cell(row['outcome'])} |")
         lines.append("")
     for k, step in enumerate(which.get("steps") or [], start=1):

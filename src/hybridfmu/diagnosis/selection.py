@@ -248,6 +248,33 @@ def fit_terms(cache: DesignCache, terms: list[Term], equation: int, names: list[
                      rss=float(residual @ residual), n=n, residual=residual)
 
 
+#: A candidate whose design columns the other terms' reproduce up to this share of their energy (1 - R^2) cannot be
+#: told apart from them with these data: its fitted value is reported as not identifiable.
+COLLINEAR_SHARE = 1e-6
+
+
+def collinearity(cache: DesignCache, others: list[Term], term: Term, equation: int,
+                 names: list[str]) -> tuple[float, list[str]]:
+    """How much of ``term``'s design columns the ``others``' columns leave unexplained (1 - R^2 of a least-squares fit
+    of the unit-norm columns; 0: a combination of theirs, 1: orthogonal to them), and the names of the others whose
+    columns carry that fit (weight above 1 % of the largest)."""
+    if not others:
+        return 1.0, []
+    _, design, sizes = stacked_design(cache, others + [term], equation, names)
+    scale = np.sqrt(np.sum(design ** 2, axis=0))
+    scale[scale == 0] = 1.0
+    unit = design / scale
+    own, rest = unit[:, -sizes[-1]:], unit[:, :-sizes[-1]]
+    weights, *_ = np.linalg.lstsq(rest, own, rcond=None)
+    left = own - rest @ weights
+    share = float(np.sum(left ** 2) / max(float(np.sum(own ** 2)), 1e-300))
+    per_term = [float(np.max(np.abs(part))) if part.size else 0.0
+                for part in np.split(weights, np.cumsum(sizes[:-1])[:-1], axis=0)]
+    top = max(per_term, default=0.0)
+    carried = [t.effect.name for t, w in zip(others, per_term) if top > 0 and w >= 0.01 * top]
+    return share, carried
+
+
 def bic(rss: float, n: int, k: int) -> float:
     """Bayesian information criterion of a Gaussian least-squares fit."""
     return n * math.log(max(rss, 1e-300) / max(n, 1)) + k * math.log(max(n, 2))
@@ -500,7 +527,12 @@ def _candidate_row(cache, active: list[Term], term: Term, equation: int, names: 
     explained = sum(rss_cur_blocks) - fit.rss
     score = block_bic(fit.residual, blocks, k)
     error = effect.relative_error(fit.coefs[-1]) if fit.coefs and len(fit.coefs[-1]) else None
+    together: list[str] = []
+    if error is not None:  # a parameter error: can the data tell it from the terms beside it?
+        share, carried = collinearity(cache, active, term, equation, names)
+        together = carried if share < COLLINEAR_SHARE else []
     return {"effect": effect.name, "equations": sorted(acting), "setting": term.setting, "rss": fit.rss,
+            "not_identifiable_with": together,
             "relative_improvement": explained / own_cur if own_cur > 0 else 0.0,
             "explained_share": explained / own_none if own_none > 0 else 0.0,
             "explained_to_noise": explained / own_noise if own_noise > 0 else math.inf,
@@ -654,7 +686,8 @@ def _would_not_return(cache, active: list[Term], out: Term, equation: int, names
 
 def _calibration_record(row: dict[str, Any], outcome: str) -> dict[str, Any]:
     return {"effect": row["effect"], "equations": row["equations"], "relative_parameter_error":
-            row["relative_parameter_error"], "bic_drop": row["bic_drop"], "relative_improvement":
+            row["relative_parameter_error"], "not_identifiable_with": row.get("not_identifiable_with") or [],
+            "bic_drop": row["bic_drop"], "relative_improvement":
             row["relative_improvement"], "explained_share": row["explained_share"],
             "explained_to_noise": row["explained_to_noise"], "outcome": outcome}
 
