@@ -139,3 +139,15 @@ def test_a_parameter_error_the_data_cannot_tell_from_another_is_named_not_identi
     assert share < COLLINEAR_SHARE and carried == ["a"]
     share, carried = collinearity(Cache(), [term("a")], term("c"), 0, ["m"])
     assert share > 0.5
+
+
+def test_effect_sizes_are_given_in_the_unit_the_configured_scale_makes():
+    """diagnosis.report_scale: a Coulomb level in (m/s)/s times the moving mass is a force in N, a viscous
+    coefficient in 1/s a damping in N*s/m; a size without a unit pint reads, or without a scale, has none."""
+    from hybridfmu.diagnosis.report import scaled_size
+
+    assert scaled_size(0.8, "(m/s)/s", "1.2 kg") == "0.96 N"
+    assert scaled_size(0.5, "1/s", "1.2 kg") == "0.6 N·s/m"
+    assert scaled_size(2.0, "rad/s**2", "2.5e-4 kg*m**2") == "0.0005 m·N"
+    assert scaled_size(0.5, "(m/s)/s per power of the state", "1 kg") == "-"
+    assert scaled_size(0.5, "1/s", None) == "-"

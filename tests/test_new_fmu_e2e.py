@@ -115,7 +115,8 @@ def case_config(root: Path, fmu: Path, logs: dict[str, Path]) -> dict:
         "evaluation": {"zoom": {"length_s": 0.5, "criterion": "mse"},
                        "time_offset": {"length_s": 0.5, "max_lag_s": 0.004}, "plot": {"dpi": 60}},
         "diagnosis": {"kernel_s": 0.02, "smoothing_s": 0.01, "bootstrap_block_s": 0.5,
-                      "open_loop": {"window_s": 0.5}, "selection": {"bootstrap_samples": 20}},
+                      "open_loop": {"window_s": 0.5}, "selection": {"bootstrap_samples": 20},
+                      "report_scale": {"v": f"{MASS_KG} kg"}},
     }
 
 
@@ -163,3 +164,7 @@ def test_the_diagnosis_finds_the_friction_the_fmu_lacks(mass_spring_run):
     assert found and found[0].startswith("coulomb(v)"), found
     far = record["how_far"]
     assert far["after"]["position_rmse"] < 0.5 * far["before"]["position_rmse"]
+    # the Coulomb level also as the force it is (diagnosis.report_scale: the mass)
+    report = (mass_spring_run / "diagnosis" / "report.md").read_text()
+    section = report.split("### 1. `coulomb(v)`", 1)[1].split("###", 1)[0]
+    assert f"× {MASS_KG} kg |" in section and " N |" in section

@@ -22,6 +22,7 @@ from hybridfmu.data.errors import DataError
 from hybridfmu.data.roles import (NO_TEST_MANEUVER, CaseRoles, ModelInterface, case_roles, maneuver_source,
                                   model_interface)
 from hybridfmu.io import file_sha256
+from hybridfmu.units import UnitError, parse_quantity
 
 
 def check_case(config: dict[str, Any], config_file: str = "") -> CaseRoles:
@@ -134,6 +135,13 @@ def check_names(config: dict[str, Any], interface: ModelInterface, roles: CaseRo
     known("config.diagnosis.state_from_derivative", [*derived, *derived.values()], measured, kind)
     known("config.diagnosis.input_lag_compensation_s", list(diagnosis.get("input_lag_compensation_s") or {}),
           inputs, "an input")
+    scales = diagnosis.get("report_scale") or {}
+    known("config.diagnosis.report_scale", list(scales), states, "a state")
+    for state, text in scales.items():
+        try:
+            parse_quantity(text)
+        except UnitError as err:
+            raise ConfigError(f"config.diagnosis.report_scale.{state}: {err}") from None
 
 
 def check_maneuvers(config: dict[str, Any], roles: CaseRoles) -> None:

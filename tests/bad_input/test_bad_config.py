@@ -318,6 +318,10 @@ FMU_NAME_MISTAKES = {
                             "expected a finite number"),
     "search space bounds": (("hpo", "search_space", "window_s"), {"distribution": "uniform", "low": 0.1, "high": 0.01},
                             "config.hpo.search_space.window_s", "low = 0.1", "expected low <= high"),
+    "report scale state": (("diagnosis", "report_scale"), {"omegaa": "2.5e-4 kg*m**2"},
+                           "config.diagnosis.report_scale", "'omegaa'", "not a state of the FMU"),
+    "report scale quantity": (("diagnosis", "report_scale"), {"omega": "heavy"},
+                              "config.diagnosis.report_scale.omega", "'heavy'", "expected a number and a unit"),
 }
 
 

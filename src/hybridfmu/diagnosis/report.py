@@ -157,6 +157,26 @@ def format_number(value: Any, digits: int = 4) -> str:
     return str(value)
 
 
+#: Units the report expresses scaled effect sizes in, where their dimension fits (pint's ``to_preferred``).
+PREFERRED_UNITS = ("N", "m", "s", "rad", "V", "A")
+
+
+def scaled_size(value: float, unit: str, scale: str | None) -> str:
+    """``value`` (in ``unit``) times the quantity ``scale`` (e.g. "1.2 kg"), in the preferred units; "-" without a
+    scale or where the unit or the scale is no quantity pint reads."""
+    if not scale or not unit:
+        return "-"
+    from hybridfmu.units import UREG, UnitError, parse_quantity, parse_unit
+
+    try:
+        quantity = (float(value) * parse_unit(unit)) * parse_quantity(scale)
+        preferred = quantity.to_preferred([UREG.Unit(name) for name in PREFERRED_UNITS])
+    except (UnitError, ValueError, TypeError, AttributeError, KeyError) as err:
+        LOGGER.debug("no scaled size for %s %s x %s: %s", value, unit, scale, err)
+        return "-"
+    return f"{preferred.magnitude:.4g} {preferred.units:~P}"
+
+
 def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
     """``report.md``: the diagnosis in words, tables and figures (names with labels and units of the roles)."""
     prob = record["problem"]
@@ -211,17 +231,19 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                   "(see the candidate tables below).", ""]
     for c in which["chosen"]:
         acting = [named(e) for e in c.get("equations") or [c["equation"]]]
+        scale = (record.get("report_scale") or {}).get(c["equation"])
         lines += [f"### {c['rank']}. `{c['effect']}` in the equation of {named(c['equation'])}"
                   + (f" (one value in the equations of {', '.join(acting)})" if len(acting) > 1 else ""), "",
                   f"{c['description']}: `{c['formula']}` (in {c['equation_unit']}). Drop-one score {c['score']:.4g} "
                   "(increase of the residual sum of squares without it, in residual variances).", "",
                   "| parameter | value | SE (regression) | SE (bootstrap over segments) | unit | spread over fitting "
-                  "maneuvers |", "|---|---|---|---|---|---|"]
+                  "maneuvers |" + (f" × {scale} |" if scale else ""), "|---|---|---|---|---|---|" + ("---|" if scale else "")]
         for p in c["parameters"]:
             stab = c["stability"].get(p["name"])
             spread = f"{100 * stab['relative_spread']:.1f} %" if stab else "-"
             lines.append(f"| {p['name']} | {format_number(p['value'], 5)} | {format_number(p['se'], 3)} | {format_number(p.get('se_bootstrap'), 3)} "
-                         f"| {p['unit'] or '-'} | {spread} |")
+                         f"| {p['unit'] or '-'} | {spread} |"
+                         + (f" {scaled_size(p['value'], p['unit'], scale)} |" if scale else ""))
         lines.append("")
     lines += ["### Candidates and selection steps", "",
               "All examined equations are fitted together, each in units of its noise floor: a change of an input "
