@@ -117,6 +117,7 @@ def diagnosis_record(result: dict[str, Any], config: dict[str, Any]) -> dict[str
         "maneuvers": {name: m["role"] for name, m in config["maneuvers"].items()},
         "fit_maneuvers": result["fit_names"], "test_maneuvers": result["test_names"],
         "calibration": result.get("calibration"), "model_parameters": result.get("model_parameters", {}),
+        "report_scale": dict(settings.get("report_scale") or {}),
         "method": {
             "equation_error": "measured one-sample change minus the model's (RK4 step for one_step_states, "
                               "trapezoid for the others) with inputs held, averaged with a Hann kernel",

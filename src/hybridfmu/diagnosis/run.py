@@ -434,5 +434,4 @@ def analyse_inputs(config: dict[str, Any], case: CaseInputs, calibration_source:
                            refit=refit_spec(config, case.settings))
     result["calibration"] = calibration_source
     result["model_parameters"] = case.parameters
-    result["report_scale"] = dict(case.settings.get("report_scale") or {})
     return result
