@@ -5,16 +5,18 @@ The case config declares what is read (:func:`hybridfmu.data.roles.case_roles`):
 signal to another channel for one maneuver. Steps:
 
 1. read the channels (:mod:`hybridfmu.data.readers`), each with its own time base (table logs: the
-   time column ``config.ingest.time``, or sample k at ``k * config.ingest.sample_period_s``);
+   time column ``config.ingest.time`` or the one named as a time, or sample k at
+   ``k * config.ingest.sample_period_s``);
 2. check each channel: time stamps finite and strictly increasing, no run of more than
    ``max_nonfinite_samples`` NaN/inf samples (shorter runs are dropped), no gap longer than
-   ``max_gap_s`` between usable samples; a unit in the file must agree with the config's unit (an
+   ``max_gap_s`` (default: 10 of the channel's own steps) between usable samples; a unit in the file must agree with the config's unit (an
    unknown file unit is warned about and the config's unit used); no isolated implausible sample
    (``config.ingest.outliers``, :mod:`hybridfmu.data.plausibility`);
 3. in the raw unit: unwrap (``wrap_period``), ``gain * raw + offset``; every sample inside
    ``config.signals.<name>.range`` where one is given;
 4. slice the maneuver (``t_start_s``/``t_end_s``, relative to the log's first sample) and resample
-   onto ``rate_hz`` from the common start of all channels: zero-order hold or linear per signal;
+   onto ``rate_hz`` from the common start of all channels: zero-order hold or linear per signal (without
+   ``config.ingest.rate_hz``: the rate :func:`choose_grid` chose from the train and validation logs);
 5. apply the transforms (:mod:`hybridfmu.data.transforms`) in natural units (the raw unit of a
    logged signal, the unit a transform gives a derived one);
 6. convert every column to its model unit (``Signal.unit``; affine conversions allowed);
@@ -91,9 +93,14 @@ def logged_time_bases(raw_path: str | Path, config: dict[str, Any], maneuver: st
         DataError: as :func:`hybridfmu.data.ingest.ingest_log` for the file's reading and its time column.
     """
     raw, factors = read_logged_channels(raw_path, config, maneuver)
-    source = maneuver_source(config, case_roles(config), maneuver)
+    return _time_bases(raw, factors, maneuver_source(config, case_roles(config), maneuver).channels)
+
+
+def _time_bases(raw: dict[str, RawChannel], factors: dict[str, float], channels: dict[str, str]
+                ) -> dict[str, np.ndarray]:
+    """Signal -> time stamps (s) of its raw channel, for the signals whose channel was read."""
     return {name: np.asarray(raw[channel].time_s, dtype=float) * factors[channel]
-            for name, channel in source.channels.items() if channel in raw}
+            for name, channel in channels.items() if channel in raw}
 
 
 def choose_grid(raw_paths: dict[str, str | Path], config: dict[str, Any], out_path: str | Path) -> dict[str, Any]:
@@ -140,9 +147,8 @@ def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | Non
 
     raw, time_factor = read_logged_channels(raw_path, config, maneuver)
     if rate_hz is None:  # neither configured nor chosen from the case's logs: this log's own
-        rate_hz, text = choose_rate_hz({raw_path.name: median_step_s(raw_path, {
-            name: raw[channel].time_s * time_factor[channel] for name, channel in source.channels.items()
-            if name in logged and channel in raw})})
+        rate_hz, text = choose_rate_hz({raw_path.name: median_step_s(
+            raw_path, _time_bases(raw, time_factor, source.channels))})
         LOG.info("%s: grid rate chosen from this log: %s", raw_path.name, text)
     log_start_s = min(float(channel.time_s[0]) * time_factor[name] for name, channel in raw.items()
                       if len(channel.time_s))
