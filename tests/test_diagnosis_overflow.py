@@ -117,15 +117,22 @@ def test_no_overflow_in_the_data_names_none():
     assert [c["effect"] for c in result["which"]["chosen"]] == []
 
 
-def test_refit_recovers_a_parameter_absorbed_by_the_calibration_and_the_overflow_share():
-    """Start: k2 and k3 off by +20 % (what a calibration without the overflow does), the overflow at the
-    wrong share and level; the output-error refit of k2, k3 and the effect restores them."""
+def miscalibrated_tanks():
+    """(model, helper, problem, train maneuver) of the overflowing tanks with k2 and k3 off by +20 % (what a
+    calibration without the overflow does), the train maneuver's unmeasured level from that model."""
     measured = tank_maneuvers(overflow=True)
     model, helper = TwoTanks(k2=0.06, k3=0.06), TwoTanks(k2=0.06, k3=0.06)
     problem = tank_problem(model)
     train = measured["train"]
     fill_unmeasured(train, problem, model, rk4_simulate)
     set_data_statistics(problem, [train.x], 2.0)
+    return model, helper, problem, train
+
+
+def test_refit_recovers_a_parameter_absorbed_by_the_calibration_and_the_overflow_share():
+    """Start: k2 and k3 off by +20 % (what a calibration without the overflow does), the overflow at the
+    wrong share and level; the output-error refit of k2, k3 and the effect restores them."""
+    model, helper, problem, train = miscalibrated_tanks()
     term = Term(Overflow(problem, 1, 0, {"overflow_quantiles": [0.5, 0.9]}), {"level": 13.0}, np.array([1.0, 0.3]))
     spec = RefitSpec(parameter_bounds={"k2": (0.01, 0.2), "k3": (0.01, 0.2)}, max_evaluations=100)
     fitted = refit_terms(model, helper, rk4_simulate, [train], [term], problem, spec)
@@ -143,12 +150,7 @@ def test_a_variant_never_ends_above_the_variant_before_it():
     model alone at its optimum); an overflow, which acts at any coefficients, is flagged when it ends above."""
     from hybridfmu.diagnosis.library import Viscous
 
-    measured = tank_maneuvers(overflow=True)
-    model, helper = TwoTanks(k2=0.06, k3=0.06), TwoTanks(k2=0.06, k3=0.06)
-    problem = tank_problem(model)
-    train = measured["train"]
-    fill_unmeasured(train, problem, model, rk4_simulate)
-    set_data_statistics(problem, [train.x], 2.0)
+    model, helper, problem, train = miscalibrated_tanks()
     spec = RefitSpec(parameter_bounds={"k2": (0.01, 0.2), "k3": (0.01, 0.2)}, max_evaluations=30)
     alone = refit_terms(model, helper, rk4_simulate, [train], [], problem, spec)
     short = RefitSpec(parameter_bounds=spec.parameter_bounds, max_evaluations=1)

@@ -13,9 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +21,7 @@ import pytest
 import yaml
 
 from hybridfmu.fmu.build import build_fmu_from_description
+from test_workflow_e2e import snakemake
 
 REPO = Path(__file__).resolve().parents[1]
 FIXTURE = REPO / "tests" / "fixtures" / "mass_spring" / "modelDescription.xml"
@@ -102,11 +100,7 @@ def new_user_run(tmp_path_factory):
     config = new_user_config(root, fmu, logs)
     configfile = root / "newuser.yaml"
     configfile.write_text(yaml.safe_dump(config, sort_keys=False))
-    command = [sys.executable, "-m", "snakemake", "-j2", "--snakefile", str(REPO / "Snakefile"),
-               "--directory", str(root), "--configfile", str(configfile), "--nocolor"]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    result = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=1200, env=env)
-    assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-8000:]
+    snakemake(root, configfile, timeout_s=1200)
     return config, root / "results" / "newuser"
 
 

@@ -527,12 +527,7 @@ def _candidate_row(cache, active: list[Term], term: Term, equation: int, names: 
     explained = sum(rss_cur_blocks) - fit.rss
     score = block_bic(fit.residual, blocks, k)
     error = effect.relative_error(fit.coefs[-1]) if fit.coefs and len(fit.coefs[-1]) else None
-    together: list[str] = []
-    if error is not None:  # a parameter error: can the data tell it from the terms beside it?
-        share, carried = collinearity(cache, active, term, equation, names)
-        together = carried if share < COLLINEAR_SHARE else []
     return {"effect": effect.name, "equations": sorted(acting), "setting": term.setting, "rss": fit.rss,
-            "not_identifiable_with": together,
             "relative_improvement": explained / own_cur if own_cur > 0 else 0.0,
             "explained_share": explained / own_none if own_none > 0 else 0.0,
             "explained_to_noise": explained / own_noise if own_noise > 0 else math.inf,
@@ -585,13 +580,20 @@ def _eliminate(cache, active: list[Term], base: list[Term], equation: int, names
                 _rejection(row, settings, {})
             rows.append(row)
         failing = [r for r in rows if r["rejected_because"] is not None]
+
+        def recorded(row: dict[str, Any], outcome: str) -> dict[str, Any]:
+            """The row's record, with the terms beside it whose sensitivities reproduce its own (if any)."""
+            others = [t for t in active if t is not row["term"]]
+            share, carried = collinearity(cache, others, row["term"], equation, names)
+            return _calibration_record({**row, "not_identifiable_with": carried if share < COLLINEAR_SHARE else []},
+                                       outcome)
+
         if not failing:
             for row in rows:
-                records[effect_key(row["term"].effect)] = _calibration_record(row, "kept")
+                records[effect_key(row["term"].effect)] = recorded(row, "kept")
             break
         dropped = min(failing, key=lambda r: r["bic_drop"])
-        records[effect_key(dropped["term"].effect)] = _calibration_record(dropped, "dropped: "
-                                                                          + dropped["rejected_because"])
+        records[effect_key(dropped["term"].effect)] = recorded(dropped, "dropped: " + dropped["rejected_because"])
         LOGGER.info("selection %s: calibrated %s dropped (%s)", label or equation, dropped["effect"],
                     dropped["rejected_because"])
         active = [t for t in active if t is not dropped["term"]]
