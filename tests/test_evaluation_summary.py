@@ -17,6 +17,7 @@ def test_summary_quotes_each_model_with_its_factor_against_the_fmu():
     assert "| level | FMU | 0.76 V | 0.58 V | ×1 | ×1 |" in text
     assert "| level | neural FMU | 0.38 V | 0.3 V | ×1.93 | ×4 |" in text
     assert "| level | FMU + diagnosed effects (saturation_above(x2)) | 0.19 V | 0.1 V | ×5.8 | ×16 |" in text
+    assert "listed by their rank in the diagnosis (drop-one score" in text
 
 
 def test_summary_says_when_the_effects_were_recalibrated_with_the_fmu():
@@ -27,7 +28,7 @@ def test_summary_says_when_the_effects_were_recalibrated_with_the_fmu():
 
 def test_summary_without_diagnosis_has_no_corrected_row():
     text = case_summary("tanks", TEST_METRICS, None, {"level": "V"})
-    assert "diagnosed" not in text and text.count("| level |") == 2
+    assert "diagnosed" not in text and text.count("| level |") == 2 and "rank" not in text
 
 
 def test_readme_block_is_replaced_between_its_markers_only(tmp_path):

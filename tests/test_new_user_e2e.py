@@ -4,9 +4,9 @@ The mass-spring FMU of tests/fixtures/mass_spring/ (viscous damping only) agains
 with Coulomb friction, sampled at 1 kHz (not the demo's 10 kHz), with a continuously varying force logged
 without a hold and a time column named ``time_s``. The case config sets the case, the FMU, the maneuvers, the
 signals' channels and units, the roles and ``model.corrected_states``, nothing else: the grid, the time column,
-the delay bounds, the time-offset window, the search's budget and windows are all chosen from the data. The
-whole workflow must run, the neural FMU must beat the FMU on the unseen test maneuver, and the identified input
-delay must lie within one sample of 0 (the logs have none).
+the force's convention between samples, the delay bounds, the time-offset window, the search's budget and windows
+are all chosen from the data. The whole workflow must run, the neural FMU must beat the FMU on the unseen test
+maneuver, and the identified input delay must lie within one sample of 0 (the logs have none).
 """
 
 from __future__ import annotations
@@ -111,16 +111,20 @@ def test_the_config_names_nothing_but_the_users_knowledge(new_user_run):
 
 
 def test_every_stage_runs_with_defaults_chosen_from_the_data(new_user_run):
-    """The grid is the logs' own 1 kHz (the time column found by its name), the search's budget and windows and
-    the delay and time-offset ranges are sized by it; the report says what was chosen."""
+    """The grid is the logs' own 1 kHz (the time column found by its name), the force between samples linear,
+    the search's budget and windows and the delay and time-offset ranges are sized by it; the report says what
+    was chosen."""
     _, results = new_user_run
     for name in ("data/grid.json", "hpo/best.json", "metrics/test.json", "report.md", "summary.md",
                  "diagnosis/diagnosis.json", "diagnosis/report.md", "figures/test_position.png"):
         assert (results / name).is_file(), name
     grid = json.loads((results / "data" / "grid.json").read_text())
     assert grid["rate_hz"] == 1000.0 and grid["chosen_from"] == "data"
+    # the force is logged as it is, without a hold: linear, each simulation step holds its mean over the step
+    assert grid["between_samples"]["force"]["convention"] == "linear"
     frame = pd.read_parquet(results / "data" / "train.parquet")
     assert np.allclose(np.diff(frame["time_s"].to_numpy()), 1e-3) and len(frame) == 8001
+    assert pd.read_parquet(results / "data" / "test.parquet").attrs["between_samples"] == {"force": "linear"}
     plan = json.loads((results / "hpo" / "plan.json").read_text())
     assert plan["max_resource_s"] == pytest.approx(10 * 8.0, rel=0.05)
     windows = [c["hyperparameters"]["window_s"] for b in plan["brackets"] for c in b["configs"]]
@@ -129,8 +133,8 @@ def test_every_stage_runs_with_defaults_chosen_from_the_data(new_user_run):
     assert offset["max_lag_s"] == pytest.approx(0.01)
     report = (results / "report.md").read_text()
     chosen = report.split("## Chosen from the data", 1)[1]
-    for text in ("ingest.rate_hz = 1000 Hz", "hpo.max_resource_s", "window_samples", "model.input_delay",
-                 "evaluation.time_offset.max_lag_s = 10 ms"):
+    for text in ("ingest.rate_hz = 1000 Hz", "roles.between_samples.force = linear", "hpo.max_resource_s",
+                 "window_samples", "model.input_delay", "evaluation.time_offset.max_lag_s = 10 ms"):
         assert text in chosen, text
 
 

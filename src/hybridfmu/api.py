@@ -162,7 +162,9 @@ def read_log(case: Case, maneuver: str, raw_path: str | Path | None = None) -> p
         raw_path: the log to read; None: the maneuver's ``raw`` file.
 
     Returns:
-        (T rows) ``time_s`` (s) and one column per signal of the case, in its model unit.
+        (T rows) ``time_s`` (s) and one column per signal of the case, in its model unit; ``attrs`` records how
+        each FMU input passes between samples (declared in ``config.roles.between_samples``, else chosen from this
+        log: the workflow chooses from the train and validation logs, ``data/grid.json``).
 
     Raises:
         ConfigError: an unknown maneuver. DataError: naming the file, the channel and what was expected.
@@ -175,7 +177,9 @@ def read_log(case: Case, maneuver: str, raw_path: str | Path | None = None) -> p
 
 def simulate_fmu(case: Case, frame: pd.DataFrame, maneuver: str | None = None,
                  calibration: str | Path | None = None) -> pd.DataFrame:
-    """The FMU open loop over a frame's logged inputs (held over each sample), from the measured first sample
+    """The FMU open loop over a frame's logged inputs (each held over its sample, a continuous input at its mean
+    over the sample: the conventions the frame records, :mod:`hybridfmu.data.between_samples`), from the measured
+    first sample
     (unmeasured states: the calibration's values for ``maneuver``, else the FMU's start values).
 
     Args:

@@ -90,7 +90,8 @@ def check_hpo(config: dict[str, Any]) -> None:
 
 def check_names(config: dict[str, Any], interface: ModelInterface, roles: CaseRoles) -> None:
     """Every FMU variable a config section names exists, before any job runs (not only when the stage that reads
-    it starts, after the search): ``fmu.parameters`` (names and finite values), the states and inputs of
+    it starts, after the search): ``fmu.parameters`` (names and finite values), ``roles.between_samples``, the
+    states and inputs of
     ``model`` (corrected states, ANN inputs, end stop, input-delay groups) and of ``diagnosis`` (equations,
     states from derivatives, one-step states, input lags).
 
@@ -112,6 +113,8 @@ def check_names(config: dict[str, Any], interface: ModelInterface, roles: CaseRo
         known(f"config.fmu.parameters.{name}", [name], parameters, "a parameter")
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise ConfigError(f"config.fmu.parameters.{name}: {value!r}; expected a finite number")
+    known("config.roles.between_samples", list((config.get("roles") or {}).get("between_samples") or {}), inputs,
+          "an input")
     model = config.get("model") or {}
     known("config.model.corrected_states", model.get("corrected_states"), states, "a state")
     ann = model.get("ann_inputs") or {}

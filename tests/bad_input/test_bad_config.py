@@ -184,6 +184,12 @@ def test_a_negative_rate(tmp_path, outputs):
     assert_names(config_error(path, outputs), str(path), "config.ingest.rate_hz", "-10000")
 
 
+def test_a_convention_between_samples_that_does_not_exist(tmp_path, outputs):
+    path = edited_tiny(tmp_path, lambda c: c["roles"]["between_samples"].update(u_dc="cubic"))
+    assert_names(config_error(path, outputs), str(path), "config.roles.between_samples.u_dc", "'cubic'", "'hold'",
+                 "'linear'")
+
+
 def test_a_maneuver_without_raw_file(tmp_path, outputs):
     path = edited_tiny(tmp_path, lambda c: c["maneuvers"]["test"].pop("raw"))
     assert_names(config_error(path, outputs), str(path), "config.maneuvers.test", "'raw' is a required property")
@@ -322,6 +328,8 @@ FMU_NAME_MISTAKES = {
                            "config.diagnosis.report_scale", "'omegaa'", "not a state of the FMU"),
     "report scale quantity": (("diagnosis", "report_scale"), {"omega": "heavy"},
                               "config.diagnosis.report_scale.omega", "'heavy'", "expected a number and a unit"),
+    "input between samples": (("roles", "between_samples"), {"u_dcc": "linear"}, "config.roles.between_samples",
+                              "'u_dcc'", "not an input of the FMU"),
 }
 
 

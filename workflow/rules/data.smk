@@ -17,10 +17,14 @@ def data_job_config(wildcards, *sections, maneuver_entry=True):
     return job_config
 
 
-# Without config.ingest.rate_hz the grid's rate is chosen once from the logs of the train and validation
-# maneuvers (rule choose_grid; the test maneuvers inform no choice) and read by each ingest job; with it, no job
-# reads the logs for that.
+# Without config.ingest.rate_hz, or with an FMU input whose convention between samples the config leaves out
+# (config.roles.between_samples), the grid's rate and those conventions are chosen once from the logs of the train
+# and validation maneuvers (rule choose_grid; the test maneuvers inform no choice) and read by each ingest job;
+# with everything set, no job reads the logs for that.
+from hybridfmu.data.between_samples import declared_conventions as _declared_conventions
+
 GRID_CHOICE = ([] if _section_settings(config.get("ingest"), "ingest")["rate_hz"] is not None
+               and None not in _declared_conventions(config, ROLES).values()
                else [f"{RESULTS}/data/grid.json"])
 GRID_MANEUVERS = [name for name in MANEUVERS if config["maneuvers"][name]["role"] != "test"]
 

@@ -1,4 +1,5 @@
-"""Rule choose_grid: the case's grid rate from every maneuver's log, where config.ingest.rate_hz leaves it out."""
+"""Rule choose_grid: the grid rate and the FMU inputs' conventions between samples the config leaves out, from
+the train and validation maneuvers' logs."""
 
 from hybridfmu.data.ingest import choose_grid
 from hybridfmu.progress import setup_rule_logging

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from hybridfmu.data.roles import CaseRoles
+from hybridfmu.data.signals import input_array
 
 
 @dataclass(frozen=True)
@@ -29,7 +30,8 @@ class ManeuverArrays:
     Attributes:
         name: maneuver name.
         time_s: (T,) sample times in s, strictly increasing.
-        inputs: (T, n_u) FMU inputs (order ``roles.input_names``); u[k] holds on [t_k, t_k+1).
+        inputs: (T, n_u) FMU inputs (order ``roles.input_names``); u[k] holds on [t_k, t_k+1) (each input's
+            convention, :mod:`hybridfmu.data.between_samples`).
         measured: (T, n_m) measured states (order ``roles.measured_states``).
         measured_names: the measured FMU states, in the columns' order.
     """
@@ -82,11 +84,12 @@ def maneuver_arrays(frame, roles: CaseRoles, name: str, source: str = "") -> Man
     if time_s.size < 2 or (np.diff(time_s) <= 0).any():
         raise ValueError(f"{source}: column 'time_s' must hold at least 2 strictly increasing times, "
                          f"got {time_s.size} samples")
-    inputs = [_column(frame, roles.inputs[n], source, f"FMU input {n}") for n in roles.input_names]
+    for input_name in roles.input_names:
+        _column(frame, roles.inputs[input_name], source, f"FMU input {input_name}")
     measured = [_column(frame, roles.states[n], source, f"FMU state {n}") for n in roles.measured_states]
     return ManeuverArrays(
         name=name, time_s=time_s,
-        inputs=np.stack(inputs, axis=1) if inputs else np.zeros((time_s.size, 0)),
+        inputs=input_array(frame, roles).reshape(time_s.size, len(roles.input_names)),
         measured=np.stack(measured, axis=1), measured_names=list(roles.measured_states))
 
 

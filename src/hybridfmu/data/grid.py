@@ -1,4 +1,5 @@
-"""The case's sample grid chosen from its logs, where the config leaves ``ingest.rate_hz`` out.
+"""The case's sample grid chosen from its logs, where the config leaves ``ingest.rate_hz`` out, and how the FMU
+inputs the config leaves out pass between its samples (:mod:`hybridfmu.data.between_samples`).
 
 Every maneuver is resampled onto one uniform grid. Its rate comes from the logs themselves: per train and
 validation maneuver (a test maneuver informs no choice) the median time step of each logged signal's channel,
@@ -71,3 +72,12 @@ def grid_rate_hz(config: dict[str, Any], grid_path: str | Path | None = None) ->
         raise ValueError("config.ingest.rate_hz is not set and no grid was chosen from the logs "
                          "(rule choose_grid writes data/grid.json)")
     return float(read_json(grid_path)["rate_hz"])
+
+
+def chosen_conventions(grid_path: str | Path | None) -> dict[str, str]:
+    """FMU input -> convention between samples chosen from the logs (``grid_path``'s ``between_samples``; rule
+    ``choose_grid``); {} without a file."""
+    if grid_path is None:
+        return {}
+    return {name: str(entry["convention"])
+            for name, entry in (read_json(grid_path).get("between_samples") or {}).items()}

@@ -25,7 +25,9 @@ signal to another channel for one maneuver. Steps:
    unit of either stops the ingest.
 
 Output: a DataFrame with ``time_s`` (from 0, step ``1 / rate_hz``) and one float64 column per signal
-of ``case_roles(config).signals`` (logged signals, then derived ones), each in its model unit.
+of ``case_roles(config).signals`` (logged signals, then derived ones), each in its model unit, and in its
+``attrs`` how each FMU input passes between the samples in the simulations (:mod:`hybridfmu.data.between_samples`:
+declared, else chosen by :func:`choose_grid` from the train and validation logs, else from this log).
 """
 
 from __future__ import annotations
@@ -38,6 +40,8 @@ import numpy as np
 import pandas as pd
 
 from hybridfmu.data.roles import CaseRoles, Signal, case_roles, maneuver_source
+from hybridfmu.data.between_samples import (ATTRS_KEY, choose_conventions, declared_conventions,
+                                             logged_sources)
 from hybridfmu.data.errors import DataError
 from hybridfmu.data.grid import choose_rate_hz, median_step_s
 from hybridfmu.data.readers import MDF_SUFFIXES, RawChannel, read_channels
@@ -55,12 +59,13 @@ RESAMPLERS = {"hold": zero_order_hold, "linear": linear}
 
 
 def ingest_to_parquet(raw_path: str | Path, output_path: str | Path, config: dict[str, Any],
-                      maneuver: str | None = None, rate_hz: float | None = None) -> Path:
+                      maneuver: str | None = None, rate_hz: float | None = None,
+                      between_samples: dict[str, str] | None = None) -> Path:
     """Ingest ``raw_path`` (see :func:`ingest_log`) and write the frame atomically to ``output_path``.
 
     Nothing is written when any check fails.
     """
-    frame = ingest_log(raw_path, config, maneuver, rate_hz)
+    frame = ingest_log(raw_path, config, maneuver, rate_hz, between_samples)
     write_parquet_atomic(output_path, frame)
     LOG.info("wrote %s: %d samples x %d columns (%.3f s)", output_path, len(frame), frame.shape[1],
              frame["time_s"].iloc[-1])
@@ -104,20 +109,58 @@ def _time_bases(raw: dict[str, RawChannel], factors: dict[str, float], channels:
 
 
 def choose_grid(raw_paths: dict[str, str | Path], config: dict[str, Any], out_path: str | Path) -> dict[str, Any]:
-    """Rule ``choose_grid``: the grid rate from the given maneuvers' logs (maneuver -> raw path; the workflow gives
-    the train and validation maneuvers, never a test maneuver), written atomically to ``out_path`` as
-    ``{"rate_hz", "chosen_from": "data", "text", "maneuvers": {name: {"median_step_s"}}}``."""
-    steps = {name: median_step_s(path, logged_time_bases(path, config, name)) for name, path in raw_paths.items()}
-    rate_hz, text = choose_rate_hz(steps)
-    record = {"rate_hz": rate_hz, "chosen_from": "data", "text": text,
-              "maneuvers": {name: {"median_step_s": step} for name, step in steps.items()}}
+    """Rule ``choose_grid``: what the case's grid takes from the given maneuvers' logs (maneuver -> raw path; the
+    workflow gives the train and validation maneuvers, never a test maneuver), written atomically to ``out_path``.
+
+    The record: ``rate_hz`` (chosen where ``config.ingest.rate_hz`` leaves it out: ``"chosen_from": "data"`` and a
+    ``text``), ``maneuvers: {name: {"median_step_s"}}``, and ``between_samples``: the conventions of the FMU inputs
+    the config leaves out (:func:`hybridfmu.data.between_samples.choose_conventions`)."""
+    settings = section_settings(config.get("ingest"), "ingest")
+    roles = case_roles(config)
+    undeclared = [name for name, convention in declared_conventions(config, roles).items() if convention is None]
+    wanted = {source for name in undeclared for source in logged_sources(roles.inputs[name], roles)}
+    steps, samples = {}, {source: [] for source in wanted}
+    for name, path in raw_paths.items():
+        raw, factors = read_logged_channels(path, config, name)
+        source = maneuver_source(config, roles, name)
+        steps[name] = median_step_s(path, _time_bases(raw, factors, source.channels))
+        for signal in wanted:
+            samples[signal].append(_sliced_values(raw, factors, source, signal))
+    record: dict[str, Any] = {"maneuvers": {name: {"median_step_s": step} for name, step in steps.items()}}
+    if settings["rate_hz"] is None:
+        rate_hz, text = choose_rate_hz(steps)
+        record.update({"rate_hz": rate_hz, "chosen_from": "data", "text": text})
+        LOG.info("grid rate chosen from the data: %s", text)
+    else:
+        record.update({"rate_hz": float(settings["rate_hz"]), "chosen_from": "config"})
+    record["between_samples"] = choose_conventions(undeclared, samples, roles)
+    for name, entry in record["between_samples"].items():
+        LOG.info("FMU input %s between samples chosen from the data: %s", name, entry["text"])
     write_json_atomic(out_path, record)
-    LOG.info("grid rate chosen from the data: %s", text)
     return record
 
 
+def _sliced_values(raw: dict[str, RawChannel], factors: dict[str, float], source: Any, signal: str) -> np.ndarray:
+    """The raw samples of a logged signal's channel within the maneuver's slice (relative to the log's first
+    sample, as :func:`ingest_log` slices), (n,)."""
+    channel = raw[source.channels[signal]]
+    time_s = np.asarray(channel.time_s, dtype=float) * factors[channel.name]
+    log_start_s = _log_start_s(raw, factors)
+    keep = np.ones(time_s.size, dtype=bool)
+    if source.t_start_s is not None:
+        keep &= time_s >= log_start_s + source.t_start_s
+    if source.t_end_s is not None:
+        keep &= time_s <= log_start_s + source.t_end_s
+    return np.asarray(channel.values, dtype=float)[keep]
+
+
+def _log_start_s(raw: dict[str, RawChannel], factors: dict[str, float]) -> float:
+    """The log's first time stamp (s): the earliest first stamp of its channels."""
+    return min(float(channel.time_s[0]) * factors[name] for name, channel in raw.items() if len(channel.time_s))
+
+
 def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | None = None,
-               rate_hz: float | None = None) -> pd.DataFrame:
+               rate_hz: float | None = None, between_samples: dict[str, str] | None = None) -> pd.DataFrame:
     """Read, check, resample, transform and convert a raw log (steps in the module docstring).
 
     Args:
@@ -128,10 +171,14 @@ def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | Non
             None for the log as a whole.
         rate_hz: the grid's rate (Hz) where ``config.ingest.rate_hz`` leaves it out (chosen from the case's logs,
             :func:`choose_grid`); the config's rate wins; without either, the rate of this log's fastest channel.
+        between_samples: FMU input -> convention chosen from the case's logs (:func:`choose_grid`) for the inputs
+            the config leaves out; a declared convention wins; without either, chosen from this log alone.
 
     Returns:
         DataFrame of T rows: ``time_s`` (s, from 0, step ``1 / rate_hz``), then one float64 column per
-        signal of ``case_roles(config).signals``, each in its model unit ``Signal.unit``.
+        signal of ``case_roles(config).signals``, each in its model unit ``Signal.unit``. Its
+        ``attrs["between_samples"]`` holds every FMU input's convention (:mod:`hybridfmu.data.between_samples`),
+        kept in the Parquet file.
 
     Raises:
         DataError: naming the file, the channel (and signal) and what was expected.
@@ -150,8 +197,7 @@ def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | Non
         rate_hz, text = choose_rate_hz({raw_path.name: median_step_s(
             raw_path, _time_bases(raw, time_factor, source.channels))})
         LOG.info("%s: grid rate chosen from this log: %s", raw_path.name, text)
-    log_start_s = min(float(channel.time_s[0]) * time_factor[name] for name, channel in raw.items()
-                      if len(channel.time_s))
+    log_start_s = _log_start_s(raw, time_factor)
     start_s = None if source.t_start_s is None else log_start_s + source.t_start_s
     end_s = None if source.t_end_s is None else log_start_s + source.t_end_s
 
@@ -186,9 +232,25 @@ def ingest_log(raw_path: str | Path, config: dict[str, Any], maneuver: str | Non
         check_kinematic_pairs(raw_path, pairs, roles, source.channels,
                               {name: frame[name].to_numpy() for name in roles.signals}, rate_hz,
                               settings["kinematic"])
-    LOG.info("%s: %d samples at %.6g Hz over %.4g s, columns %s", raw_path.name, len(frame), rate_hz,
-             frame["time_s"].iloc[-1], list(frame.columns))
+    frame.attrs[ATTRS_KEY] = _input_conventions(raw_path, config, roles, raw, time_factor, source, between_samples)
+    LOG.info("%s: %d samples at %.6g Hz over %.4g s, columns %s; FMU inputs between samples: %s", raw_path.name,
+             len(frame), rate_hz, frame["time_s"].iloc[-1], list(frame.columns), frame.attrs[ATTRS_KEY])
     return frame
+
+
+def _input_conventions(raw_path: Path, config: dict[str, Any], roles: CaseRoles, raw: dict[str, RawChannel],
+                       factors: dict[str, float], source: Any, chosen: dict[str, str] | None) -> dict[str, str]:
+    """Every FMU input's convention: declared, else ``chosen`` from the case's logs, else from this log."""
+    conventions = declared_conventions(config, roles)
+    chosen = dict(chosen or {})
+    left = [name for name, convention in conventions.items() if convention is None and name not in chosen]
+    if left:
+        samples = {signal: [_sliced_values(raw, factors, source, signal)]
+                   for name in left for signal in logged_sources(roles.inputs[name], roles)}
+        for name, entry in choose_conventions(left, samples, roles).items():
+            chosen[name] = entry["convention"]
+            LOG.info("%s: FMU input %s between samples chosen from this log: %s", raw_path.name, name, entry["text"])
+    return {name: convention or chosen[name] for name, convention in conventions.items()}
 
 
 #: Without config.ingest.max_gap_s, a channel may pause this many of its own median steps between two samples.

@@ -8,7 +8,7 @@ signals (e.g. a force from a measured pressure) are transforms applied at ingest
 API::
 
     time_array(frame) -> (T,)
-    input_array(frame, roles) -> (T, n_u)                         # FMU input order
+    input_array(frame, roles) -> (T, n_u)                         # FMU input order, the values each step holds
     state_array(frame, roles, state_names=None) -> (T, n_measured) # measured states, FMU order
     target_array(frame, roles) -> (T, n_targets)                   # target states, FMU order
     signal_array(frame, names) -> (T, len(names))
@@ -16,13 +16,16 @@ API::
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
-import pandas as pd
 
+from hybridfmu.data.between_samples import frame_conventions, held_values
 from hybridfmu.data.roles import CaseRoles
 from hybridfmu.data.errors import DataError
+
+if TYPE_CHECKING:  # annotations only: the workflow's start imports this module without pandas
+    import pandas as pd
 
 
 def time_array(frame: pd.DataFrame) -> np.ndarray:
@@ -42,14 +45,21 @@ def signal_array(frame: pd.DataFrame, names: Sequence[str]) -> np.ndarray:
 
 
 def input_array(frame: pd.DataFrame, roles: CaseRoles) -> np.ndarray:
-    """The FMU's inputs, (T, n_u) float64: column k = signal of FMU input ``roles.input_names[k]``.
+    """The FMU's inputs as every simulation holds them, (T, n_u) float64: column k = signal of FMU input
+    ``roles.input_names[k]``, row k the value held over [t_k, t_k+1) by the input's convention
+    (:func:`hybridfmu.data.between_samples.held_values`, the conventions the frame records).
 
     Each column is in the unit the FMU declares for its input (the signal's model unit).
 
     Raises:
         DataError: a signal's column is missing from the frame.
     """
-    return signal_array(frame, roles.input_signals)
+    return held_input_array(frame, roles.input_names, roles.input_signals)
+
+
+def held_input_array(frame: pd.DataFrame, input_names: Sequence[str], input_signals: Sequence[str]) -> np.ndarray:
+    """:func:`input_array` for FMU inputs ``input_names`` fed by the columns ``input_signals``: (T, n_u)."""
+    return held_values(signal_array(frame, input_signals), frame_conventions(frame, input_names))
 
 
 def state_array(frame: pd.DataFrame, roles: CaseRoles, state_names: Sequence[str] | None = None) -> np.ndarray:

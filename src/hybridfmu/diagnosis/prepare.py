@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from hybridfmu.data.signals import held_input_array
 from hybridfmu.diagnosis.derivatives import (interval_means, odd_window, savgol_derivative, savgol_smooth,
                                              white_noise_std)
 from hybridfmu.diagnosis.effects import EffectInputs, input_derivative
@@ -62,15 +63,17 @@ def _column(frame: pd.DataFrame, signal: str, path: Path, role: str) -> np.ndarr
 
 
 def frame_arrays(frame: pd.DataFrame, problem: Problem, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(time (N,), x (N, n_x) with NaN for unmeasured states, u (N, n_u)) of an ingested frame via the roles."""
+    """(time (N,), x (N, n_x) with NaN for unmeasured states, u (N, n_u)) of an ingested frame via the roles; u as
+    every simulation holds it (:func:`hybridfmu.data.signals.held_input_array`)."""
     time_s = _column(frame, "time_s", path, "time")
     x = np.full((len(time_s), problem.n_x), np.nan)
     for i in problem.measured:
         name = problem.state_names[i]
         x[:, i] = _column(frame, problem.state_signal[name], path, f"state {name}")
-    u = np.zeros((len(time_s), problem.n_u))
-    for k, name in enumerate(problem.input_names):
-        u[:, k] = _column(frame, problem.input_signal[name], path, f"input {name}")
+    signals = [problem.input_signal[name] for name in problem.input_names]
+    for name, signal in zip(problem.input_names, signals):
+        _column(frame, signal, path, f"input {name}")
+    u = held_input_array(frame, problem.input_names, signals).reshape(len(time_s), problem.n_u)
     return time_s, x, u
 
 

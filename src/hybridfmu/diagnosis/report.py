@@ -120,7 +120,8 @@ def diagnosis_record(result: dict[str, Any], config: dict[str, Any]) -> dict[str
         "report_scale": dict(settings.get("report_scale") or {}),
         "method": {
             "equation_error": "measured one-sample change minus the model's (RK4 step for one_step_states, "
-                              "trapezoid for the others) with inputs held, averaged with a Hann kernel",
+                              "trapezoid for the others) with inputs held over each sample (a continuous input at its "
+                              "mean over the sample, config.roles.between_samples), averaged with a Hann kernel",
             "unmeasured_states": "taken from an open-loop simulation of the calibrated model",
             "kernel_s": settings.get("kernel_s"), "state_from_derivative": settings.get("state_from_derivative"),
             "input_lag_compensation_s": settings.get("input_lag_compensation_s", {}),

@@ -1,6 +1,7 @@
 """Equation error per state: what the measurements did minus what the model says.
 
-Inputs are held over each sampling interval (as in the open-loop simulation). Over the
+Inputs are held over each sampling interval (as in the open-loop simulation; a continuous input at its
+mean over the interval, :mod:`hybridfmu.data.between_samples`). Over the
 interval [t_k, t_k+1) the measurements changed at ``(x_k+1 - x_k) / dt``. The model's mean
 rate over the interval is, for fast states (``one_step_states``, e.g. currents driven by
 switched voltages), that of one classical Runge-Kutta step from the measured x_k with the held

@@ -512,7 +512,7 @@ def hybrid_estimates(path: str | Path | None) -> dict[str, dict[str, Any]] | Non
 
 def chosen_from_data_lines(record_paths: list[str | Path]) -> list[str]:
     """Markdown list items of every setting a stage chose from the data where the config left it out: the grid
-    (``data/grid.json``'s ``text``) and each record's ``chosen_from_data`` sentences (a search's plan, the
+    (``data/grid.json``'s ``text`` and its inputs' conventions ``between_samples``) and each record's ``chosen_from_data`` sentences (a search's plan, the
     time-offset stage), in the order given; [] when the config set everything."""
     from hybridfmu.io import read_json
 
@@ -521,6 +521,8 @@ def chosen_from_data_lines(record_paths: list[str | Path]) -> list[str]:
         record = read_json(path)
         if record.get("chosen_from") == "data" and record.get("text"):
             lines.append(f"- ingest.rate_hz = {record['text']}")
+        lines += [f"- roles.between_samples.{name} = {entry['text']}"
+                  for name, entry in (record.get("between_samples") or {}).items()]
         lines += [f"- {sentence}" for sentence in record.get("chosen_from_data") or []]
     return lines
 

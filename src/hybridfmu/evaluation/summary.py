@@ -49,7 +49,7 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
         from it, the ceiling beside them, and every warning of a model worse than its own physics. Then a
         table over all test maneuvers together: one row per target signal and model with RMSE and MAE, and
         the factors by which each model's MAE and MSE are below the FMU's (the paper's two measures; the
-        MSE factor is the square of the RMSE factor).
+        MSE factor is the square of the RMSE factor), and a note that the diagnosed effects are in rank order.
     """
     from hybridfmu.evaluation.report import distribution_table, tolerance_text, warning_lines
 
@@ -92,6 +92,9 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
             lines.append(f"| {signal} | {label} | {_number(rmse)}{unit} | {_number(mae)}{unit} | "
                          f"{_factor(fmu.get(f'{signal}_mae'), mae)} | "
                          f"{_factor(_square(fmu.get(f'{signal}_rmse')), _square(rmse))} |")
+    if effects != "none" and (test_metrics.get("fmu_effects") or far.get("after")):
+        lines += ["", "The diagnosed effects are listed by their rank in the diagnosis (drop-one score, "
+                  "`diagnosis/report.md`), not in the order its forward selection added them."]
     return "\n".join(lines) + "\n"
 
 
