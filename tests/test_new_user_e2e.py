@@ -138,6 +138,19 @@ def test_every_stage_runs_with_defaults_chosen_from_the_data(new_user_run):
         assert text in chosen, text
 
 
+def test_a_notebook_reads_a_log_as_the_run_did(new_user_run):
+    """hybridfmu.api.read_log takes what the config leaves out (the grid's rate, the force's convention between
+    samples) from the run's choice, so the frame in memory is the run's ingested test maneuver."""
+    from hybridfmu import api
+
+    _, results = new_user_run
+    case = api.load_case(results.parents[1] / "newuser.yaml")
+    frame = api.read_log(case, "test")
+    ingested = pd.read_parquet(results / "data" / "test.parquet")
+    assert frame.attrs == ingested.attrs == {"between_samples": {"force": "linear"}}
+    pd.testing.assert_frame_equal(frame, ingested)
+
+
 def test_the_neural_fmu_beats_the_fmu_on_the_unseen_test_maneuver(new_user_run):
     _, results = new_user_run
     metrics = json.loads((results / "metrics" / "test.json").read_text())

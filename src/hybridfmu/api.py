@@ -163,16 +163,22 @@ def read_log(case: Case, maneuver: str, raw_path: str | Path | None = None) -> p
 
     Returns:
         (T rows) ``time_s`` (s) and one column per signal of the case, in its model unit; ``attrs`` records how
-        each FMU input passes between samples (declared in ``config.roles.between_samples``, else chosen from this
-        log: the workflow chooses from the train and validation logs, ``data/grid.json``).
+        each FMU input passes between samples. What the config leaves out of the grid's rate and those
+        conventions comes, as in the workflow, from the run's choice (``<results_dir>/data/grid.json``, rule
+        ``choose_grid``, from the train and validation logs) where the case has run, else from this log.
 
     Raises:
         ConfigError: an unknown maneuver. DataError: naming the file, the channel and what was expected.
     """
+    from hybridfmu.data.grid import chosen_conventions
     from hybridfmu.data.ingest import ingest_log
+    from hybridfmu.io import read_json
 
     entry = _maneuver(case, maneuver)
-    return ingest_log(raw_path if raw_path is not None else entry["raw"], case.config, maneuver)
+    grid = case.results_dir / "data" / "grid.json"
+    chosen = read_json(grid) if grid.is_file() else {}
+    return ingest_log(raw_path if raw_path is not None else entry["raw"], case.config, maneuver,
+                      chosen.get("rate_hz"), chosen_conventions(grid if grid.is_file() else None))
 
 
 def simulate_fmu(case: Case, frame: pd.DataFrame, maneuver: str | None = None,
