@@ -16,12 +16,12 @@ Phases. (1) The parameters of ``config.calibration.parameters`` jointly with the
 states of every train maneuver (when ``calibration.initial_states``); (2) with the parameters fixed,
 the unmeasured initial states of each validation maneuver on its own.
 
-Optimiser: ``scipy.optimize.least_squares``, trust-region reflective (``trf``) with the bounds of
-the config, in variables normalised by their start values. Sensitivities: forward finite
-differences of the simulation (one extra simulation per variable, relative step
-:data:`FD_RELATIVE_STEP` of the normalised variable, stepping backward at an upper bound); a
-column of a maneuver's initial state re-simulates that maneuver only (the others do not depend on
-it). The FMU's directional derivatives are not used: they give the Jacobian of the right-hand
+Fitter: :mod:`hybridfmu.output_error` (the one the diagnosis' recalibration uses too):
+``scipy.optimize.least_squares``, trust-region reflective (``trf``) with the bounds of the config, in
+variables normalised by their start values. Sensitivities: forward finite differences of the simulation (one
+extra simulation per variable, relative step :data:`FD_RELATIVE_STEP` of the normalised variable, stepping
+backward at an upper bound); a column of a maneuver's initial state re-simulates that maneuver only (the others
+do not depend on it). The FMU's directional derivatives are not used: they give the Jacobian of the right-hand
 side, not of the simulated trajectory with respect to parameters.
 
 API::
@@ -36,22 +36,20 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
 
 from hybridfmu.calibration.data import ManeuverArrays
-from hybridfmu.data.roles import CaseRoles
 from hybridfmu.config import ConfigError
+from hybridfmu.data.roles import CaseRoles
+from hybridfmu.output_error import Variable, fit_output_error
 
 LOG = logging.getLogger(__name__)
 
 #: Forward-difference step, relative to max(|z|, 1) of a normalised variable z.
 FD_RELATIVE_STEP = 1e-6
-#: Residual value of a sample whose simulation failed (before the 1/sqrt(N) scaling).
-FAILED_RESIDUAL = 1e3
 
 
 @dataclass(frozen=True)
@@ -148,6 +146,10 @@ class TargetSimulator:
             self.model.set_parameters(parameters)
             self._parameters = dict(parameters)
 
+    def forget_parameters(self) -> None:
+        """Set every parameter again at the next simulation (after the FMU failed with a trial value)."""
+        self._parameters = None
+
     def simulate(self, maneuver: ManeuverArrays, parameters: dict[str, float],
                  unmeasured: dict[str, float]) -> np.ndarray:
         """(T, n_targets) simulated target states (order ``roles.target_states``).
@@ -196,108 +198,6 @@ class PhaseResult:
                 "elapsed_s": round(self.elapsed_s, 3)}
 
 
-class _Objective:
-    """Scaled residuals of several maneuvers as a function of the normalised fit variables.
-
-    Variables z (n_z,): the fitted parameters (``parameter_names``), then for each maneuver its
-    unmeasured initial states (``state_names``); value = z * scale.
-    """
-
-    def __init__(self, simulator: TargetSimulator, maneuvers: list[ManeuverArrays], fixed: dict[str, float],
-                 parameter_names: list[str], state_names: list[str], scale: np.ndarray,
-                 target_std: np.ndarray, weights: np.ndarray, label: str):
-        self.simulator = simulator
-        self.maneuvers = maneuvers
-        self.fixed = dict(fixed)
-        self.parameter_names = parameter_names
-        self.state_names = state_names
-        self.scale = scale
-        self.label = label
-        self.measured = [simulator.measured_targets(m) for m in maneuvers]
-        n_samples = sum(m.time_s.size for m in maneuvers)
-        self.factor = np.sqrt(weights) / target_std / math.sqrt(n_samples)  # (n_targets,)
-        self.failed_value = FAILED_RESIDUAL / math.sqrt(n_samples)
-        self.n_params = len(parameter_names)
-        self.evaluations = 0
-        self.iterations = 0
-        self.start_time = time.perf_counter()
-        self._cache: tuple[np.ndarray, list[np.ndarray]] | None = None
-        self._warned = False
-
-    def unpack(self, z: np.ndarray) -> tuple[dict[str, float], list[dict[str, float]]]:
-        values = np.asarray(z, float) * self.scale
-        parameters = dict(self.fixed)
-        parameters.update({name: float(v) for name, v in zip(self.parameter_names, values[: self.n_params])})
-        n_s = len(self.state_names)
-        states = [{name: float(values[self.n_params + m * n_s + j]) for j, name in enumerate(self.state_names)}
-                  for m in range(len(self.maneuvers))]
-        return parameters, states
-
-    def block(self, z: np.ndarray, m: int) -> np.ndarray:
-        """Scaled residuals of maneuver m, (T_m * n_targets,)."""
-        from hybridfmu.fmu import FmuError
-
-        parameters, states = self.unpack(z)
-        try:
-            simulated = self.simulator.simulate(self.maneuvers[m], parameters, states[m])
-            if not np.isfinite(simulated).all():
-                raise FloatingPointError("non-finite simulated states")
-        except (FmuError, FloatingPointError) as err:
-            if not self._warned:
-                LOG.warning("%s: simulation of %s failed at %s (%s); treated as a bad point", self.label,
-                            self.maneuvers[m].name, parameters, str(err).splitlines()[0])
-                self._warned = True
-            self.simulator._parameters = None
-            return np.full(self.measured[m].size, self.failed_value)
-        return ((simulated - self.measured[m]) * self.factor).ravel()
-
-    def blocks(self, z: np.ndarray) -> list[np.ndarray]:
-        z = np.asarray(z, float)
-        if self._cache is not None and np.array_equal(self._cache[0], z):
-            return self._cache[1]
-        blocks = [self.block(z, m) for m in range(len(self.maneuvers))]
-        self.evaluations += 1
-        self._cache = (z.copy(), blocks)
-        return blocks
-
-    def __call__(self, z: np.ndarray) -> np.ndarray:
-        return np.concatenate(self.blocks(z))
-
-    def cost(self, z: np.ndarray) -> float:
-        return 0.5 * float(np.sum(self(z) ** 2))
-
-    def jacobian(self, z: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-        """(n_residuals, n_z) forward differences (module docstring); logs one progress line."""
-        z = np.asarray(z, float)
-        base = self.blocks(z)
-        offsets = np.cumsum([0] + [b.size for b in base])
-        jac = np.zeros((offsets[-1], z.size))
-        n_s = len(self.state_names)
-        for j in range(z.size):
-            h = FD_RELATIVE_STEP * max(abs(z[j]), 1.0)
-            if z[j] + h > upper[j]:
-                h = -h
-            shifted = z.copy()
-            shifted[j] += h
-            if j < self.n_params:
-                targets = range(len(self.maneuvers))
-            else:
-                targets = [(j - self.n_params) // n_s]
-            for m in targets:
-                jac[offsets[m]:offsets[m + 1], j] = (self.block(shifted, m) - base[m]) / h
-        self.iterations += 1
-        parameters, _ = self.unpack(z)
-        shown = ", ".join(f"{name}={parameters[name]:.6g}" for name in self.parameter_names)
-        LOG.info("%s: iteration %d, cost %.6g, %d evaluations, %.1f s elapsed%s", self.label, self.iterations,
-                 0.5 * float(sum(np.sum(b ** 2) for b in base)), self.evaluations,
-                 time.perf_counter() - self.start_time, f" ({shown})" if shown else "")
-        return jac
-
-
-def _scale(values: np.ndarray) -> np.ndarray:
-    return np.where(np.abs(values) > 0, np.abs(values), 1.0)
-
-
 def _clip_start(name: str, value: float, bounds: tuple[float, float], kind: str) -> float:
     low, high = bounds
     if low <= value <= high:
@@ -313,7 +213,8 @@ def least_squares_phase(simulator: TargetSimulator, maneuvers: list[ManeuverArra
                         state_start: dict[str, dict[str, float]], state_bounds: dict[str, tuple[float, float]],
                         state_names: list[str], target_std: np.ndarray, weights: np.ndarray,
                         max_iterations: int, label: str) -> PhaseResult:
-    """One least-squares fit (module docstring) of parameters and per-maneuver unmeasured initial states.
+    """One least-squares fit (module docstring) of parameters and per-maneuver unmeasured initial states, by the
+    output-error fitter (:func:`hybridfmu.output_error.fit_output_error`).
 
     Args:
         simulator: simulates the FMU's targets.
@@ -326,39 +227,33 @@ def least_squares_phase(simulator: TargetSimulator, maneuvers: list[ManeuverArra
         max_iterations: most evaluations of the objective at trial points (least_squares' max_nfev).
         label: prefix of the progress lines.
     """
-    from scipy.optimize import least_squares
+    from hybridfmu.fmu import FmuError
 
     names = list(parameter_start)
-    start = [parameter_start[n] for n in names]
-    low = [parameter_bounds[n][0] for n in names]
-    high = [parameter_bounds[n][1] for n in names]
-    for maneuver in maneuvers:
+    variables = [Variable(name, parameter_start[name], *parameter_bounds[name]) for name in names]
+    for m, maneuver in enumerate(maneuvers):
         for name in state_names:
-            bounds = state_bounds.get(name, (-math.inf, math.inf))
-            start.append(_clip_start(name, state_start[maneuver.name][name], bounds,
-                                     f"maneuver {maneuver.name!r}"))
-            low.append(bounds[0])
-            high.append(bounds[1])
-    start_values = np.array(start, float)
-    scale = _scale(start_values)
-    z0, lower, upper = start_values / scale, np.array(low) / scale, np.array(high) / scale
-    objective = _Objective(simulator, maneuvers, fixed, names, state_names, scale, target_std, weights, label)
-    cost_start = objective.cost(z0)
-    LOG.info("%s: %d variables (%s), %d maneuvers, start cost %.6g", label, z0.size,
-             ", ".join(names + [f"{s}@{m.name}" for m in maneuvers for s in state_names]), len(maneuvers),
-             cost_start)
-    result = least_squares(objective, z0, jac=lambda z: objective.jacobian(z, lower, upper), bounds=(lower, upper),
-                           method="trf", x_scale=1.0, max_nfev=max_iterations, xtol=1e-10, ftol=1e-10,
-                           gtol=1e-10)
-    parameters, states = objective.unpack(result.x)
-    fitted = {name: parameters[name] for name in names}
-    elapsed = time.perf_counter() - objective.start_time
-    LOG.info("%s: done after %d iterations, %d evaluations, %.1f s: cost %.6g -> %.6g (%s)", label,
-             objective.iterations, objective.evaluations, elapsed, cost_start, float(result.cost), result.message)
-    return PhaseResult(parameters=fitted, states={m.name: s for m, s in zip(maneuvers, states)},
-                       cost_start=cost_start, cost=float(result.cost), iterations=objective.iterations,
-                       evaluations=objective.evaluations, status=int(result.status), message=str(result.message),
-                       elapsed_s=elapsed)
+            low, high = state_bounds.get(name, (-math.inf, math.inf))
+            start = _clip_start(name, state_start[maneuver.name][name], (low, high), f"maneuver {maneuver.name!r}")
+            variables.append(Variable(f"{name}@{maneuver.name}", start, low, high, maneuver=m))
+
+    def simulate(values: dict[str, float], m: int) -> np.ndarray:
+        parameters = {**fixed, **{name: values[name] for name in names}}
+        states = {name: values[f"{name}@{maneuvers[m].name}"] for name in state_names}
+        try:
+            return simulator.simulate(maneuvers[m], parameters, states)
+        except FmuError:
+            simulator.forget_parameters()  # the FMU may hold a rejected value: set every parameter again
+            raise
+
+    fit = fit_output_error(variables, simulate, [simulator.measured_targets(m) for m in maneuvers], weights,
+                           target_std, relative_step=FD_RELATIVE_STEP, tolerance=1e-10,
+                           max_evaluations=max_iterations, label=label, failures=(FmuError,), shown=names)
+    values = fit.values or {v.name: v.start for v in variables}
+    return PhaseResult(parameters={name: values[name] for name in names},
+                       states={m.name: {s: values[f"{s}@{m.name}"] for s in state_names} for m in maneuvers},
+                       cost_start=fit.cost_start, cost=fit.cost, iterations=fit.iterations,
+                       evaluations=fit.evaluations, status=fit.status, message=fit.message, elapsed_s=fit.elapsed_s)
 
 
 @dataclass

@@ -8,8 +8,9 @@ added; :func:`refit_terms` does that, by the same criterion as the calibration
 (:mod:`hybridfmu.calibration.fit`): the simulated target states against the measured ones over the
 whole train maneuvers, each target normalised by its spread and weighted by its target weight.
 
-Fitted together (``scipy.optimize.least_squares``, trust-region reflective, forward differences of
-the simulation, variables normalised by their start values):
+Fitted together by the calibration's output-error fitter (:mod:`hybridfmu.output_error`: trust-region
+reflective least squares, forward differences of the simulation with the step :data:`DIFF_STEP`, variables
+normalised by their start values):
 
 - the model parameters of ``config.calibration.parameters`` (bounds from there), starting from the
   calibrated values; a named parameter error of one of them is absorbed into its value;
@@ -34,7 +35,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import time
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Iterator
 
@@ -44,11 +44,10 @@ from hybridfmu.diagnosis.corrected_model import CorrectedModel, simulate
 from hybridfmu.diagnosis.prepare import MeasuredManeuver
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.selection import Term
+from hybridfmu.output_error import Variable as OutputErrorVariable
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
-#: Residual of a sample whose simulation failed or diverged (normalised units, before the 1/sqrt(N) scaling).
-FAILED_RESIDUAL = 1e6
 #: Forward-difference step relative to a normalised variable (1.1 %): a limit or overflow makes the simulated
 #: trajectory kinked in the variables, and finer differences see the kinks, not the slope (on the tanks case,
 #: steps of 1e-4 and 1e-6 left least_squares stalled at its start from most starting levels).
@@ -104,7 +103,8 @@ class Refit:
         parameters: refitted model parameter -> value.
         initial_states: fitted maneuver -> unmeasured state -> initial value.
         cost_start, cost: half the weighted mean of the squared normalised errors, before and after.
-        evaluations: simulations of all fitted maneuvers; elapsed_s: wall time.
+        evaluations: objective evaluations (simulations of all fitted maneuvers) at trial points; elapsed_s: wall
+            time.
         variables: name -> (start, fitted) of every variable.
         above_previous: the fit ended above the cost of the variant before it (``previous`` of
             :func:`refit_terms`): the new effect cannot be switched off by zero coefficients (a limit, an overflow)
@@ -201,7 +201,8 @@ def _variables(terms: list[Term], spec: RefitSpec, model: Any, maneuvers: list[M
 def refit_terms(model: Any, helper: Any, simulate_fn: Callable, maneuvers: list[MeasuredManeuver],
                 terms: list[Term], problem: Problem, spec: RefitSpec, label: str = "refit",
                 previous: Refit | None = None) -> Refit:
-    """Recalibrate the model with ``terms`` added on ``maneuvers`` (module docstring).
+    """Recalibrate the model with ``terms`` added on ``maneuvers`` (module docstring), by the output-error fitter
+    the calibration uses (:func:`hybridfmu.output_error.fit_output_error`).
 
     With ``previous`` (the refit of the same terms but the last), every variable it has starts at its optimum and
     the fit runs from two starts, the new effect at its equation-error fit and at zero coefficients; the lower cost
@@ -222,30 +223,24 @@ def refit_terms(model: Any, helper: Any, simulate_fn: Callable, maneuvers: list[
         label: prefix of the progress lines.
         previous: the refit of ``terms[:-1]`` (or of the model alone for a single term), or None.
     """
-    from scipy.optimize import least_squares
+    from hybridfmu.fmu import FmuError
+    from hybridfmu.output_error import fit_output_error, target_spread
 
-    started = time.perf_counter()
     kept, variables = _variables(terms, spec, model, maneuvers, problem)
     targets = [problem.state_names.index(s) for s in problem.target_weights]
     weights = np.array([problem.target_weights[problem.state_names[i]] for i in targets], dtype=float)
     weights = weights / weights.sum()
-    pooled = np.concatenate([m.x[:, targets] for m in maneuvers], axis=0)
-    std = np.where(pooled.std(axis=0) > 0, pooled.std(axis=0), 1.0)
-    n_samples = sum(len(m.time_s) for m in maneuvers)
-    factor = np.sqrt(weights) / std / math.sqrt(n_samples)
-    start = np.array([v.start for v in variables], dtype=float)
-    scale = np.where(np.abs(start) > 0, np.abs(start), 1.0)
-    lower = np.array([v.low for v in variables]) / scale
-    upper = np.array([v.high for v in variables]) / scale
-    evaluations = [0]
-    last_line = [started]
+    measured = [m.x[:, targets] for m in maneuvers]
+    by_name = {v.name: v for v in variables}
+    shared = [v.name for v in variables if v.kind != "state"]
+    built: dict[str, Any] = {}
 
-    def unpack(z: np.ndarray) -> tuple[dict[str, float], list[Term], dict[str, dict[str, float]]]:
-        values = np.asarray(z, dtype=float) * scale
+    def unpack(values: dict[str, float]) -> tuple[dict[str, float], list[Term], dict[str, dict[str, float]]]:
         parameters: dict[str, float] = {}
         current = [replace(t, coef=np.array(t.coef, dtype=float), setting=dict(t.setting)) for t in kept]
         states: dict[str, dict[str, float]] = {}
-        for v, value in zip(variables, values):
+        for name, value in values.items():
+            v = by_name[name]
             if v.kind == "parameter":
                 parameters[v.key] = float(value)
             elif v.kind == "coef":
@@ -256,56 +251,40 @@ def refit_terms(model: Any, helper: Any, simulate_fn: Callable, maneuvers: list[
                 states.setdefault(v.key[0], {})[v.key[1]] = float(value)
         return parameters, current, states
 
-    def residuals(z: np.ndarray) -> np.ndarray:
-        parameters, current, states = unpack(z)
-        evaluations[0] += 1
-        blocks = []
+    def simulate(values: dict[str, float], m: int) -> np.ndarray:
+        parameters, current, states = unpack(values)
+        key = tuple(values[name] for name in shared)
+        if built.get("key") != key:  # the corrected model of these coefficients, built once for every maneuver
+            built.update(key=key, corrected=CorrectedModel(current, problem, helper) if current else None)
+        meas = maneuvers[m]
         with parameters_set([model, helper], parameters):
-            corrected = CorrectedModel(current, problem, helper) if current else None
-            for meas in maneuvers:
-                whole = simulate_corrected(model, simulate_fn, meas.time_s, meas.u,
-                                           initial_state(meas, states.get(meas.name, {}), problem), corrected)
-                err = (whole[:, targets] - meas.x[:, targets]) * factor
-                if not np.all(np.isfinite(err)):
-                    err = np.full_like(err, FAILED_RESIDUAL / math.sqrt(n_samples))
-                blocks.append(err.ravel())
-        now = time.perf_counter()
-        if now - last_line[0] > 10.0:
-            last_line[0] = now
-            LOGGER.info("%s: %d simulations, %.1f s elapsed (at most %d)", label, evaluations[0], now - started,
-                        spec.max_evaluations * (len(variables) + 1))
-        return np.concatenate(blocks)
+            whole = simulate_corrected(model, simulate_fn, meas.time_s, meas.u,
+                                       initial_state(meas, states.get(meas.name, {}), problem), built["corrected"])
+        return whole[:, targets]
 
-    z0 = start / scale
-    cost_start = 0.5 * float(np.sum(residuals(z0) ** 2))
-    LOGGER.info("%s: %d variables (%s), %d maneuvers, start cost %.6g", label, len(variables),
-                ", ".join(v.name for v in variables), len(maneuvers), cost_start)
-    starts = [z0]
+    index = {meas.name: m for m, meas in enumerate(maneuvers)}
+    fit_variables = [OutputErrorVariable(v.name, v.start, v.low, v.high,
+                                         index[v.key[0]] if v.kind == "state" else None) for v in variables]
+    starts = None
     if previous is not None and variables:
-        warm = np.array([previous.variables[v.name][1] if v.name in previous.variables else v.start
-                         for v in variables], dtype=float)
-        quiet = np.array([0.0 if v.kind == "coef" and v.name not in previous.variables and v.low <= 0.0 <= v.high
-                          else value for v, value in zip(variables, warm)], dtype=float)
-        starts = [np.clip(warm, lower * scale, upper * scale) / scale,
-                  np.clip(quiet, lower * scale, upper * scale) / scale]
-    z, cost = z0, cost_start
-    for index, z_start in enumerate(starts if variables else []):
-        result = least_squares(residuals, z_start, bounds=(lower, upper), method="trf", diff_step=DIFF_STEP,
-                               max_nfev=spec.max_evaluations, xtol=1e-8, ftol=1e-8, gtol=1e-8)
-        LOGGER.info("%s: start %d of %d ends at cost %.6g", label, index + 1, len(starts), float(result.cost))
-        if index == 0 or float(result.cost) < cost:
-            z, cost = result.x, float(result.cost)
+        warm = {v.name: previous.variables[v.name][1] if v.name in previous.variables else v.start
+                for v in variables}
+        quiet = {v.name: 0.0 if v.kind == "coef" and v.name not in previous.variables and v.low <= 0.0 <= v.high
+                 else warm[v.name] for v in variables}
+        starts = [warm, quiet]
+    fit = fit_output_error(fit_variables, simulate, measured, weights, target_spread(measured),
+                           relative_step=DIFF_STEP, tolerance=1e-8, max_evaluations=spec.max_evaluations,
+                           label=label, starts=starts, failures=(FmuError,))
+    cost = fit.cost
     above = previous is not None and cost > previous.cost * (1.0 + 1e-9)
     if above:
         LOGGER.warning("%s: ends at train cost %.6g, above the variant before it (%.6g): the new effect acts even at "
                        "zero coefficients and no start found a lower cost", label, cost, previous.cost)
-    parameters, current, states = unpack(z)
-    elapsed = time.perf_counter() - started
-    LOGGER.info("%s: cost %.6g -> %.6g after %d simulations (%.1f s)", label, cost_start, cost, evaluations[0],
-                elapsed)
-    return Refit(terms=current, parameters=parameters, initial_states=states, cost_start=cost_start, cost=cost,
-                 evaluations=evaluations[0], elapsed_s=elapsed,
-                 variables={v.name: (v.start, float(value)) for v, value in zip(variables, z * scale)},
+    values = fit.values or {v.name: v.start for v in variables}
+    parameters, current, states = unpack(values)
+    return Refit(terms=current, parameters=parameters, initial_states=states, cost_start=fit.cost_start, cost=cost,
+                 evaluations=fit.evaluations, elapsed_s=fit.elapsed_s,
+                 variables={v.name: (v.start, float(values[v.name])) for v in variables},
                  above_previous=above)
 
 
