@@ -16,9 +16,9 @@ the caller's ``failures`` or returns non-finite values gives every sample of its
 
 Optimiser: ``scipy.optimize.least_squares``, trust-region reflective (``trf``) within the variables' bounds, in
 variables normalised by their start values (|start|, 1 where it is 0). Sensitivities: forward differences of the
-simulation, step ``relative_step * max(|z|, 1)`` of a normalised variable z, backward where the forward step
-would leave the upper bound; a variable that belongs to one maneuver (its initial state) re-simulates that
-maneuver only. From several starts (e.g. a warm start and a cold one) the fit runs once each; the lowest final
+simulation with the steps scipy's own ``jac="2-point"`` takes (:func:`forward_step`), column by column, so that a
+variable that belongs to one maneuver (its initial state) re-simulates that maneuver only, where scipy would
+re-simulate every maneuver for every column. From several starts (e.g. a warm start and a cold one) the fit runs once each; the lowest final
 cost wins (the first start on a tie).
 
 API::
@@ -41,7 +41,7 @@ import numpy as np
 LOG = logging.getLogger(__name__)
 
 #: Residual of a sample whose simulation failed or diverged (normalised units, before the 1/sqrt(N) scaling).
-FAILED_RESIDUAL = 1e3
+FAILED_RESIDUAL = 1e6
 
 
 @dataclass(frozen=True)
@@ -92,6 +92,26 @@ def target_spread(measured: Sequence[np.ndarray]) -> np.ndarray:
     pooled = np.concatenate([np.asarray(m, dtype=float) for m in measured], axis=0)
     spread = pooled.std(axis=0)
     return np.where(spread > 0, spread, 1.0)
+
+
+def forward_step(z: float, relative_step: float, lower: float, upper: float) -> float:
+    """The forward-difference step of a normalised variable at z within [lower, upper], as scipy's
+    ``least_squares`` takes it for ``jac="2-point"`` with ``diff_step``: ``relative_step * |z|`` in the direction of
+    z's sign (+ at 0), the machine-precision step sqrt(eps) * max(1, |z|) where that one vanishes, reversed where
+    it would leave the bounds and fits the other way, else up to the farther bound."""
+    sign = 1.0 if z >= 0 else -1.0
+    step = relative_step * sign * abs(z)
+    if (z + step) - z == 0:
+        step = math.sqrt(np.finfo(float).eps) * sign * max(1.0, abs(z))
+    if math.isinf(lower) and math.isinf(upper):
+        return step
+    if z + step < lower or z + step > upper:
+        below, above = z - lower, upper - z
+        if abs(step) <= max(below, above):
+            step = -step
+        else:
+            step = above if above >= below else -below
+    return step
 
 
 class _Objective:
@@ -159,14 +179,12 @@ class _Objective:
         offsets = np.cumsum([0] + [b.size for b in base])
         jac = np.zeros((offsets[-1], z.size))
         for j, variable in enumerate(self.variables):
-            h = relative_step * max(abs(z[j]), 1.0)
-            if z[j] + h > self.upper[j]:
-                h = -h
             shifted = z.copy()
-            shifted[j] += h
+            shifted[j] = z[j] + forward_step(z[j], relative_step, self.lower[j], self.upper[j])
+            step = shifted[j] - z[j]  # exactly representable
             targets = range(len(self.measured)) if variable.maneuver is None else [variable.maneuver]
             for m in targets:
-                jac[offsets[m]:offsets[m + 1], j] = (self.block(shifted, m) - base[m]) / h
+                jac[offsets[m]:offsets[m + 1], j] = (self.block(shifted, m) - base[m]) / step
         self.iterations += 1
         values = self.values(z)
         shown = ", ".join(f"{name}={values[name]:.6g}" for name in self.names)

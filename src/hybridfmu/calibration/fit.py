@@ -19,9 +19,9 @@ the unmeasured initial states of each validation maneuver on its own.
 Fitter: :mod:`hybridfmu.output_error` (the one the diagnosis' recalibration uses too):
 ``scipy.optimize.least_squares``, trust-region reflective (``trf``) with the bounds of the config, in
 variables normalised by their start values. Sensitivities: forward finite differences of the simulation (one
-extra simulation per variable, relative step :data:`FD_RELATIVE_STEP` of the normalised variable, stepping
-backward at an upper bound); a column of a maneuver's initial state re-simulates that maneuver only (the others
-do not depend on it). The FMU's directional derivatives are not used: they give the Jacobian of the right-hand
+extra simulation per variable, relative step :data:`FD_RELATIVE_STEP` of the normalised variable, the steps
+scipy's ``jac="2-point"`` takes); a column of a maneuver's initial state re-simulates that maneuver only (the
+others do not depend on it). The FMU's directional derivatives are not used: they give the Jacobian of the right-hand
 side, not of the simulated trajectory with respect to parameters.
 
 API::
@@ -48,7 +48,7 @@ from hybridfmu.output_error import Variable, fit_output_error
 
 LOG = logging.getLogger(__name__)
 
-#: Forward-difference step, relative to max(|z|, 1) of a normalised variable z.
+#: Forward-difference step, relative to |z| of a normalised variable z (hybridfmu.output_error.forward_step).
 FD_RELATIVE_STEP = 1e-6
 
 
