@@ -232,8 +232,6 @@ def refit_terms(model: Any, helper: Any, simulate_fn: Callable, maneuvers: list[
     weights = weights / weights.sum()
     measured = [m.x[:, targets] for m in maneuvers]
     by_name = {v.name: v for v in variables}
-    shared = [v.name for v in variables if v.kind != "state"]
-    built: dict[str, Any] = {}
 
     def unpack(values: dict[str, float]) -> tuple[dict[str, float], list[Term], dict[str, dict[str, float]]]:
         parameters: dict[str, float] = {}
@@ -253,13 +251,11 @@ def refit_terms(model: Any, helper: Any, simulate_fn: Callable, maneuvers: list[
 
     def simulate(values: dict[str, float], m: int) -> np.ndarray:
         parameters, current, states = unpack(values)
-        key = tuple(values[name] for name in shared)
-        if built.get("key") != key:  # the corrected model of these coefficients, built once for every maneuver
-            built.update(key=key, corrected=CorrectedModel(current, problem, helper) if current else None)
         meas = maneuvers[m]
-        with parameters_set([model, helper], parameters):
+        with parameters_set([model, helper], parameters):  # the effects are built with the trial parameters set
+            corrected = CorrectedModel(current, problem, helper) if current else None
             whole = simulate_corrected(model, simulate_fn, meas.time_s, meas.u,
-                                       initial_state(meas, states.get(meas.name, {}), problem), built["corrected"])
+                                       initial_state(meas, states.get(meas.name, {}), problem), corrected)
         return whole[:, targets]
 
     index = {meas.name: m for m, meas in enumerate(maneuvers)}
