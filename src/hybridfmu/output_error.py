@@ -177,21 +177,21 @@ class _Objective:
         z = np.asarray(z, float)
         base = self.blocks(z)
         offsets = np.cumsum([0] + [b.size for b in base])
-        jac = np.zeros((offsets[-1], z.size))
+        columns = np.zeros((z.size, offsets[-1]))  # one row per variable: the Jacobian's memory layout is scipy's
         for j, variable in enumerate(self.variables):
             shifted = z.copy()
             shifted[j] = z[j] + forward_step(z[j], relative_step, self.lower[j], self.upper[j])
             step = shifted[j] - z[j]  # exactly representable
             targets = range(len(self.measured)) if variable.maneuver is None else [variable.maneuver]
             for m in targets:
-                jac[offsets[m]:offsets[m + 1], j] = (self.block(shifted, m) - base[m]) / step
+                columns[j, offsets[m]:offsets[m + 1]] = (self.block(shifted, m) - base[m]) / step
         self.iterations += 1
         values = self.values(z)
         shown = ", ".join(f"{name}={values[name]:.6g}" for name in self.names)
         LOG.info("%s: iteration %d, cost %.6g, %d evaluations, %d simulations, %.1f s elapsed%s", self.label,
                  self.iterations, 0.5 * float(sum(np.sum(b ** 2) for b in base)), self.evaluations,
                  self.simulations, time.perf_counter() - self.started, f" ({shown})" if shown else "")
-        return jac
+        return columns.T
 
 
 def fit_output_error(variables: Sequence[Variable], simulate: Callable[[dict[str, float], int], np.ndarray],
