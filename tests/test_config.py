@@ -358,7 +358,7 @@ def test_without_a_test_maneuver_the_diagnosis_says_the_held_out_check_was_not_r
     measured = msd_maneuvers(None, duration_s=20.0)
     del measured["test"]
     result = run_diagnosis(problem, model, measured)
-    assert result["how_far"] is None
+    assert result.how_far is None
     config = {"case": "msd", "maneuvers": {"train": {"role": "train"}, "validation": {"role": "validation"}}}
     paths = write_outputs(result, config, tmp_path)
     record = json.loads(paths["json"].read_text())

@@ -17,11 +17,11 @@ def _extra(func):
 
 
 def _names(result):
-    return [c["effect"] for c in result["which"]["chosen"]]
+    return [c["effect"] for c in result.which["chosen"]]
 
 
 def _param(result, name):
-    return {p["name"]: p["value"] for p in result["which"]["chosen"][0]["parameters"]}[name]
+    return {p["name"]: p["value"] for p in result.which["chosen"][0]["parameters"]}[name]
 
 
 CASES = {
@@ -42,8 +42,8 @@ def test_a_known_effect_is_named_alone_with_its_parameter(case):
     result = run_diagnosis(problem, model, msd_maneuvers(extra, duration_s=20.0), open_loop=False)
     assert _names(result) == [name]
     assert _param(result, parameter) == pytest.approx(value, rel=0.1, abs=0.02)
-    assert result["which"]["chosen"][0]["equation"] == "v"
-    assert result["where"]["carrier"] == "v"
+    assert result.which["chosen"][0]["equation"] == "v"
+    assert result.where["carrier"] == "v"
 
 
 def test_a_parameter_error_is_named_with_its_relative_size():
@@ -67,15 +67,15 @@ def test_nothing_is_named_when_the_model_is_right():
     problem, model = msd_problem()
     result = run_diagnosis(problem, model, msd_maneuvers(None, noise=(2e-4, 2e-3), duration_s=20.0))
     assert _names(result) == []
-    assert result["where"]["states"]["v"]["ratio_to_noise"] < 1.5
-    assert result["how_far"]["shrink_factor"] == pytest.approx(1.0)
+    assert result.where["states"]["v"]["ratio_to_noise"] < 1.5
+    assert result.how_far["shrink_factor"] == pytest.approx(1.0)
 
 
 def test_how_far_shrinks_the_open_loop_gap_on_the_test_maneuver():
     extra = _extra(lambda x, u: -0.4 * np.tanh(x[:, 1] / 0.005))
     problem, model = msd_problem()
     result = run_diagnosis(problem, model, msd_maneuvers(extra, duration_s=20.0))
-    far = result["how_far"]
+    far = result.how_far
     assert [s["model"] for s in far["steps"]] == ["FMU", "+ coulomb(v) (dv/dt)"]
     for key in ("position_rmse", "position_mae", "velocity_rmse", "velocity_mae"):
         assert far["after"][key] < 0.1 * far["before"][key]
@@ -101,8 +101,8 @@ def test_unmeasured_states_come_from_the_simulation_and_are_reported():
         m.x0_unmeasured = {"v": 0.0}
     result = run_diagnosis(problem, model, measured, open_loop=False)
     assert problem.unmeasured == [1] and problem.equations == [0]
-    assert result["where"]["states"]["x"]["depends_on_unmeasured"] == ["v"]
-    assert np.all(np.isfinite(result["prepared"]["train"].measured.x[:, 1]))
+    assert result.where["states"]["x"]["depends_on_unmeasured"] == ["v"]
+    assert np.all(np.isfinite(result.prepared["train"].measured.x[:, 1]))
     assert _names(result) == []
 
 

@@ -242,7 +242,7 @@ def diagnose(case: Case, frames: dict[str, pd.DataFrame], spans_s: dict[str, lis
     settings = None if calibration is None else Calibration.load(calibration)
     inputs = case_inputs(config, fmu_file(case), {name: frames[name] for name in names}, spans_s, settings)
     result = analyse_inputs(config, inputs, None if calibration is None else str(calibration), open_loop)
-    return Diagnosis(record=diagnosis_record(result, config), model=result["diagnosed"])
+    return Diagnosis(record=diagnosis_record(result, config), model=result.diagnosed)
 
 
 def load_run(case: Case, results_dir: str | Path | None = None) -> Run:

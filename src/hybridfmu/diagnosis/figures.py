@@ -5,7 +5,7 @@ Axes name states and equations with the labels and units of the case's roles."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -15,6 +15,9 @@ import numpy as np  # noqa: E402
 
 from hybridfmu.diagnosis.selection import terms_in_equation  # noqa: E402
 from hybridfmu.io import atomic_path  # noqa: E402
+
+if TYPE_CHECKING:
+    from hybridfmu.diagnosis.result import DiagnosisResult
 
 
 def _save(fig, path: Path, dpi: int) -> Path:
@@ -29,10 +32,10 @@ def _thin(n: int, max_points: int = 20000) -> slice:
     return slice(None, None, max(n // max_points, 1))
 
 
-def equation_error_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
+def equation_error_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
     """Kernel-averaged equation error of each examined equation over time, per maneuver, with the noise floor."""
-    problem = result["problem"]
-    prepared = result["prepared"]
+    problem = result.problem
+    prepared = result.prepared
     eqs = problem.equations
     fig, axes = plt.subplots(len(prepared), len(eqs), figsize=(5.5 * len(eqs), 2.4 * len(prepared)),
                              squeeze=False, sharex="row")
@@ -50,9 +53,9 @@ def equation_error_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
     return _save(fig, path, dpi)
 
 
-def regions_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
+def regions_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
     """Share of the residual energy above noise against time share of the most concentrated regions."""
-    regions = result["regions"]
+    regions = result.regions
     fig, axes = plt.subplots(1, len(regions), figsize=(6.5 * len(regions), 7.0), squeeze=False)
     for ax, (state, info) in zip(axes[0], regions.items()):
         table = sorted(info["table"], key=lambda r: r["excess_share"] - r["time_share"], reverse=True)[:25]
@@ -68,12 +71,12 @@ def regions_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
     return _save(fig, path, dpi)
 
 
-def candidates_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
+def candidates_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
     """Share of the residual the best candidates remove at the first selection step, per equation."""
-    equations = result["which"]["equations"]
+    equations = result.which["equations"]
     n = max(len(equations), 1)
     fig, axes = plt.subplots(1, n, figsize=(6.0 * n, 4.0), squeeze=False)
-    threshold = 100 * float((result["settings"].get("selection") or {}).get("min_relative_improvement", 0.03))
+    threshold = 100 * float((result.settings.get("selection") or {}).get("min_relative_improvement", 0.03))
     for ax, (state, info) in zip(axes[0], equations.items()):
         if not info["steps"]:
             ax.set_axis_off()
@@ -90,13 +93,13 @@ def candidates_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
     return _save(fig, path, dpi)
 
 
-def effects_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
+def effects_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
     """Per chosen effect: the partial residual (residual minus the other chosen terms) against the term."""
-    which = result["which"]
+    which = result.which
     terms = which["terms"]
-    problem = result["problem"]
+    problem = result.problem
     cache = which["cache"]
-    names = result["fit_names"]
+    names = result.fit_names
     n = max(len(terms), 1)
     fig, axes = plt.subplots(1, n, figsize=(4.6 * n, 4.0), squeeze=False)
     if not terms:
@@ -139,10 +142,10 @@ def step_colours(values: list[float]) -> list[str]:
     return colours
 
 
-def waterfall_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
+def waterfall_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
     """Normalised open-loop gap on the test maneuver(s): the FMU and after each effect (green: the step shrank
     the gap, red: it widened it)."""
-    steps = result["how_far"]["steps"]
+    steps = result.how_far["steps"]
     keys = [("gap", "whole maneuver")] + ([("window_gap", "restarted windows")] if "window_gap" in steps[0] else [])
     fig, axes = plt.subplots(1, len(keys), figsize=(5.5 * len(keys), 4.0), squeeze=False)
     labels = [s["model"] for s in steps]
@@ -160,16 +163,16 @@ def waterfall_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
     return _save(fig, path, dpi)
 
 
-def open_loop_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
+def open_loop_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
     """Target states of the test maneuver(s): measured, FMU, FMU + all chosen effects."""
-    problem = result["problem"]
-    far = result["how_far"]
+    problem = result.problem
+    far = result.how_far
     names = list(far["trajectories"])
     targets = [problem.state_names.index(s) for s in problem.target_weights]
     fig, axes = plt.subplots(len(targets) * len(names), 1, figsize=(11.0, 2.6 * len(targets) * len(names)),
                              squeeze=False)
     for i, name in enumerate(names):
-        p = result["prepared"][name]
+        p = result.prepared[name]
         t = p.measured.time_s
         sl = _thin(len(t))
         variants = list(far["trajectories"][name])
@@ -188,12 +191,12 @@ def open_loop_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
     return _save(fig, path, dpi)
 
 
-def growth_figure(result: dict[str, Any], path: Path, dpi: int) -> Path:
+def growth_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
     """Whole-maneuver open-loop error of the FMU over time (normalised by each target's spread), per maneuver."""
     fig, ax = plt.subplots(figsize=(10.0, 3.8))
     threshold = None
-    for item in result["growth"]:
-        p = result["prepared"][item["maneuver"]]
+    for item in result.growth:
+        p = result.prepared[item["maneuver"]]
         threshold = item["threshold_relative"]
         for signal, err in item["normalised_error"].items():
             sl = _thin(len(err))

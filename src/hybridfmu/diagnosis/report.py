@@ -5,13 +5,16 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from hybridfmu.diagnosis import figures
 from hybridfmu.diagnosis.export import DIAGNOSED_MODEL, save_diagnosed
 from hybridfmu.io import write_json_atomic, write_text_atomic
+
+if TYPE_CHECKING:
+    from hybridfmu.diagnosis.result import DiagnosisResult
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -65,11 +68,11 @@ def _relative_error_text(item: dict[str, Any]) -> str:
     return f"{100.0 * float(row['value']):+.3g} %"
 
 
-def verdict(result: dict[str, Any]) -> str:
+def verdict(result: DiagnosisResult) -> str:
     """One paragraph: which equation carries the gap, what was found, how far it shrank."""
-    problem = result["problem"]
-    where = result["where"]
-    chosen = result["which"]["chosen"]
+    problem = result.problem
+    where = result.where
+    chosen = result.which["chosen"]
     parts = []
     carrier = where["carrier"]
     if carrier:
@@ -92,7 +95,7 @@ def verdict(result: dict[str, Any]) -> str:
         ratios = ", ".join(f"d{k}/dt: {v['ratio_to_noise']:.2f}" for k, v in where["states"].items())
         parts.append("No candidate effect explains a significant part of the equation error: nothing is named "
                      f"(equation error / noise floor: {ratios}).")
-    far = result.get("how_far")
+    far = result.how_far
     if far:
         before, after = far["before"], far["after"]
         quoted = "; ".join(f"{problem.labels.get(s, s)} RMS {before[f'{sig}_rmse']:.4g} -> {after[f'{sig}_rmse']:.4g} "
@@ -100,23 +103,23 @@ def verdict(result: dict[str, Any]) -> str:
                                                                   for s in problem.target_weights))
         parts.append(f"Open loop on the held-out test data: {quoted} (normalised gap {far['gap_before']:.4g} -> "
                      f"{far['gap_after']:.4g}, factor {far['shrink_factor']:.3g}).")
-    elif result.get("how_far_not_run"):
-        parts.append(f"Held-out check not run: {result['how_far_not_run']}")
+    elif result.how_far_not_run:
+        parts.append(f"Held-out check not run: {result.how_far_not_run}")
     return " ".join(parts)
 
 
-def diagnosis_record(result: dict[str, Any], config: dict[str, Any]) -> dict[str, Any]:
+def diagnosis_record(result: DiagnosisResult, config: dict[str, Any]) -> dict[str, Any]:
     """The content of ``diagnosis.json``."""
-    problem = result["problem"]
-    which = result["which"]
-    far = result.get("how_far")
-    growth = result.get("growth")
-    settings = result["settings"]
+    problem = result.problem
+    which = result.which
+    far = result.how_far
+    growth = result.growth
+    settings = result.settings
     record = {
         "case": config.get("case"),
         "maneuvers": {name: m["role"] for name, m in config["maneuvers"].items()},
-        "fit_maneuvers": result["fit_names"], "test_maneuvers": result["test_names"],
-        "calibration": result.get("calibration"), "model_parameters": result.get("model_parameters", {}),
+        "fit_maneuvers": result.fit_names, "test_maneuvers": result.test_names,
+        "calibration": result.calibration, "model_parameters": result.model_parameters,
         "report_scale": dict(settings.get("report_scale") or {}),
         "method": {
             "equation_error": "measured one-sample change minus the model's (RK4 step for one_step_states, "
@@ -135,8 +138,8 @@ def diagnosis_record(result: dict[str, Any], config: dict[str, Any]) -> dict[str
                     "units": problem.units, "labels": problem.labels, "targets": problem.target_weights},
         "verdict": verdict(result),
         "where": {
-            "equations": result["where"],
-            "regions": result["regions"],
+            "equations": result.where,
+            "regions": result.regions,
             "open_loop_growth": [{k: v for k, v in item.items() if k != "normalised_error"} for item in (growth or [])],
         },
         "which": {
@@ -146,7 +149,7 @@ def diagnosis_record(result: dict[str, Any], config: dict[str, Any]) -> dict[str
             "skipped_candidates": which["skipped"],
         },
         "how_far": None if far is None else {k: v for k, v in far.items() if k != "trajectories"},
-        "how_far_not_run": result.get("how_far_not_run") if far is None else None,
+        "how_far_not_run": result.how_far_not_run if far is None else None,
     }
     return json_safe(record)
 
@@ -343,21 +346,21 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
     return "\n".join(lines)
 
 
-def write_outputs(result: dict[str, Any], config: dict[str, Any], out_dir: str | Path) -> dict[str, Any]:
+def write_outputs(result: DiagnosisResult, config: dict[str, Any], out_dir: str | Path) -> dict[str, Any]:
     """Write ``diagnosis.json``, ``report.md``, the figures and the diagnosed model (``diagnosed_model.pkl``,
     :mod:`hybridfmu.diagnosis.export`) to ``out_dir``; return the record and paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    dpi = int(result["settings"].get("figures_dpi") or 120)
+    dpi = int(result.settings.get("figures_dpi") or 120)
     record = diagnosis_record(result, config)
     makers = dict(FIGURES)
-    if result.get("how_far"):
+    if result.how_far:
         makers.update(OPEN_LOOP_FIGURES)
     written = []
     for name, maker in makers.items():
         written.append(maker(result, out_dir / name, dpi))
-    if result.get("diagnosed") is not None:
-        save_diagnosed(result["diagnosed"], out_dir / DIAGNOSED_MODEL)
+    if result.diagnosed is not None:
+        save_diagnosed(result.diagnosed, out_dir / DIAGNOSED_MODEL)
     write_json_atomic(out_dir / "diagnosis.json", record)
     write_text_atomic(out_dir / "report.md", report_markdown(record, [p.name for p in written]))
     return {"record": record, "figures": written, "json": out_dir / "diagnosis.json", "report": out_dir / "report.md"}

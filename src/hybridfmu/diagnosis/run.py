@@ -5,7 +5,7 @@ calibration (:mod:`hybridfmu.diagnosis.inputs`), never a bench's ground truth (t
 :mod:`hybridfmu.evaluation.neural_comparison`).
 ``run_diagnosis`` does the computation on loaded objects (any model with ``state_names``,
 ``input_names``, ``derivatives``, ``jacobians``; parameters via ``get_parameters``/``set_parameters``)
-and returns the result as a dictionary; :mod:`hybridfmu.diagnosis.report` writes it. The open-loop check on
+and returns a :class:`hybridfmu.diagnosis.result.DiagnosisResult`; :mod:`hybridfmu.diagnosis.report` writes it. The open-loop check on
 held-out maneuvers is :mod:`hybridfmu.diagnosis.open_loop`.
 """
 
@@ -30,6 +30,7 @@ from hybridfmu.diagnosis.prepare import (MeasuredManeuver, PreparedManeuver, fil
                                          prepare_maneuver)
 from hybridfmu.diagnosis.problem import Problem, set_data_statistics
 from hybridfmu.diagnosis.refit import RefitSpec
+from hybridfmu.diagnosis.result import DiagnosisResult
 from hybridfmu.diagnosis.regions import (RegionSamples, band_family, ranked_statements, region_table, reversal_mask,
                                          time_bins)
 from hybridfmu.diagnosis.selection import (DesignCache, EquationSelection, SelectionSettings, Term, best_setting,
@@ -360,7 +361,7 @@ def prepare_all(problem: Problem, model: Any, measured: dict[str, MeasuredManeuv
 
 def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredManeuver], *, helper: Any = None,
                   simulate_fn: Callable | None = None, open_loop: bool = True,
-                  refit: RefitSpec | None = None) -> dict[str, Any]:
+                  refit: RefitSpec | None = None) -> DiagnosisResult:
     """Where / which / how far on loaded maneuvers.
 
     Args:
@@ -401,15 +402,14 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
     # the model the held-out check ends with (recalibrated with its effects when refit is on)
     diagnosed = far.pop("diagnosed") if far is not None else \
         DiagnosedModel(list(which["terms"]), {}, problem, [t.effect.name for t in which["terms"]])
-    return {"settings": problem.settings, "problem": problem, "prepared": prepared, "fit_names": fit_names,
-            "diagnosed": diagnosed,
-            "test_names": test_names, "where": where, "regions": regions, "which": which,
-            "how_far": far, "how_far_not_run": not_run, "growth": growth}
+    return DiagnosisResult(settings=problem.settings, problem=problem, prepared=prepared, fit_names=fit_names,
+                           test_names=test_names, diagnosed=diagnosed, where=where, regions=regions, which=which,
+                           how_far=far, how_far_not_run=not_run, growth=growth)
 
 
 def analyse(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, str | Path],
             segments_paths: dict[str, str | Path], calibration_path: str | Path | None = None,
-            open_loop: bool = True) -> dict[str, Any]:
+            open_loop: bool = True) -> DiagnosisResult:
     """Run the whole diagnosis of a case from its files (see :func:`hybridfmu.diagnosis.report.diagnose`).
 
     Args:
@@ -425,13 +425,13 @@ def analyse(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, 
 
 
 def analyse_inputs(config: dict[str, Any], case: CaseInputs, calibration_source: str | None = None,
-                   open_loop: bool = True) -> dict[str, Any]:
+                   open_loop: bool = True) -> DiagnosisResult:
     """The whole diagnosis of loaded inputs (:func:`load_inputs`, :func:`case_inputs`); ``config`` is the validated
     case config they came from, ``calibration_source`` where the calibration was read (for the record)."""
     from hybridfmu.diagnosis.refit import refit_spec
 
     result = run_diagnosis(case.problem, case.model, case.measured, helper=case.helper, open_loop=open_loop,
                            refit=refit_spec(config, case.settings))
-    result["calibration"] = calibration_source
-    result["model_parameters"] = case.parameters
+    result.calibration = calibration_source
+    result.model_parameters = dict(case.parameters)
     return result
