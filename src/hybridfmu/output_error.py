@@ -208,7 +208,7 @@ def fit_output_error(variables: Sequence[Variable], simulate: Callable[[dict[str
             (name -> value).
         measured: the measured targets of each maneuver, (T_m, n_t) each.
         weights: (n_t,) target weights; spread: (n_t,) the targets' spreads (:func:`target_spread`).
-        relative_step: forward-difference step relative to max(|z|, 1) of a normalised variable.
+        relative_step: forward-difference step relative to |z| of a normalised variable z (:func:`forward_step`).
         tolerance: least_squares' xtol, ftol and gtol.
         max_evaluations: most objective evaluations at trial points per start (least_squares' max_nfev).
         label: prefix of the progress lines.
