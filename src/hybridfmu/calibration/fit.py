@@ -44,7 +44,7 @@ import numpy as np
 from hybridfmu.calibration.data import ManeuverArrays
 from hybridfmu.config import ConfigError
 from hybridfmu.data.roles import CaseRoles
-from hybridfmu.output_error import Variable, fit_output_error
+from hybridfmu.output_error import Variable, fit_output_error, target_spread
 
 LOG = logging.getLogger(__name__)
 
@@ -290,9 +290,7 @@ def check_settings(settings: FitSettings, parameter_names: Sequence[str], roles:
 
 def target_std(simulator: TargetSimulator, maneuvers: list[ManeuverArrays]) -> np.ndarray:
     """(n_targets,) standard deviation of each measured target over ``maneuvers`` (1 where it is 0)."""
-    pooled = np.concatenate([simulator.measured_targets(m) for m in maneuvers], axis=0)
-    std = pooled.std(axis=0)
-    return np.where(std > 0, std, 1.0)
+    return target_spread([simulator.measured_targets(m) for m in maneuvers])
 
 
 def fit_case(model, roles: CaseRoles, settings: FitSettings, start_parameters: dict[str, float],

@@ -85,11 +85,16 @@ def repeat_share(values: np.ndarray) -> float:
     Returns:
         A share in [0, 1]; 1.0 for fewer than two finite samples (nothing moves).
     """
+    repeats, increments = _repeats(values)
+    return repeats / increments if increments else 1.0
+
+
+def _repeats(values: np.ndarray) -> tuple[int, int]:
+    """(zero increments, increments) between a channel's consecutive finite samples."""
     values = np.asarray(values, dtype=float)
     values = values[np.isfinite(values)]
-    if values.size < 2:
-        return 1.0
-    return float(np.mean(np.diff(values) == 0.0))
+    steps = np.diff(values)
+    return int(np.count_nonzero(steps == 0.0)), int(steps.size)
 
 
 def logged_sources(signal: str, roles: Any) -> list[str]:
@@ -128,10 +133,9 @@ def choose_conventions(undeclared: Sequence[str], samples: Mapping[str, Sequence
         signal = roles.inputs[name]
         shares = {}
         for source in logged_sources(signal, roles):
-            arrays = samples.get(source) or []
-            increments = sum(max(np.isfinite(a).sum() - 1, 0) for a in arrays)
-            repeats = sum(repeat_share(a) * max(np.isfinite(a).sum() - 1, 0) for a in arrays)
-            shares[source] = repeats / increments if increments else 1.0
+            counts = [_repeats(a) for a in samples.get(source) or []]
+            increments = sum(n for _, n in counts)
+            shares[source] = sum(r for r, _ in counts) / increments if increments else 1.0
         share = min(shares.values())
         convention = "hold" if share >= REPEAT_SHARE_HOLD else "linear"
         what = ("moves in steps: held over each sample" if convention == "hold"
