@@ -1,14 +1,16 @@
 """The chosen effects added to the model, and open-loop re-simulation against the measurements.
 
 A :class:`CorrectedModel` gathers the fitted terms by the way each adds itself to the model
-(:mod:`hybridfmu.diagnosis.effects`): additive derivative terms (the ``correction`` callable given
-to ``simulate_open_loop``, called with one state and input row per Runge-Kutta stage), modified
+(:mod:`hybridfmu.diagnosis.effects`): additive derivative terms (the ``correction`` given to
+``simulate_open_loop``: for an FMU an effect program its C step loop evaluates at every Runge-Kutta stage,
+:mod:`hybridfmu.fmu.effect_program`, else a callable called with the stage's state and input rows), modified
 logged inputs (time shift, first-order lag, static nonlinearities such as a dead zone or a saturation,
 gain, offset; changes of different kinds to one input compose, in that order; where several
 equations chose an effect of the same kind on the same input, the higher-ranked one is applied), and
 corrected model parameters (set on the simulating instance
-for the simulation, restored afterwards). Terms that need model derivatives evaluate them with a
-second model instance (``helper``), so the simulation's own instance is never re-entered.
+for the simulation, restored afterwards). In Python, terms that need model derivatives evaluate them with a
+second model instance (``helper``), so the simulation's own instance is never re-entered; in C, the
+simulating instance evaluates them within the stage.
 
 Open-loop errors are reported per target signal over the whole maneuver (from the measured initial
 state, unmeasured states from the calibration) and, when ``window_s`` is set, as the mean error of
@@ -27,6 +29,7 @@ import numpy as np
 from hybridfmu.diagnosis.effects import EffectInputs, input_derivative
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.selection import Term
+from hybridfmu.fmu.effect_program import EffectProgram, EffectTerm
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -129,6 +132,10 @@ class CorrectedModel:
         #: (equation, or a joint effect's equations, batch function returning (N,) or (N, k)) of the terms the
         #: model evaluates (:meth:`additive_batch`)
         self.batches: list[tuple[int | list[int], Callable]] = []
+        #: the terms of ``rows`` and of ``batches`` (in their orders) as the C step loop evaluates them (None
+        #: for one without a C form), for :meth:`effect_program`
+        self.row_stage_terms: list[EffectTerm | None] = []
+        self.batch_stage_terms: list[EffectTerm | None] = []
         self.parameters: dict[str, float] = {}
         #: input column -> [(effect kind, change)] in rank order (see ``Effect.input_change``)
         self.input_changes: dict[int, list[tuple[str, dict[str, Any]]]] = {}
@@ -164,11 +171,14 @@ class CorrectedModel:
                 if batch is None:
                     raise ValueError(f"{effect.name}: the effect needs a helper model instance")
                 self.batches.append(([m.equation for m in members], batch))
+                joint_stage = getattr(members[0], "joint_stage_term", None)
+                self.batch_stage_terms.append(joint_stage(members, coef, setting) if callable(joint_stage) else None)
                 continue
             for member in members:  # a joint effect in each of its equations
                 row = member.row_function(coef, setting)
                 if row is not None:
                     self.rows.append((member.equation, row))
+                    self.row_stage_terms.append(member.stage_term(coef, setting))
                     self.row_terms.append((member.equation, member, coefficients, dict(setting)))
                     if not any(array is coefficients for _, array in self.row_coefficients):
                         self.row_coefficients.append((effect.name, coefficients))
@@ -177,12 +187,15 @@ class CorrectedModel:
                 if batch is None:
                     raise ValueError(f"{effect.name}: the effect offers no way to be added to the model")
                 self.batches.append((member.equation, batch))
+                self.batch_stage_terms.append(member.stage_term(coef, setting))
                 source = getattr(member, "source_batch_function", None)
                 if source is not None:  # an overflow also limits the unmeasured state it comes from
                     limited = source(setting, helper)
                     if limited is None:
                         raise ValueError(f"{effect.name}: the effect needs a helper model instance")
                     self.batches.append(limited)
+                    source_stage = getattr(member, "source_stage_term", None)
+                    self.batch_stage_terms.append(source_stage(setting) if callable(source_stage) else None)
 
     @property
     def has_correction(self) -> bool:
@@ -238,8 +251,20 @@ class CorrectedModel:
                 out[:, equation, start:start + coef.size] += regressors
         return out
 
+    def effect_program(self) -> EffectProgram | None:
+        """The additive terms as an :class:`~hybridfmu.fmu.effect_program.EffectProgram` (rows, then batches,
+        the order :meth:`__call__` sums them in; same values), or None when some term has no C form."""
+        terms = self.row_stage_terms + self.batch_stage_terms
+        if not terms or any(term is None for term in terms):
+            return None
+        return EffectProgram(terms, self.n_x, self.n_u, python=self)
+
     def correction(self) -> Callable | None:
-        return self if self.has_correction else None
+        """The additive terms to simulate with: the :meth:`effect_program` (evaluated by an FMU's C step loop,
+        called as this model elsewhere) when every term has a C form, else this model; None without terms."""
+        if not self.has_correction:
+            return None
+        return self.effect_program() or self
 
     def inputs(self, u: np.ndarray, dt_s: float) -> np.ndarray:
         """The logged inputs (N, n_u) as the corrected model sees them (``dt_s``: sampling interval, s).

@@ -29,6 +29,7 @@ from typing import Any, Callable
 import numpy as np
 
 from hybridfmu.diagnosis.derivatives import odd_window, savgol_smooth
+from hybridfmu.fmu.effect_program import EffectTerm
 
 #: Samples of the input derivative's Savitzky-Golay window when no window is configured.
 DEFAULT_LAG_DERIVATIVE_SAMPLES = 5
@@ -330,6 +331,11 @@ class Effect:
     def batch_function(self, coef: np.ndarray, setting: dict[str, float],
                        helper: Any) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
         """Array version (x (N, n_x), u (N, n_u)) -> (N,) using a helper model instance, or None."""
+        return None
+
+    def stage_term(self, coef: np.ndarray, setting: dict[str, float]) -> EffectTerm | None:
+        """The term of :meth:`row_function` or :meth:`batch_function` in the form an FMU's C step loop evaluates
+        at every solver stage (same values), or None for an effect without one (it is then called from Python)."""
         return None
 
     def input_change(self, coef: np.ndarray, setting: dict[str, float]) -> dict[str, Any] | None:

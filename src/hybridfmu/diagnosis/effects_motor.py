@@ -30,6 +30,7 @@ from hybridfmu.config import ConfigError
 from hybridfmu.diagnosis.effects import Effect, EffectInputs, linear_estimate, param
 from hybridfmu.diagnosis.library import log_grid_bounds
 from hybridfmu.diagnosis.problem import positive_grid
+from hybridfmu.fmu.effect_program import EffectTerm
 
 WHERE = "config.diagnosis.plugin_options.hybridfmu.diagnosis.effects_motor"
 
@@ -149,6 +150,17 @@ class InverterDeadtime(Effect):
             f = evaluate(stacked_x, stacked_u)
             return f[:n, rows] - f[n:, rows]
         return term
+
+    def stage_term(self, coef, setting):
+        return self.joint_stage_term([self], coef, setting)
+
+    @staticmethod
+    def joint_stage_term(members: list["InverterDeadtime"], coef, setting) -> EffectTerm:
+        """:meth:`joint_batch_function` as a :meth:`stage_term` (one model evaluation for all ``members``)."""
+        first = members[0]
+        return EffectTerm("phase_deadtime", tuple(member.equation for member in members),
+                          (*first.duties, *first.currents, first.angle),
+                          (float(coef[0]), float(setting["current_scale_a"]), first.pole_pairs))
 
     def physical(self, coef, cov, setting, setting_se):
         duty_error, se = linear_estimate(coef, cov, [1.0])

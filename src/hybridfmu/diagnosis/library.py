@@ -64,6 +64,7 @@ from hybridfmu.config import ConfigError
 from hybridfmu.diagnosis.effects import (Effect, EffectInputs, first_order_lag, linear_estimate, make_input_change,
                                          param, shift_samples, smooth_sign)
 from hybridfmu.diagnosis.problem import Problem, positive_grid, quantile_grid
+from hybridfmu.fmu.effect_program import EffectTerm
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -133,6 +134,9 @@ class Viscous(StateEffect):
         c, j = float(coef[0]), self.variable
         return lambda x, u: -c * x[j]
 
+    def stage_term(self, coef, setting):
+        return EffectTerm("viscous", (self.equation,), (self.variable,), (float(coef[0]),))
+
 
 class Quadratic(StateEffect):
     def __init__(self, problem, equation, variable):
@@ -147,6 +151,9 @@ class Quadratic(StateEffect):
     def row_function(self, coef, setting):
         c, j = float(coef[0]), self.variable
         return lambda x, u: -c * x[j] * abs(x[j])
+
+    def stage_term(self, coef, setting):
+        return EffectTerm("quadratic", (self.equation,), (self.variable,), (float(coef[0]),))
 
 
 class Polynomial(StateEffect):
@@ -169,6 +176,9 @@ class Polynomial(StateEffect):
     def row_function(self, coef, setting):
         cs, j = [float(c) for c in coef], self.variable
         return lambda x, u: sum(c * x[j] ** (k + 2) for k, c in enumerate(cs))
+
+    def stage_term(self, coef, setting):
+        return EffectTerm("polynomial", (self.equation,), (self.variable,), tuple(float(c) for c in coef))
 
 
 def smoothing_grid(problem: Problem, variable: int, options: dict[str, Any]) -> list[float]:
@@ -233,6 +243,12 @@ class Coulomb(StateEffect):
         inv = 1.0 / v_s if v_s > 0 else 0.0
         return lambda x, u: -(c + c_s * math.exp(-(x[j] * inv) ** 2)) * math.tanh(x[j] / eps)
 
+    def stage_term(self, coef, setting):
+        v_s = setting.get("stribeck_velocity", 0.0)
+        return EffectTerm("coulomb", (self.equation,), (self.variable,),
+                          (float(coef[0]), float(coef[1]) if len(coef) > 1 else 0.0, 1.0 / v_s if v_s > 0 else 0.0,
+                           float(setting["smoothing"])))
+
     def physical(self, coef, cov, setting, setting_se):
         unit = self.coefficient_unit
         out = [param("coulomb_level", *linear_estimate(coef, cov, [1.0] + [0.0] * (len(coef) - 1)), unit,
@@ -291,6 +307,10 @@ class ScaledCoulomb(Effect):
             return -(c + c_a * s) * abs(u[k]) * s
         return term
 
+    def stage_term(self, coef, setting):
+        return EffectTerm("scaled_coulomb", (self.equation,), (self.variable, self.input),
+                          (float(coef[0]), float(coef[1]) if len(coef) > 1 else 0.0, float(setting["smoothing"])))
+
     def physical(self, coef, cov, setting, setting_se):
         unit = self.coefficient_unit
         fixed = len(self.smoothings) < 2
@@ -346,6 +366,13 @@ class Periodic(StateEffect):
                  for m in range(1, self._count(setting) + 1)]
         return lambda x, u: sum(a * math.sin(w * x[j]) + b * math.cos(w * x[j]) for w, a, b in pairs)
 
+    def stage_term(self, coef, setting):
+        k, scale = int(setting["order"]), 2.0 * math.pi / self.period
+        reals = []
+        for m in range(1, self._count(setting) + 1):
+            reals += [m * k * scale, float(coef[2 * (m - 1)]), float(coef[2 * (m - 1) + 1])]
+        return EffectTerm("periodic", (self.equation,), (self.variable,), tuple(reals))
+
     def physical(self, coef, cov, setting, setting_se):
         k, h = int(setting["order"]), self._count(setting)
         unit = self.problem.unit(self.problem.state_names[self.variable])
@@ -393,6 +420,10 @@ class Saturation(StateEffect):
         if self.side == "above":
             return lambda x, u: c0 * max(x[j] - t, 0.0)
         return lambda x, u: c0 * max(t - x[j], 0.0)
+
+    def stage_term(self, coef, setting):
+        return EffectTerm(f"saturation_{self.side}", (self.equation,), (self.variable,),
+                          (float(coef[0]), float(setting["threshold"])))
 
     def physical(self, coef, cov, setting, setting_se):
         return [param("slope", *linear_estimate(coef, cov, [1.0]), self.coefficient_unit, "slope beyond the threshold"),
@@ -450,6 +481,10 @@ class Limit(StateEffect):
             return c * self._term(np.asarray(x, dtype=float)[:, i], f[:, i], level)
 
         return term
+
+    def stage_term(self, coef, setting):
+        return EffectTerm(f"limit_{self.side}", (self.equation,), (self.equation,),
+                          (float(coef[0]), float(setting["level"])))
 
     def physical(self, coef, cov, setting, setting_se):
         return [param("stop_fraction", *linear_estimate(coef, cov, [1.0]), "-",
@@ -548,6 +583,13 @@ class Overflow(Effect):
             return share * self.spill(x[:, j], f[:, j], level)
 
         return term
+
+    def stage_term(self, coef, setting):
+        return EffectTerm("spill", (self.equation,), (self.variable,), (float(coef[1]), float(setting["level"])))
+
+    def source_stage_term(self, setting) -> EffectTerm:
+        """:meth:`source_batch_function` as a :meth:`stage_term`."""
+        return EffectTerm("spill", (self.variable,), (self.variable,), (-1.0, float(setting["level"])))
 
     def source_batch_function(self, setting, helper) -> tuple[int, Callable] | None:
         """The hard limit in the unmeasured state's own equation: (its index, (x, u) -> (N,) rate change)."""

@@ -22,6 +22,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "effects.h"
+
 typedef void *hf_component;
 typedef unsigned int hf_vr;
 typedef int hf_status;
@@ -48,7 +50,8 @@ enum {
     HF_FN_GET_DIR_DER = 7,
     HF_FN_COMPLETED_STEP = 8,
     HF_FN_CORRECTION = 9,
-    HF_FN_MALLOC = 10
+    HF_FN_MALLOC = 10,
+    HF_FN_EFFECTS = 11
 };
 
 /* Negative return codes that are not FMI statuses. */
@@ -86,6 +89,15 @@ typedef struct {
     double *cb_x;
     double *cb_u;
     double *cb_dx;
+    /* optional diagnosed effects added to the derivatives during integration, evaluated in C (effects.c):
+       the program (effect_code: effect_n_code entries, effect_reals), its output (nx) and work buffer
+       (nu + nx), and whether it evaluates the model with changed inputs (set back afterwards) */
+    const long long *effect_code;
+    size_t effect_n_code;
+    const double *effect_reals;
+    double *effect_out;
+    double *effect_work;
+    int effect_sets_inputs;
     /* error report */
     int failed_function;
     long long failed_row;
@@ -368,13 +380,33 @@ int hf_jacobians_fd(hf_model *m, size_t n, const double *t, size_t t_stride, con
 
 /* ---------------------------------------------------------------- integration */
 
-/* out = f(t, x, u) + correction(x, u); the inputs must already be set in the FMU. */
+/* The FMU's derivatives dx at its current time and states with the inputs u (an effect's evaluation). */
+static int hf_effect_eval(void *context, const double *u, double *dx) {
+    hf_model *m = (hf_model *)context;
+    HF_CHECK(m, m->set_real(m->component, m->vr_u, m->nu, u), HF_FN_SET_REAL, -1);
+    HF_CHECK(m, m->get_derivatives(m->component, dx, m->nx), HF_FN_GET_DERIVATIVES, -1);
+    return 0;
+}
+
+/* out = f(t, x, u) + effects(x, u, f) + correction(x, u); the inputs must already be set in the FMU. */
 static int hf_rhs(hf_model *m, double t, const double *x, const double *u, double *out,
                   long long row) {
     size_t i;
     HF_CHECK(m, m->set_time(m->component, t), HF_FN_SET_TIME, row);
     HF_CHECK(m, m->set_states(m->component, x, m->nx), HF_FN_SET_STATES, row);
     HF_CHECK(m, m->get_derivatives(m->component, out, m->nx), HF_FN_GET_DERIVATIVES, row);
+    if (m->effect_code) {
+        int st = hf_effects_add(m->effect_code, m->effect_n_code, m->effect_reals, m->nx, m->nu, x, u, out,
+                                m->effect_out, m->effect_work, hf_effect_eval, m);
+        if (st == HF_EFFECT_ERR_PROGRAM) HF_FAIL(m, HF_FN_EFFECTS, row, st);
+        if (st) {
+            m->failed_row = row;
+            return st;
+        }
+        if (m->effect_sets_inputs && m->nu)
+            HF_CHECK(m, m->set_real(m->component, m->vr_u, m->nu, u), HF_FN_SET_REAL, row);
+        for (i = 0; i < m->nx; ++i) out[i] += m->effect_out[i];
+    }
     if (m->correction) {
         memcpy(m->cb_x, x, m->nx * sizeof(double));
         if (m->nu) memcpy(m->cb_u, u, m->nu * sizeof(double));

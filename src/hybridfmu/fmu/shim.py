@@ -1,7 +1,7 @@
 """Compile, cache and load the C shim (``shim.c``) that evaluates an FMU over a whole batch.
 
-The shim is compiled with gcc at first use into a cache folder keyed by the hash of its source,
-the compiler and the flags: ``$HYBRIDFMU_CACHE`` if set, else ``~/.cache/hybridfmu`` (a folder in
+The shim (with the diagnosed effects of ``effects.c``) is compiled with gcc at first use into a cache folder
+keyed by the hash of its sources, the compiler and the flags: ``$HYBRIDFMU_CACHE`` if set, else ``~/.cache/hybridfmu`` (a folder in
 the system's temp folder if that one is not writable). The
 library is compiled into a temporary file in that folder and renamed over the final name, so
 several processes that start at once are safe (each may compile; the last rename wins, and every
@@ -21,7 +21,12 @@ from ctypes import POINTER, c_char_p, c_double, c_int, c_longlong, c_size_t, c_u
 from pathlib import Path
 
 SOURCE_PATH = Path(__file__).with_name("shim.c")
-COMPILE_FLAGS = ("-O2", "-std=c99", "-shared", "-fPIC", "-Wall")
+#: the C sources compiled into the shim, and the header they share (all part of the cache key)
+SOURCE_PATHS = (SOURCE_PATH, Path(__file__).with_name("effects.c"))
+HEADER_PATHS = (Path(__file__).with_name("effects.h"),)
+#: ISO C without floating-point contraction: every expression rounds as written (the effects of ``effects.c``
+#: compute the same values as their Python forms)
+COMPILE_FLAGS = ("-O2", "-std=c99", "-ffp-contract=off", "-shared", "-fPIC", "-Wall")
 
 # Codes of the FMI function that failed (mirror of the enum in shim.c).
 FUNCTION_NAMES = {
@@ -36,10 +41,12 @@ FUNCTION_NAMES = {
     8: "fmi2CompletedIntegratorStep",
     9: "the correction callback",
     10: "memory allocation",
+    11: "the diagnosed effects' program",
 }
 ERR_CALLBACK = -1
 ERR_NO_MEMORY = -2
 ERR_NOT_FINITE = -3
+ERR_EFFECT_PROGRAM = -4
 
 # Why hf_simulate returned (mirror of shim.c).
 SIM_DONE = 0
@@ -77,6 +84,12 @@ class ShimModel(ctypes.Structure):
         ("cb_x", _DOUBLE_P),
         ("cb_u", _DOUBLE_P),
         ("cb_dx", _DOUBLE_P),
+        ("effect_code", c_void_p),
+        ("effect_n_code", c_size_t),
+        ("effect_reals", c_void_p),
+        ("effect_out", c_void_p),
+        ("effect_work", c_void_p),
+        ("effect_sets_inputs", c_int),
         ("failed_function", c_int),
         ("failed_row", c_longlong),
         ("failed_status", c_int),
@@ -118,7 +131,7 @@ def _compiler_version(compiler: str) -> str:
 def shim_path() -> Path:
     """Path of the compiled shim for the current source, compiler and flags (built if missing)."""
     compiler = _compiler()
-    source = SOURCE_PATH.read_bytes()
+    source = b"".join(path.read_bytes() for path in SOURCE_PATHS + HEADER_PATHS)
     key = hashlib.sha256(
         source + _compiler_version(compiler).encode() + " ".join(COMPILE_FLAGS).encode()
     ).hexdigest()[:16]
@@ -140,11 +153,12 @@ def shim_path() -> Path:
     os.close(handle)
     try:
         proc = subprocess.run(
-            [compiler, *COMPILE_FLAGS, "-o", tmp_name, str(SOURCE_PATH), "-lm"],
+            [compiler, *COMPILE_FLAGS, "-o", tmp_name, *(str(path) for path in SOURCE_PATHS), "-lm"],
             capture_output=True, text=True, timeout=300,
         )
         if proc.returncode != 0:
-            raise ShimBuildError(f"compiling {SOURCE_PATH} with {compiler} failed:\n{proc.stderr}")
+            raise ShimBuildError(f"compiling {', '.join(str(p) for p in SOURCE_PATHS)} with {compiler} failed:\n"
+                                 f"{proc.stderr}")
         os.replace(tmp_name, target)
     finally:
         if os.path.exists(tmp_name):
@@ -178,6 +192,7 @@ def _declare(lib: ctypes.CDLL) -> None:
         "hf_jacobians_fd": (c_int, batch + [ptr, ptr, c_double, ptr, ptr]),
         "hf_rk4_step": (c_int, [ptr, c_double, c_double, ptr, ptr, ptr, ptr, ptr]),
         "hf_completed_step": (c_int, [ptr, ptr]),
+        "hf_effects_add": (c_int, [ptr, c_size_t, ptr, c_size_t, c_size_t, ptr, ptr, ptr, ptr, ptr, ptr, ptr]),
         "hf_simulate": (c_int, [ptr, c_size_t, ptr, ptr, c_size_t, c_double, ptr, ptr, ptr, ptr]),
         "hf_neural_rollout": (c_int, [ptr, c_size_t, c_size_t, c_double, c_int, ptr, ptr, ptr, ptr, ptr, c_size_t,
                                       ptr, ptr, c_longlong, c_longlong, c_double, c_double, ptr, ptr, ptr, ptr]),

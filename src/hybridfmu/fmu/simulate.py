@@ -39,6 +39,7 @@ import numpy as np
 
 from hybridfmu.fmu import shim as _shim
 from hybridfmu.fmu.bridge import FmuError, FmuModel, FmuTerminated
+from hybridfmu.fmu.effect_program import EffectProgram
 
 Correction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -104,9 +105,9 @@ def simulate_open_loop(
 
     time_s: (T,) strictly increasing sample times in s; u: (T, n_u) inputs (u[k] acts on
     [time_s[k], time_s[k+1]); None if the FMU has no inputs); x0: (n_x,) initial states.
-    correction: optional callable (x (1, n_x), u (1, n_u)) -> (1, n_x) added to the FMU's
-    derivatives at every right-hand-side evaluation (it is called from the C step loop, once
-    per RK4 stage). event_tolerance_s: width of the bracket that locates a state event.
+    correction: optional terms added to the FMU's derivatives at every right-hand-side evaluation:
+    an :class:`~hybridfmu.fmu.effect_program.EffectProgram` (evaluated by the C step loop itself) or a
+    callable (x (1, n_x), u (1, n_u)) -> (1, n_x) (called from the C step loop, once per RK4 stage). event_tolerance_s: width of the bracket that locates a state event.
     max_events_per_step: the most events (time, state and step events) handled within one
     sample interval before the run is stopped as chattering.
     allow_termination: if the FMU asks to terminate, return the partial result (True) or raise
@@ -177,6 +178,8 @@ class _Session:
     def _check(self, status: int, what: str) -> None:
         if status == 0:
             return
+        if status == _shim.ERR_EFFECT_PROGRAM:
+            raise ValueError(f"{what}: the C step loop found an unknown term in the effect program")
         if status == _shim.ERR_CALLBACK and self.callback_errors:
             error = self.callback_errors[0]
             raise type(error)(f"correction failed during {what}: {error}") from error
@@ -413,6 +416,9 @@ class _Session:
     def _install_correction(self) -> None:
         if self.correction is None:
             return
+        if isinstance(self.correction, EffectProgram):
+            self._buffers = self.correction.install(self.model._shim_model)
+            return
         m = self.model
         nx, nu = m.n_states, m.n_inputs
         x_buf = np.zeros((1, nx))
@@ -441,3 +447,4 @@ class _Session:
 
     def _remove_correction(self) -> None:
         self.model._shim_model.correction = _shim.CORRECTION_FN()
+        EffectProgram.remove(self.model._shim_model)

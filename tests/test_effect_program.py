@@ -1,0 +1,177 @@
+"""The diagnosed effects in C (``effects.c`` through ``EffectProgram``): the same numbers as their Python forms,
+term by term and over whole FMU simulations, and programs that do not fit the model refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from diagnosis_models import MassSpringDamper, msd_maneuvers, msd_problem
+from hybridfmu.diagnosis.corrected_model import CorrectedModel
+from hybridfmu.diagnosis.effects_motor import InverterDeadtime
+from hybridfmu.diagnosis.joint import JointEffect
+from hybridfmu.diagnosis.library import Coulomb, Limit, Overflow, Periodic, ScaledCoulomb, Viscous, build_library
+from hybridfmu.diagnosis.prepare import prepare_maneuver
+from hybridfmu.diagnosis.problem import set_data_statistics
+from hybridfmu.diagnosis.selection import Term
+from hybridfmu.fmu import load_fmu, simulate_open_loop
+from hybridfmu.fmu.effect_program import EffectProgram, EffectTerm
+
+STATE_KINDS = {"viscous", "quadratic", "polynomial", "coulomb", "scaled_coulomb", "periodic", "saturation_above",
+               "saturation_below"}
+
+
+@pytest.fixture(scope="module")
+def library():
+    problem, model = msd_problem(equations=["x", "v"], periodic={"x": 1.0},
+                                 effects={"polynomial_degrees": [2, 3]})
+    measured = msd_maneuvers(None, duration_s=5.0)
+    set_data_statistics(problem, [measured["train"].x], 0.01)
+    prepared = prepare_maneuver(measured["train"], model, problem)
+    effects, _ = build_library(problem, prepared.inputs, model)
+    return problem, model, effects
+
+
+def random_points(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 2) states and (n, 1) inputs spread over both signs, with exact zeros among them."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0.0, 2.0, size=(n, 2))
+    u = rng.normal(0.0, 3.0, size=(n, 1))
+    x[:5] = 0.0
+    u[:3] = 0.0
+    return x, u
+
+
+def test_each_state_term_in_c_gives_the_python_row_function_to_the_bit(library):
+    problem, model, effects = library
+    x, u = random_points(400)
+    f = model.derivatives(x, u)
+    kinds = set()
+    for effect in effects[0] + effects[1]:
+        grid = effect.grid()
+        for setting in (grid[0], grid[len(grid) // 2], grid[-1]):
+            coef = np.linspace(-0.7, 1.3, len(effect.coefficient_names(setting)))
+            row = effect.row_function(coef, setting)
+            term = effect.stage_term(coef, setting)
+            if row is None:
+                continue
+            assert term is not None, f"{effect.name}: a row function without a C form"
+            expected = np.array([row(x[r].tolist(), u[r].tolist()) for r in range(len(x))])
+            got = EffectProgram([term], problem.n_x, problem.n_u).evaluate(x, u, f)
+            assert np.array_equal(got[:, effect.equation], expected), f"{effect.name} at {setting}"
+            assert not np.any(np.delete(got, effect.equation, axis=1)), f"{effect.name}: other equations changed"
+            kinds.add(effect.kind)
+    assert STATE_KINDS <= kinds, STATE_KINDS - kinds
+
+
+def test_limits_and_overflows_in_c_give_the_python_batch_functions_to_the_bit(library):
+    problem, model, _ = library
+    options = {"limit_quantiles": [0.9], "overflow_quantiles": [0.8]}
+    set_data_statistics(problem, [random_points(200, seed=1)[0]], 0.01)
+    x, u = random_points(300, seed=2)
+    f = model.derivatives(x, u)
+    checked = 0
+    for effect, coef in ((Limit(problem, 1, "above", options), [0.8]), (Limit(problem, 1, "below", options), [1.0]),
+                         (Limit(problem, 0, "above", options), [0.5]), (Overflow(problem, 1, 0, options), [1.0, 0.6])):
+        for level in (-0.5, 0.0, 1.2):
+            setting, coef = {"level": level}, np.array(coef)
+            expected = effect.batch_function(coef, setting, model)(x, u)
+            got = EffectProgram([effect.stage_term(coef, setting)], 2, 1).evaluate(x, u, f)
+            assert np.array_equal(got[:, effect.equation], expected), f"{effect.name} at {level}"
+            checked += 1
+            if isinstance(effect, Overflow):
+                j, limit = effect.source_batch_function(setting, model)
+                got = EffectProgram([effect.source_stage_term(setting)], 2, 1).evaluate(x, u, f)
+                assert np.array_equal(got[:, j], limit(x, u))
+    assert checked == 12
+
+
+class MotorProblem:
+    """The few fields of a diagnosis problem the motor's effects and a corrected model read."""
+
+    state_names = ["i_d", "i_q", "theta", "omega"]
+    input_names = ["d_a", "d_b", "d_c", "u_dc", "tau_load"]
+    n_x, n_u = 4, 5
+    settings: dict = {}
+    spread = np.array([10.0, 10.0, 3.0, 100.0])
+
+    def rate_unit(self, equation: int) -> str:
+        return "1/s"
+
+    def unit(self, name: str) -> str:
+        return ""
+
+
+def motor_terms() -> list[Term]:
+    """Friction, cogging and a load-dependent friction in the speed equation and an inverter dead time in both
+    current equations (one joint effect): every way a term reaches the C step loop, the model evaluation included."""
+    problem = MotorProblem()
+    options = {"coulomb_smoothing_relative": [0.01], "stribeck_relative": [0.05], "periodic_max_order": 6,
+               "periodic_harmonics": 2}
+    deadtime = JointEffect([InverterDeadtime(problem, e, [0, 1, 2], (0, 1), 2, 4.0, [0.5], 0.0) for e in (0, 1)])
+    return [Term(Viscous(problem, 3, 3), {}, np.array([0.02])),
+            Term(Coulomb(problem, 3, 3, options), {"smoothing": 1.0, "stribeck_velocity": 5.0}, np.array([40.0, 15.0])),
+            Term(Periodic(problem, 3, 2, 2 * np.pi, options), {"order": 6.0, "harmonics": 2.0},
+                 np.array([30.0, -10.0, 5.0, 2.0])),
+            Term(ScaledCoulomb(problem, 3, 3, 4, options), {"asymmetric": 1.0, "smoothing": 1.0}, np.array([3.0, 0.5])),
+            Term(deadtime, {"current_scale_a": 0.5}, np.array([0.02]))]
+
+
+def test_an_fmu_simulation_with_the_effects_in_c_equals_the_callback_per_stage(ipbmotor_fmu):
+    """The demo motor with every kind of additive term, the dead time's model evaluations among them: the C step
+    loop gives the states of the Python callback to the bit, and leaves the FMU's inputs as they were."""
+    time_s = np.arange(0.0, 0.2, 1e-4)
+    rng = np.random.default_rng(5)
+    u = np.empty((len(time_s), 5))
+    u[:, :3] = 0.5 + 0.3 * np.sin(2 * np.pi * 40 * time_s[:, None] + np.array([0.0, 2.1, 4.2]))
+    u[:, 3] = 24.0
+    u[:, 4] = 0.05 * rng.standard_normal(len(time_s))
+    with load_fmu(ipbmotor_fmu) as fmu, load_fmu(ipbmotor_fmu) as helper:
+        x0 = np.asarray(fmu.initial_states, dtype=float)
+        corrected = CorrectedModel(motor_terms(), MotorProblem(), helper)
+        program = corrected.correction()
+        assert isinstance(program, EffectProgram) and program.evaluates_model
+        assert [t.kind for t in program.terms] == ["viscous", "coulomb", "periodic", "scaled_coulomb",
+                                                    "phase_deadtime"]
+        in_c = simulate_open_loop(fmu, time_s, u, x0, correction=program).states
+        called_back = simulate_open_loop(fmu, time_s, u, x0, correction=corrected).states
+        plain = simulate_open_loop(fmu, time_s, u, x0).states
+        again = simulate_open_loop(fmu, time_s, u, x0).states
+    assert np.all(np.isfinite(in_c))
+    assert np.array_equal(in_c, called_back)
+    assert np.max(np.abs(in_c - plain)) > 1e-3  # the terms act
+    assert np.array_equal(plain, again)  # nothing of the program stays behind
+
+
+def test_a_term_without_a_c_form_keeps_the_callback(library):
+    problem, _, effects = library
+    corrected = CorrectedModel([Term(next(e for e in effects[1] if e.kind == "viscous"), {}, np.array([0.3]))], problem)
+    assert isinstance(corrected.correction(), EffectProgram)
+    corrected.row_stage_terms[0] = None  # as a plugin effect that offers only a Python row function
+    assert corrected.correction() is corrected
+    x, u = random_points(10)
+    program = EffectProgram([EffectTerm("viscous", (1,), (1,), (0.3,))], 2, 1, python=corrected)
+    np.testing.assert_array_equal(program(x, u), corrected(x, u))  # called as its Python form outside an FMU
+    with pytest.raises(ValueError, match="no Python form; simulate it with an FMU"):
+        EffectProgram(program.terms, 2, 1)(x, u)
+
+
+@pytest.mark.parametrize("term, message", [
+    (EffectTerm("stiction", (1,), (1,), (1.0,)), "unknown kind"),
+    (EffectTerm("viscous", (2,), (1,), (1.0,)), r"equations \[2\]: expected state indices in 0..1"),
+    (EffectTerm("viscous", (1,), (5,), (1.0,)), "index 5 at position 0: expected 0..1"),
+    (EffectTerm("scaled_coulomb", (1,), (1, 1), (1.0, 0.0, 0.1)), "index 1 at position 1: expected 0..0"),
+    (EffectTerm("coulomb", (1,), (1,), (1.0,)), "1 real arguments do not fit"),
+    (EffectTerm("periodic", (1,), (1,), (1.0, 2.0)), "2 real arguments do not fit"),
+])
+def test_a_program_that_does_not_fit_the_model_is_refused(term, message):
+    with pytest.raises(ValueError, match=f"effect term 0 \\({term.kind}\\): {message}"):
+        EffectProgram([term], 2, 1)
+
+
+def test_a_program_for_another_model_is_refused_by_the_fmu(ipbmotor_fmu):
+    with load_fmu(ipbmotor_fmu) as fmu:
+        program = EffectProgram([EffectTerm("viscous", (1,), (1,), (1.0,))], 2, 1)
+        with pytest.raises(ValueError, match="effect program for 2 states and 1 inputs, the FMU has 4 and 5"):
+            simulate_open_loop(fmu, np.arange(0.0, 0.01, 1e-3), np.zeros((10, 5)),
+                               np.asarray(fmu.initial_states, dtype=float), correction=program)
