@@ -7,9 +7,11 @@ initial state, the way the diagnosis' held-out check and the evaluation simulate
 effect terms as the C effect program (``CorrectedModel.correction()``, the default) and once with the Python
 callback per stage (the ``CorrectedModel`` itself). Prints per maneuver the wall time of each (median of
 ``--repeats``), their ratio, and the largest difference of the states (0 when both give the same numbers), and
-a JSON object with the same figures.
+a JSON object with the same figures; ``--markdown FILE`` writes the table as Markdown (for the docs:
+``python -m hybridfmu.evaluation.measured_blocks --block effects_open_loop=FILE``).
 
-    python benchmarks/effects_open_loop.py [--config config/config.yaml] [--maneuvers validation] [--repeats 3]
+    python benchmarks/effects_open_loop.py [--config config/config.yaml] [--maneuvers train validation]
+        [--repeats 3] [--markdown FILE]
 """
 
 from __future__ import annotations
@@ -43,8 +45,10 @@ def open_loop(diagnosed, fmu, helper, time_s: np.ndarray, u: np.ndarray, x0: np.
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", default="config/config.yaml")
-    parser.add_argument("--maneuvers", nargs="+", default=["validation"], help="ingested maneuvers to simulate")
+    parser.add_argument("--maneuvers", nargs="+", default=["train", "validation"],
+                        help="ingested maneuvers to simulate")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--markdown", type=Path, default=None, help="write the table as Markdown to this file")
     args = parser.parse_args()
 
     config = check_config_file(args.config)
@@ -57,8 +61,10 @@ def main() -> None:
     parameters = dict(calibration.parameters) or None
     with load_fmu(fmu_path, parameters=parameters) as fmu, load_fmu(fmu_path, parameters=parameters) as helper:
         program = diagnosed.corrected(helper).effect_program()
-        print(f"{len(diagnosed.terms)} diagnosed effect(s): {', '.join(diagnosed.effects)}; additive terms in C: "
-              f"{'none' if program is None else len(program.terms)}")
+        heading = (f"Case `{config['case']}`, FMU + {len(diagnosed.terms)} diagnosed effect(s) "
+                   f"({', '.join(diagnosed.effects)}), {'no' if program is None else len(program.terms)} additive "
+                   "term(s) among them")
+        print(heading)
         for maneuver in args.maneuvers:
             measured = read_measured(results / "data" / f"{maneuver}.parquet", roles)
             x0 = diagnosed.initial_state(initial_state(fmu, measured.x[0], roles, calibration, maneuver,
@@ -79,6 +85,18 @@ def main() -> None:
             print(f"{maneuver}: {simulated_s:.2f} s simulated; effects in C {c_s:.3f} s, called back per stage "
                   f"{python_s:.3f} s (x{python_s / c_s:.1f}); largest state difference {difference:.3g}"
                   f"{' (identical)' if same else ''}")
+    if args.markdown:
+        lines = [f"{heading}: open loop over whole maneuvers, median of {args.repeats} run(s), one core "
+                 "(`benchmarks/effects_open_loop.py`):", "",
+                 "| maneuver | simulated | terms in C | terms called back per RK4 stage | speed-up | largest state "
+                 "difference |", "|---|---|---|---|---|---|"]
+        for maneuver, figures in report.items():
+            lines.append(f"| {maneuver} | {figures['simulated_s']:.1f} s | {figures['c_s']:.3f} s | "
+                         f"{figures['python_s']:.3f} s | ×{figures['speedup']:.1f} | "
+                         f"{'0 (identical)' if figures['identical'] else format(figures['max_state_difference'], '.3g')}"
+                         " |")
+        args.markdown.parent.mkdir(parents=True, exist_ok=True)
+        args.markdown.write_text("\n".join(lines) + "\n")
     print(json.dumps(report, indent=2))
 
 

@@ -1,0 +1,127 @@
+"""Wall time of one stage (a Snakemake rule) rerun on a finished run's inputs, for one or more commits side by side.
+
+For each commit (``--commit``, default HEAD; repeatable) the repository is cloned into a temporary folder, the
+folders ``--inputs`` of a finished run's case results (``--results``, e.g. ``results/ipb``) are copied into the
+clone's results, and ``snakemake -j1 --forcerun <rule> <target>`` reruns that one rule there with the clone's
+``src`` first on the Python path (no install needed; ``--rerun-triggers mtime``, so only the forced rule runs).
+Commits and ``--repeats`` alternate, so that a before/after comparison shares the machine's load. The figure is the
+rule's wall time from Snakemake's benchmark file (``{results}/benchmarks/<rule>/<rule>.tsv``, seconds); run it
+from the folder that holds ``--results`` (the finished run's project).
+
+Prints a table and, last line, a JSON object: per commit the rule's wall times (s) and their median, and
+the ratio of the first commit's median to each other's. ``--markdown FILE`` writes the table as Markdown (for the
+docs: ``python -m hybridfmu.evaluation.measured_blocks --block <name>=FILE``).
+
+    python benchmarks/stage_wall.py --results results/ipb --rule diagnose --target results/ipb/diagnosis/diagnosis.json
+        --inputs fmu data segments calibration [--commit 357ca3c --commit HEAD] [--configfile FILE] [--repeats 1]
+        [--markdown FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from workflow_wall import clone, resolve
+
+
+def touch_tree(folder: Path) -> None:
+    """Give every file under ``folder`` the current time (the copied inputs newer than the clone's sources)."""
+    now = time.time()
+    for path in folder.rglob("*"):
+        if path.is_file():
+            os.utime(path, (now, now))
+
+
+def run_stage(checkout: Path, results: Path, inputs: list[str], rule: str, target: str,
+              configfile: str | None) -> dict:
+    """Copy the inputs into ``checkout`` and rerun ``rule``; returns {"rule_s", "command_s"}."""
+    case_results = checkout / results
+    for name in inputs:
+        shutil.copytree(results / name, case_results / name, symlinks=True)
+    touch_tree(case_results)
+    command = [sys.executable, "-m", "snakemake", "-j1", "--rerun-triggers=mtime", "--forcerun", rule]
+    if configfile:
+        command += ["--configfile", configfile]
+    command += ["--", target]
+    env = dict(os.environ, PYTHONPATH=str(checkout / "src"))
+    log = checkout / "stage_wall.log"
+    start = time.perf_counter()
+    with open(log, "w") as out:
+        status = subprocess.run(command, cwd=checkout, env=env, stdout=out, stderr=subprocess.STDOUT).returncode
+    command_s = time.perf_counter() - start
+    text = log.read_text(errors="replace")
+    if status:
+        raise RuntimeError(f"{' '.join(command)} in {checkout} failed ({status}):\n" + "\n".join(text.splitlines()[-30:]))
+    tsv = case_results / "benchmarks" / rule / f"{rule}.tsv"
+    if not tsv.is_file():
+        raise FileNotFoundError(f"{tsv}: the rule {rule!r} wrote no benchmark file (is it the rule's name?)")
+    with tsv.open() as stream:
+        rows = list(csv.DictReader(stream, delimiter="\t"))
+    return {"rule_s": float(rows[-1]["s"]), "command_s": command_s}
+
+
+def markdown(summary: dict, rule: str, results: str, ratios: dict) -> str:
+    """The table of the runs as Markdown."""
+    lines = [f"Rule `{rule}` rerun on the inputs of `{results}`, one job at a time, side by side on this machine "
+             f"({os.cpu_count()} cores; `benchmarks/stage_wall.py`):", "",
+             "| commit | wall time of the rule | runs | against the first commit |", "|---|---|---|---|"]
+    for commit, figures in summary.items():
+        runs = ", ".join(f"{s:.0f} s" for s in figures["rule_s"])
+        lines.append(f"| {commit[:10]} | {figures['median_s']:.0f} s | {runs} | ×{ratios[commit]:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--results", required=True, type=Path, help="a finished run's case results, e.g. results/ipb")
+    parser.add_argument("--rule", required=True, help="the rule to rerun, e.g. diagnose")
+    parser.add_argument("--target", required=True, help="an output of the rule, relative to the repository")
+    parser.add_argument("--inputs", nargs="+", required=True, help="folders of --results the rule reads")
+    parser.add_argument("--commit", action="append", help="commit to run (repeatable; default HEAD)")
+    parser.add_argument("--configfile", default=None, help="case config (default: the demo)")
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--markdown", type=Path, default=None, help="write the table as Markdown to this file")
+    args = parser.parse_args()
+    commits = [resolve(c) for c in (args.commit or ["HEAD"])]
+    results = args.results
+    if results.is_absolute() or not results.is_dir():
+        raise SystemExit(f"--results {results}: expected an existing folder relative to the repository's results "
+                         "layout, e.g. results/ipb")
+    summary = {c: {"rule_s": [], "command_s": []} for c in commits}
+    with tempfile.TemporaryDirectory(prefix="hybridfmu-stage-") as tmp:
+        for repeat in range(args.repeats):
+            for commit in commits:
+                label = f"{commit[:10]} run {repeat + 1}/{args.repeats}"
+                print(f"{label} ...", file=sys.stderr, flush=True)
+                checkout = clone(commit, Path(tmp) / f"{commit[:10]}-{repeat}")
+                figures = run_stage(checkout, results, args.inputs, args.rule, args.target, args.configfile)
+                print(f"  {label}: rule {args.rule} in {figures['rule_s']:.0f} s", file=sys.stderr, flush=True)
+                for key in ("rule_s", "command_s"):
+                    summary[commit][key].append(figures[key])
+                shutil.rmtree(checkout, ignore_errors=True)
+    for figures in summary.values():
+        figures["median_s"] = statistics.median(figures["rule_s"])
+    first = summary[commits[0]]["median_s"]
+    ratios = {c: first / figures["median_s"] for c, figures in summary.items()}
+    print(f"{'commit':<12} {'median, s':>10}  {'vs first':>8}  runs, s")
+    for commit, figures in summary.items():
+        print(f"{commit[:10]:<12} {figures['median_s']:>10.0f}  {ratios[commit]:>7.2f}x  "
+              + ", ".join(f"{s:.0f}" for s in figures["rule_s"]))
+    if args.markdown:
+        args.markdown.parent.mkdir(parents=True, exist_ok=True)
+        args.markdown.write_text(markdown(summary, args.rule, str(results), ratios))
+    print(json.dumps({"rule": args.rule, "results": str(results), "commits": summary, "ratios": ratios}))
+
+
+if __name__ == "__main__":
+    main()
