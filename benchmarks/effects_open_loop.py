@@ -61,9 +61,9 @@ def main() -> None:
     parameters = dict(calibration.parameters) or None
     with load_fmu(fmu_path, parameters=parameters) as fmu, load_fmu(fmu_path, parameters=parameters) as helper:
         program = diagnosed.corrected(helper).effect_program()
-        heading = (f"Case `{config['case']}`, FMU + {len(diagnosed.terms)} diagnosed effect(s) "
-                   f"({', '.join(diagnosed.effects)}), {'no' if program is None else len(program.terms)} additive "
-                   "term(s) among them")
+        heading = (f"Case `{config['case']}`, the FMU with its diagnosed effects and parameter errors "
+                   f"({', '.join(diagnosed.effects)}): {'no' if program is None else len(program.terms)} additive "
+                   "term(s) evaluated at every RK4 stage")
         print(heading)
         for maneuver in args.maneuvers:
             measured = read_measured(results / "data" / f"{maneuver}.parquet", roles)
@@ -91,8 +91,8 @@ def main() -> None:
                  "| maneuver | simulated | terms in C | terms called back per RK4 stage | speed-up | largest state "
                  "difference |", "|---|---|---|---|---|---|"]
         for maneuver, figures in report.items():
-            lines.append(f"| {maneuver} | {figures['simulated_s']:.1f} s | {figures['c_s']:.3f} s | "
-                         f"{figures['python_s']:.3f} s | ×{figures['speedup']:.1f} | "
+            lines.append(f"| {maneuver} | {figures['simulated_s']:.1f} s | {figures['c_s']:.3g} s | "
+                         f"{figures['python_s']:.3g} s | ×{figures['speedup']:.1f} | "
                          f"{'0 (identical)' if figures['identical'] else format(figures['max_state_difference'], '.3g')}"
                          " |")
         args.markdown.parent.mkdir(parents=True, exist_ok=True)

@@ -158,12 +158,14 @@ class EffectInputs:
         eps = 1e-3 / max(float(np.max(np.abs(delta_u))), 1e-12)
         return (np.asarray(self.model.derivatives(self.x, self.u + eps * delta_u)) - self.f) / eps
 
-    def shifted_inputs(self, offset_s: float) -> np.ndarray:
-        """Inputs seen ``offset_s`` later (M, n_u): the held signal's mean over each shifted interval, i.e.
-        linear interpolation of the samples at the fractional index k + offset / dt (ends held)."""
+    def shifted_inputs(self, offset_s: float, columns: list[int] | None = None) -> np.ndarray:
+        """Inputs seen ``offset_s`` later (M, n_u), or only the input ``columns`` (M, len(columns)): the held
+        signal's mean over each shifted interval, i.e. linear interpolation of the samples at the fractional index
+        k + offset / dt (ends held)."""
         if self.u_samples is None or self.dt_s <= 0:
             raise RuntimeError("shifted inputs need the logged input samples and the sampling interval")
-        return shift_samples(self.u_samples, offset_s, self.dt_s)[:self.n]
+        samples = self.u_samples if columns is None else self.u_samples[:, columns]
+        return shift_samples(samples, offset_s, self.dt_s)[:self.n]
 
     def sensitivity(self, parameter: str) -> np.ndarray | None:
         """p * df/dp (M, n_x) by central finite differences of the model's derivatives, or None when the

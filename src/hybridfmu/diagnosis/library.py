@@ -690,8 +690,7 @@ class TimeOffset(InputEffect):
 
     def regressors(self, inputs, setting):
         delta = np.zeros_like(inputs.u)
-        shifted = inputs.shifted_inputs(setting["shift_s"])
-        delta[:, self.columns] = shifted[:, self.columns] - inputs.u[:, self.columns]
+        delta[:, self.columns] = inputs.shifted_inputs(setting["shift_s"], self.columns) - inputs.u[:, self.columns]
         return np.einsum("mj,mj->m", inputs.dfdu[:, self.equation, :], delta)[:, None]
 
     def physical(self, coef, cov, setting, setting_se):
