@@ -62,8 +62,8 @@ def main() -> None:
     with load_fmu(fmu_path, parameters=parameters) as fmu, load_fmu(fmu_path, parameters=parameters) as helper:
         program = diagnosed.corrected(helper).effect_program()
         heading = (f"Case `{config['case']}`, the FMU with its diagnosed effects and parameter errors "
-                   f"({', '.join(diagnosed.effects)}): {'no' if program is None else len(program.terms)} additive "
-                   "term(s) evaluated at every RK4 stage")
+                   f"({', '.join(diagnosed.effects)}; {'no' if program is None else len(program.terms)} additive "
+                   "term(s) evaluated at every RK4 stage)")
         print(heading)
         for maneuver in args.maneuvers:
             measured = read_measured(results / "data" / f"{maneuver}.parquet", roles)
