@@ -82,6 +82,33 @@ def test_how_far_shrinks_the_open_loop_gap_on_the_test_maneuver():
     assert far["shrink_factor"] > 10
 
 
+def test_how_far_attributes_the_shrink_to_the_parameter_corrections_and_to_the_effects():
+    """A mass error and a Coulomb friction: the held-out shrink splits into the corrected mass's part (the model with
+    only parameter(m)) and the friction's part on top of it; their product is the whole shrink."""
+    extra = _extra(lambda x, u: -0.4 * np.tanh(x[:, 1] / 0.005))
+    problem, model = msd_problem(open_loop={"window_s": 1.0})
+    result = run_diagnosis(problem, model, msd_maneuvers(extra, duration_s=20.0, truth_model=MassSpringDamper(m=1.1)))
+    far = result.how_far
+    assert sorted(_names(result)) == ["coulomb(v)", "parameter(m)"]
+    only = far["parameters_only"]
+    assert only["effects"] == ["parameter(m)"] and only["model"] == "parameter corrections only"
+    assert far["parameter_shrink_factor"] * far["effect_shrink_factor"] == pytest.approx(far["shrink_factor"])
+    assert far["window_parameter_shrink_factor"] * far["window_effect_shrink_factor"] == pytest.approx(
+        far["window_gap_before"] / far["window_gap_after"])
+    assert far["effect_shrink_factor"] > 3  # the friction, not the mass, closes most of the gap
+    from hybridfmu.diagnosis.report import attribution_sentence, verdict
+    assert "only its parameter errors corrected (parameter(m))" in attribution_sentence(far)
+    assert "the effects beyond the parameter corrections ×" in verdict(result)
+
+
+def test_with_nothing_but_parameter_errors_the_effects_add_nothing():
+    problem, model = msd_problem()
+    result = run_diagnosis(problem, model, msd_maneuvers(None, duration_s=20.0, truth_model=MassSpringDamper(m=1.1)))
+    far = result.how_far
+    assert _names(result) == ["parameter(m)"]
+    assert far["effect_shrink_factor"] == 1.0 and far["parameter_shrink_factor"] == pytest.approx(far["shrink_factor"])
+
+
 def test_unmeasured_states_come_from_the_simulation_and_are_reported():
     """Velocity unmeasured: the position equation dx/dt = v depends on it; a force gain error in the
     velocity equation then shows in the position equation only through the simulated velocity."""

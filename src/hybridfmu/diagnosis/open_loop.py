@@ -62,44 +62,35 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
     With ``refit`` (:func:`hybridfmu.diagnosis.refit.refit_spec`), every variant, the model alone among them,
     is first recalibrated with its effects by output error on the maneuvers ``refit_names``, each variant from the
     optimum of the one before it (its train cost never rises where the new effect can be switched off)
-    (:mod:`hybridfmu.diagnosis.refit`); each step then carries its ``refit`` record."""
+    (:mod:`hybridfmu.diagnosis.refit`); each step then carries its ``refit`` record.
+
+    The shrink is also attributed: ``parameters_only`` is the model with the chosen parameter errors corrected and
+    no other effect (recalibrated from the model alone's optimum with ``refit``); ``parameter_shrink_factor`` is the
+    gap of the model alone over its gap, ``effect_shrink_factor`` its gap over the diagnosed model's (what the named
+    effects add on top of the parameter corrections; 1 when every chosen term is a parameter error), and the same
+    with ``window_`` over the restarted windows."""
     window_s = problem.settings["open_loop"].get("window_s")
     steps = []
     trajectories: dict[str, dict[str, np.ndarray]] = {name: {} for name in test_names}
     variants = [("FMU", [])] + [(f"+ {t.effect.name} ({equation_label(t.effect, problem)})", terms[:k + 1])
                                 for k, t in enumerate(terms)]
     notes: list[str] = []
-    fitted = None
+    fitted = alone = None
     for label, active in variants:
-        names = [t.effect.name for t in active]
         if refit is not None:
             absorbed = active and _refitted_parameter(active[-1], refit)
             if not (absorbed and fitted is not None):  # an absorbed parameter error leaves the variant as it was
                 fitted = refit_terms(model, helper, simulate_fn, [prepared[n].measured for n in refit_names or []],
                                      active, problem, refit, label=f"refit {label}", previous=fitted)
-            active = fitted.terms
-        corrected = CorrectedModel(active, problem, helper) if active else None
+            alone = alone or fitted
+        step, corrected, whole = _variant(model, helper, simulate_fn, prepared, test_names, label, active, fitted,
+                                          problem, refit, window_s)
         if corrected is not None:
             notes = corrected.notes
-        per = {}
-        with parameters_set([model, helper], fitted.parameters if fitted is not None else {}):
-            for name in test_names:
-                meas = prepared[name].measured
-                starts = prepared[name].starts
-                if fitted is not None:
-                    starts = _refit_starts(model, simulate_fn, meas, starts, corrected,
-                                           fitted.initial_states_of(name, refit), problem)
-                started = time.perf_counter()
-                errors, whole = open_loop_errors(model, simulate_fn, meas.time_s, reference_states(meas, starts, problem),
-                                                 meas.u, starts, problem, corrected, window_s)
-                LOGGER.info("open loop %s on %s: normalised gap %.4g (%.1f s)", label, name, errors["gap"],
-                            time.perf_counter() - started)
-                per[name] = errors
-                trajectories[name][label] = whole
-        step = {"model": label, "effects": names, "per_maneuver": per, **mean_errors(per)}
-        if fitted is not None:
-            step["refit"] = _refit_record(fitted)
+        for name in test_names:
+            trajectories[name][label] = whole[name]
         steps.append(step)
+    active = fitted.terms if fitted is not None else terms
     before, after = steps[0], steps[len(terms)]
     keys = [k for k in before if k not in ("model", "effects", "per_maneuver")]
     diagnosed = DiagnosedModel(list(active), dict(fitted.parameters) if fitted is not None else {}, problem,
@@ -112,7 +103,75 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
               "notes": notes, "trajectories": trajectories, "diagnosed": diagnosed}
     if "window_gap" in before:
         result["window_gap_before"], result["window_gap_after"] = before["window_gap"], after["window_gap"]
+    result.update(_attributed(model, helper, simulate_fn, prepared, test_names, terms, steps, alone, problem, refit,
+                              refit_names, window_s))
     return result
+
+
+def _variant(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
+             test_names: list[str], label: str, active: list[Term], fitted: Refit | None, problem: Problem,
+             refit: RefitSpec | None, window_s: float | None
+             ) -> tuple[dict[str, Any], CorrectedModel | None, dict[str, np.ndarray]]:
+    """One variant of the held-out check open loop on every test maneuver: its step record (errors per maneuver and
+    their means, the refit record), its corrected model and its whole-maneuver states (maneuver -> (T, n_x))."""
+    names = [t.effect.name for t in active]
+    if fitted is not None:
+        active = fitted.terms
+    corrected = CorrectedModel(active, problem, helper) if active else None
+    per, whole = {}, {}
+    with parameters_set([model, helper], fitted.parameters if fitted is not None else {}):
+        for name in test_names:
+            meas = prepared[name].measured
+            starts = prepared[name].starts
+            if fitted is not None:
+                starts = _refit_starts(model, simulate_fn, meas, starts, corrected,
+                                       fitted.initial_states_of(name, refit), problem)
+            started = time.perf_counter()
+            errors, whole[name] = open_loop_errors(model, simulate_fn, meas.time_s,
+                                                   reference_states(meas, starts, problem), meas.u, starts, problem,
+                                                   corrected, window_s)
+            LOGGER.info("open loop %s on %s: normalised gap %.4g (%.1f s)", label, name, errors["gap"],
+                        time.perf_counter() - started)
+            per[name] = errors
+    step = {"model": label, "effects": names, "per_maneuver": per, **mean_errors(per)}
+    if fitted is not None:
+        step["refit"] = _refit_record(fitted)
+    return step, corrected, whole
+
+
+def _shrink(before: float | None, after: float | None) -> float | None:
+    """before / after of two gaps (inf for an after of 0, None when either is missing or not finite)."""
+    if before is None or after is None or not (np.isfinite(before) and np.isfinite(after)):
+        return None
+    return before / after if after > 0 else float("inf")
+
+
+def _attributed(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
+                test_names: list[str], terms: list[Term], steps: list[dict[str, Any]], alone: Refit | None,
+                problem: Problem, refit: RefitSpec | None, refit_names: list[str] | None,
+                window_s: float | None) -> dict[str, Any]:
+    """The shrink attributed to the parameter corrections and to the other effects (:func:`how_far`)."""
+    parameters = [t for t in terms if t.effect.parameter_change(t.coef, t.setting) is not None]
+    if len(parameters) == len(terms):  # nothing but parameter errors (or nothing): the last step is the variant
+        only = steps[-1]
+    elif not parameters or (refit is not None and all(_refitted_parameter(t, refit) for t in parameters)):
+        only = steps[0]  # no parameter error, or only those the recalibration of the model alone fits anyway
+    else:
+        fitted = None
+        if refit is not None:
+            fitted = refit_terms(model, helper, simulate_fn, [prepared[n].measured for n in refit_names or []],
+                                 parameters, problem, refit, label="refit parameter corrections", previous=alone)
+        only, _, _ = _variant(model, helper, simulate_fn, prepared, test_names, "parameter corrections only",
+                              parameters, fitted, problem, refit, window_s)
+    before, after = steps[0], steps[-1]
+    out = {"parameters_only": {**only, "model": "parameter corrections only",
+                               "effects": [t.effect.name for t in parameters]},
+           "parameter_shrink_factor": _shrink(before["gap"], only["gap"]),
+           "effect_shrink_factor": _shrink(only["gap"], after["gap"])}
+    if "window_gap" in before:
+        out["window_parameter_shrink_factor"] = _shrink(before["window_gap"], only["window_gap"])
+        out["window_effect_shrink_factor"] = _shrink(only["window_gap"], after["window_gap"])
+    return out
 
 
 def _refitted_parameter(term: Term, refit: RefitSpec) -> bool:

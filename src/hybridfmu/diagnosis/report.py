@@ -102,7 +102,11 @@ def verdict(result: DiagnosisResult) -> str:
                            f"{problem.unit(s)}" for s, sig in ((s, problem.state_signal[s])
                                                                   for s in problem.target_weights))
         parts.append(f"Open loop on the held-out test data: {quoted} (normalised gap {far['gap_before']:.4g} -> "
-                     f"{far['gap_after']:.4g}, factor {far['shrink_factor']:.3g}).")
+                     f"{far['gap_after']:.4g}, factor {far['shrink_factor']:.3g}"
+                     + (f"; the effects beyond the parameter corrections {_factor(far.get('effect_shrink_factor'))}"
+                        + (f", over the windows {_factor(far.get('window_effect_shrink_factor'))}"
+                           if far.get("window_effect_shrink_factor") is not None else "")
+                        if far.get("parameters_only") else "") + ").")
     elif result.how_far_not_run:
         parts.append(f"Held-out check not run: {result.how_far_not_run}")
     return " ".join(parts)
@@ -160,6 +164,27 @@ def format_number(value: Any, digits: int = 4) -> str:
     if isinstance(value, float):
         return f"{value:.{digits}g}"
     return str(value)
+
+
+def _factor(value: float | None) -> str:
+    """A shrink factor as ``×<value>`` (3 significant digits), ``-`` when there is none."""
+    return "-" if value is None else f"×{value:.3g}"
+
+
+def attribution_sentence(far: dict[str, Any]) -> str:
+    """The held-out shrink split into the parameter corrections' and the named effects' parts (report wording)."""
+    only = far["parameters_only"]
+    corrected = ", ".join(only["effects"]) or "none"
+    windowed = far.get("window_effect_shrink_factor") is not None
+    return (f"Attributed: the model with only its parameter errors corrected ({corrected}) has the normalised gap "
+            f"{format_number(only.get('gap'))}" + (f" (windowed {format_number(only.get('window_gap'))})" if windowed
+                                                     else "") +
+            f", a factor {_factor(far.get('parameter_shrink_factor'))} from the model alone"
+            + (f" (windowed {_factor(far.get('window_parameter_shrink_factor'))})" if windowed else "") +
+            f"; the named effects on top of it shrink the gap by {_factor(far.get('effect_shrink_factor'))}"
+            + (f" (windowed {_factor(far.get('window_effect_shrink_factor'))})" if windowed else "") +
+            ". This second factor is what the effects themselves explain on the held-out data; it is about ×1 when "
+            "they explain nothing there.")
 
 
 #: Units the report expresses scaled effect sizes in, where their dimension fits (pint's ``to_preferred``).
@@ -321,6 +346,8 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                       f"{format_number(far['shrink_factor'], 3)}. The evaluation (report.md, summary.md) simulates the "
                       "same FMU + effects from the raw first sample of each maneuver, as it does every model, so its "
                       "errors differ from these by what the start's noise makes."]
+        if far.get("parameters_only"):
+            lines += ["", attribution_sentence(far)]
         risen = [s["model"] for s in far["steps"] if (s.get("refit") or {}).get("above_previous")]
         if risen:
             lines += ["", "**The train cost rose** with " + ", ".join(table_cell(m) for m in risen) + ": the "
@@ -386,7 +413,8 @@ def log_to_mlflow(record: dict[str, Any], paths: dict[str, Any], config: dict[st
                 for key, value in step.items():
                     if key not in ("model", "effects", "per_maneuver") and isinstance(value, (int, float)):
                         metrics.append((f"how_far/{key}", value, step_index))
-            for key in ("gap_before", "gap_after", "shrink_factor"):
+            for key in ("gap_before", "gap_after", "shrink_factor", "parameter_shrink_factor", "effect_shrink_factor",
+                        "window_parameter_shrink_factor", "window_effect_shrink_factor"):
                 if far.get(key) is not None:
                     metrics.append((f"gap/{key}", far[key], 0))
         params = {"found_effects": ",".join(record["which"]["found_effects"]) or "none"}

@@ -55,13 +55,14 @@ __all__ = ["SUMMARY_COLUMNS", "DEFAULT_TARGETS", "summarise", "detection_limit",
 #: of the bench), offsets_found, offsets_missed, offset_errors_pct (JSON: |fitted - true| / |true| x 100 of the
 #: relative offset); gap_before, gap_after, gap_shrink (whole test maneuver, normalised open-loop gap);
 #: window_gap_before, window_gap_after, shrink_factor (the same over open-loop windows of
-#: diagnosis.open_loop.window_s: before / after); ratio_to_noise (JSON: equation error / noise floor per equation).
+#: diagnosis.open_loop.window_s: before / after); effect_shrink, window_effect_shrink (the shrink of the named effects on
+#: top of the parameter corrections, whole maneuver and windows: the diagnosis' effect_shrink_factor); ratio_to_noise (JSON: equation error / noise floor per equation).
 SUMMARY_COLUMNS = ["case", "seed", "kind", "stratum", "true_effects", "size_scale", "effect_size", "detected",
                    "found_effects", "named_effects", "extra_effects", "exact", "where_correct", "named_in",
                    "parameter_error_pct", "true_size_parameters", "fitted_size_parameters", "true_params",
                    "fitted_params", "background_found", "offsets_true", "offsets_found", "offsets_missed", "offset_errors_pct",
                    "gap_before", "gap_after", "gap_shrink", "window_gap_before", "window_gap_after", "shrink_factor",
-                   "ratio_to_noise"]
+                   "effect_shrink", "window_effect_shrink", "ratio_to_noise"]
 
 #: Targets of the check (``withheld.targets`` overrides them).
 DEFAULT_TARGETS = {"exact_set_accuracy": 0.9, "median_parameter_error_pct": 15.0, "windowed_shrink": 3.0}
@@ -156,6 +157,8 @@ def aggregate(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]],
     shrinks = [r["shrink_factor"] for r in above if r["shrink_factor"] is not None]
     whole = [r["gap_shrink"] for r in above if r["gap_shrink"] is not None]
     nones = [r for r in rows if r["kind"] == "none"]
+    effect_shrinks = [r["window_effect_shrink"] for r in above if r["exact"] and r.get("window_effect_shrink") is not None]
+    none_shrinks = [r["window_effect_shrink"] for r in nones if r.get("window_effect_shrink") is not None]
     exact = sum(bool(r["exact"]) for r in above) / len(above) if above else None
     median_error = _median(errors)
     median_shrink = _median(shrinks)
@@ -168,6 +171,8 @@ def aggregate(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]],
         "fraction_windowed_shrink_at_target": sum(s >= targets["windowed_shrink"] for s in shrinks) / len(shrinks)
         if shrinks else None,
         "median_whole_shrink": _median(whole),
+        "median_window_effect_shrink_exact": _median(effect_shrinks), "n_effect_shrinks": len(effect_shrinks),
+        "max_window_effect_shrink_none": max(none_shrinks) if none_shrinks else None,
         "where_correct": sum(bool(r["where_correct"]) for r in above) / len(above) if above else None,
         "n_none": len(nones), "none_clean": sum(bool(r["exact"]) for r in nones),
         "targets": targets,
@@ -395,6 +400,10 @@ def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any
         f"| cases with windowed shrink ≥ ×{_num(t['windowed_shrink'])} | "
         f"{_pct(measures['fraction_windowed_shrink_at_target'])} | – | – |",
         f"| median whole-maneuver shrink | ×{_num(measures['median_whole_shrink'])} | – | – |",
+        f"| median windowed shrink of the named effects on top of the parameter corrections, exact cases | "
+        f"×{_num(measures.get('median_window_effect_shrink_exact'))} (n = {measures.get('n_effect_shrinks', 0)}) | – | – |",
+        f"| largest windowed shrink of the named effects, none cases | "
+        f"×{_num(measures.get('max_window_effect_shrink_none'))} | – | – |",
         f"| named in the equation it acts on | {_pct(measures['where_correct'])} | – | – |",
         f"| none case names nothing (every seed) | {measures['none_clean']}/{measures['n_none']} | all | "
         f"{_verdict(v['none_names_nothing'])} |",
@@ -413,16 +422,18 @@ def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any
         lines.append("")
     pairs = [r for r in rows if r["kind"] == "pair"]
     if pairs:
-        lines += ["| pair case | effect sizes | found | exact | parameter errors (%) | windowed shrink |",
-                  "|---|---|---|---|---|---|"]
+        lines += ["| pair case | effect sizes | found | exact | parameter errors (%) | windowed shrink | "
+                  "of it the named effects' |", "|---|---|---|---|---|---|---|"]
         lines += [f"| {r['case']} | {', '.join(f'{e} {_num(s)}' for e, s in zip(r['true_effects'], r['effect_size']))}"
                   f" | {_names(r['found_effects'])} | {r['exact']} | "
-                  f"{', '.join(_num(e) for e in r['parameter_error_pct'])} | ×{_num(r['shrink_factor'])} |"
+                  f"{', '.join(_num(e) for e in r['parameter_error_pct'])} | ×{_num(r['shrink_factor'])} | "
+                  f"×{_num(r.get('window_effect_shrink'))} |"
                   for r in pairs]
         lines.append("")
     lines += ["Windowed shrink: the normalised open-loop gap over windows of diagnosis.open_loop.window_s started "
               "from the measured state, FMU before / FMU + the named effects after; whole-maneuver: the same over "
-              "the whole test maneuver. Per case: {files[0]}; figures: {files[1]} (detection against effect size per "
+              "the whole test maneuver; the named effects': FMU with only the named parameter errors corrected before / "
+              "FMU + the named effects after (about ×1 where the named effects explain nothing on the test data). Per case: {files[0]}; figures: {files[1]} (detection against effect size per "
               "effect), {files[2]} (withheld against found effects).".format(files=settings.get("files") or
                                                                           ("summary.csv", "detection.png",
                                                                            "confusion.png")), ""]

@@ -321,6 +321,7 @@ def score_case(record: dict[str, Any], truth: dict[str, Any], draw: dict[str, An
         "offsets_missed": [p for p in true_offsets if p not in offset_items], "offset_errors_pct": offset_errors,
         "gap_before": before, "gap_after": after, "gap_shrink": _ratio(before, after),
         "window_gap_before": w_before, "window_gap_after": w_after, "shrink_factor": _ratio(w_before, w_after),
+        "effect_shrink": far.get("effect_shrink_factor"), "window_effect_shrink": far.get("window_effect_shrink_factor"),
         "ratio_to_noise": {k: v.get("ratio_to_noise") for k, v in states.items()},
         "effects_detail": per_effect,
     }
