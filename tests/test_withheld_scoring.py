@@ -65,6 +65,26 @@ COULOMB = {"coulomb_torque_nm": 0.04, "breakaway_torque_nm": 0.06, "stribeck_spe
            "smoothing_speed_rad_s": 0.5}
 
 
+def test_a_fitted_size_interval_is_checked_against_the_truth():
+    """The 90 % interval of the fitted Coulomb level (x J) contains the bench's 0.04 N m in one case, not in the other."""
+    def item(se):
+        level = 0.042 / J
+        return {"effect": "coulomb(omega)", "equation": "omega", "parameters": [
+            {"name": "coulomb_level", "value": level, "interval_90": [level - 1.645 * se, level + 1.645 * se]}]}
+    wide = score_case(record([item(10.0)]), truth({"coulomb_friction": COULOMB}), draw("c", {"coulomb_friction": 1.0}),
+                      EXPECTED)
+    assert wide["interval_covers_truth"] is True
+    assert wide["effects_detail"][0]["interval_90"] == pytest.approx([0.042 - 1.645 * 10.0 * J, 0.042 + 1.645 * 10.0 * J])
+    tight = score_case(record([item(1.0)]), truth({"coulomb_friction": COULOMB}), draw("c", {"coulomb_friction": 1.0}),
+                       EXPECTED)
+    assert tight["interval_covers_truth"] is False
+    untold = score_case(record([chosen("coulomb(omega)", "omega", coulomb_level=0.042 / J)]),
+                        truth({"coulomb_friction": COULOMB}), draw("c", {"coulomb_friction": 1.0}), EXPECTED)
+    assert untold["interval_covers_truth"] is None
+    coverage = aggregate([wide, tight, untold], {})["interval_coverage"]
+    assert coverage == {"coulomb_friction": {"covered": 1, "n": 2}}
+
+
 def test_a_true_offset_is_a_finding_and_an_extra_is_an_error():
     items = [chosen("coulomb(omega)", "omega", coulomb_level=0.042 / J),
              chosen("parameter(R)", "i_d", relative_error=0.036, corrected_value=0.0311),

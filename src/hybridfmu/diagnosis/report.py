@@ -68,6 +68,12 @@ def _relative_error_text(item: dict[str, Any]) -> str:
     return f"{100.0 * float(row['value']):+.3g} %"
 
 
+def not_identified(chosen: list[dict[str, Any]]) -> list[str]:
+    """``<effect>: <parameter>`` of every fitted parameter of the chosen effects that the data do not identify
+    (:mod:`hybridfmu.diagnosis.identification`)."""
+    return [f"{c['effect']}: {p['name']}" for c in chosen for p in c["parameters"] if p.get("identified") is False]
+
+
 def verdict(result: DiagnosisResult) -> str:
     """One paragraph: which equation carries the gap, what was found, how far it shrank."""
     problem = result.problem
@@ -91,6 +97,10 @@ def verdict(result: DiagnosisResult) -> str:
         if errors:
             names = ", ".join(f"{c['effect']} ({_relative_error_text(c)})" for c in errors)
             parts.append(f"Parameter errors of the model: {names}.")
+        vague = not_identified(chosen)
+        if vague:
+            parts.append("Not identified with these data (the 90 % interval of the combined uncertainty covers zero or "
+                         f"spans more than a factor 10): {', '.join(vague)}.")
     else:
         ratios = ", ".join(f"d{k}/dt: {v['ratio_to_noise']:.2f}" for k, v in where["states"].items())
         parts.append("No candidate effect explains a significant part of the equation error: nothing is named "
@@ -259,6 +269,11 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
     if not which["chosen"]:
         lines += ["No candidate effect is named: none removes enough of the equation error "
                   "(see the candidate tables below).", ""]
+    if which["chosen"]:
+        lines += ["Each parameter's combined SE is the largest of the regression's, the bootstrap's and the standard "
+                  "deviation of the fitting maneuvers each fitted alone; a size whose 90 % interval covers zero or spans "
+                  "more than a factor 10 is not identified by these data (a location such as a threshold is not "
+                  "judged).", ""]
     for c in which["chosen"]:
         acting = [named(e) for e in c.get("equations") or [c["equation"]]]
         scale = (record.get("report_scale") or {}).get(c["equation"])
@@ -267,12 +282,16 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                   f"{c['description']}: `{c['formula']}` (in {c['equation_unit']}). Drop-one score {c['score']:.4g} "
                   "(increase of the residual sum of squares without it, in residual variances).", "",
                   "| parameter | value | SE (regression) | SE (bootstrap over segments) | unit | spread over fitting "
-                  "maneuvers |" + (f" × {scale} |" if scale else ""), "|---|---|---|---|---|---|" + ("---|" if scale else "")]
+                  "maneuvers | 90 % interval (combined SE) | identified |" + (f" × {scale} |" if scale else ""),
+                  "|---|---|---|---|---|---|---|---|" + ("---|" if scale else "")]
         for p in c["parameters"]:
             stab = c["stability"].get(p["name"])
             spread = f"{100 * stab['relative_spread']:.1f} %" if stab else "-"
+            interval = p.get("interval_90")
+            interval = f"{format_number(interval[0], 3)} .. {format_number(interval[1], 3)}" if interval else "-"
+            judged = {True: "yes", False: f"no: {p.get('not_identified_because')}", None: "-"}[p.get("identified")]
             lines.append(f"| {p['name']} | {format_number(p['value'], 5)} | {format_number(p['se'], 3)} | {format_number(p.get('se_bootstrap'), 3)} "
-                         f"| {p['unit'] or '-'} | {spread} |"
+                         f"| {p['unit'] or '-'} | {spread} | {interval} | {judged} |"
                          + (f" {scaled_size(p['value'], p['unit'], scale)} |" if scale else ""))
         lines.append("")
     lines += ["### Candidates and selection steps", "",

@@ -22,6 +22,7 @@ import numpy as np
 from hybridfmu.diagnosis.corrected_model import simulator_for
 from hybridfmu.diagnosis.derivatives import smooth_at
 from hybridfmu.diagnosis.export import DiagnosedModel
+from hybridfmu.diagnosis.identification import identification
 from hybridfmu.diagnosis.joint import JOINT, StackedCache, effect_equations, effect_key, joint_candidates
 from hybridfmu.diagnosis.library import build_library
 from hybridfmu.diagnosis.inputs import CaseInputs, load_inputs
@@ -294,6 +295,7 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
                 stability[row["name"]] = {"per_maneuver": values,
                                           "relative_spread": float(np.ptp(arr) / denom) if denom > 0 else 0.0}
             row["se_bootstrap"] = boot.get(row["name"])
+            row.update(identification(row, (stability.get(row["name"]) or {}).get("per_maneuver")))
         terms_of[effect_key(term.effect)] = term
         chosen.append({
             "effect": term.effect.name, "kind": term.effect.kind, "equation": problem.state_names[primary],

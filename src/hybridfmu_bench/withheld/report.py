@@ -56,13 +56,15 @@ __all__ = ["SUMMARY_COLUMNS", "DEFAULT_TARGETS", "summarise", "detection_limit",
 #: relative offset); gap_before, gap_after, gap_shrink (whole test maneuver, normalised open-loop gap);
 #: window_gap_before, window_gap_after, shrink_factor (the same over open-loop windows of
 #: diagnosis.open_loop.window_s: before / after); effect_shrink, window_effect_shrink (the shrink of the named effects on
-#: top of the parameter corrections, whole maneuver and windows: the diagnosis' effect_shrink_factor); ratio_to_noise (JSON: equation error / noise floor per equation).
+#: top of the parameter corrections, whole maneuver and windows: the diagnosis' effect_shrink_factor);
+#: interval_covers_truth (the 90 % intervals of every fitted size parameter contain the truth; empty: none fitted);
+#: ratio_to_noise (JSON: equation error / noise floor per equation).
 SUMMARY_COLUMNS = ["case", "seed", "kind", "stratum", "true_effects", "size_scale", "effect_size", "detected",
                    "found_effects", "named_effects", "extra_effects", "exact", "where_correct", "named_in",
                    "parameter_error_pct", "true_size_parameters", "fitted_size_parameters", "true_params",
                    "fitted_params", "background_found", "offsets_true", "offsets_found", "offsets_missed", "offset_errors_pct",
                    "gap_before", "gap_after", "gap_shrink", "window_gap_before", "window_gap_after", "shrink_factor",
-                   "effect_shrink", "window_effect_shrink", "ratio_to_noise"]
+                   "effect_shrink", "window_effect_shrink", "interval_covers_truth", "ratio_to_noise"]
 
 #: Targets of the check (``withheld.targets`` overrides them).
 DEFAULT_TARGETS = {"exact_set_accuracy": 0.9, "median_parameter_error_pct": 15.0, "windowed_shrink": 3.0}
@@ -142,6 +144,21 @@ def above_limits(row: dict[str, Any], limits: dict[str, dict[str, Any]]) -> bool
     return True
 
 
+def _coverage(rows: list[dict[str, Any]]) -> dict[str, dict[str, int]]:
+    """Per bench effect: how many fitted size parameters' 90 % intervals contain the truth (``covered``), of how many
+    that have one (``n``), over every case."""
+    out: dict[str, dict[str, int]] = {}
+    for row in rows:
+        for detail in row.get("effects_detail") or []:
+            covers = detail.get("interval_covers_truth")
+            if covers is None:
+                continue
+            entry = out.setdefault(detail["effect"], {"covered": 0, "n": 0})
+            entry["covered"] += bool(covers)
+            entry["n"] += 1
+    return out
+
+
 def _median(values: list[float]) -> float | None:
     return float(np.median(values)) if values else None
 
@@ -173,6 +190,7 @@ def aggregate(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]],
         "median_whole_shrink": _median(whole),
         "median_window_effect_shrink_exact": _median(effect_shrinks), "n_effect_shrinks": len(effect_shrinks),
         "max_window_effect_shrink_none": max(none_shrinks) if none_shrinks else None,
+        "interval_coverage": _coverage(rows),
         "where_correct": sum(bool(r["where_correct"]) for r in above) / len(above) if above else None,
         "n_none": len(nones), "none_clean": sum(bool(r["exact"]) for r in nones),
         "targets": targets,
@@ -409,6 +427,14 @@ def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any
         f"{_verdict(v['none_names_nothing'])} |",
         "",
     ]
+    coverage = measures.get("interval_coverage") or {}
+    if coverage:
+        lines += ["90 % intervals of the fitted size parameters (combined uncertainty, "
+                  "hybridfmu.diagnosis.identification) that contain the truth, every case:", "",
+                  "| bench effect | covered | share |", "|---|---|---|"]
+        lines += [f"| {effect} | {c['covered']}/{c['n']} | {_pct(c['covered'] / c['n'])} |"
+                  for effect, c in sorted(coverage.items())]
+        lines.append("")
     lines += _offset_lines(rows)
     lines += _alarm_lines(alarms, thresholds)
     errors = [r for r in rows if (r["case"] in measures["above_cases"] and not r["exact"])

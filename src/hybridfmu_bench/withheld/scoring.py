@@ -216,6 +216,39 @@ def _fitted_value(effect: str, items: list[dict[str, Any]], ctx: ScoringContext)
     return None, "", "; ".join(notes) or "no conversion for " + ", ".join(sorted({i["effect"] for i in items}))
 
 
+def _fitted_interval(effect: str, items: list[dict[str, Any]], ctx: ScoringContext) -> tuple[float, float] | None:
+    """The 90 % interval of :func:`_fitted_value`'s quantity: its conversion at the ends of the parameters' 90 %
+    intervals (``interval_90`` of the diagnosis; every conversion rises or falls with each of its parameters), or None
+    where the item that gives the value has no interval."""
+    scoring = SCORING.get(effect)
+    if scoring is None:
+        return None
+    for item in items:
+        for conversion in scoring.conversions:
+            if not fnmatch.fnmatchcase(item["effect"], conversion.pattern):
+                continue
+            rows = [p for p in item["parameters"] if p.get("value") is not None]
+            ends = []
+            for side in (0, 1):
+                params = {p["name"]: (p["interval_90"][side] if p.get("interval_90") else p["value"]) for p in rows}
+                try:
+                    ends.append(float(conversion.fitted(params, ctx)))
+                except (ScoreMismatch, KeyError, ZeroDivisionError):
+                    break
+            if len(ends) < 2:
+                continue
+            if not any(p.get("interval_90") for p in rows) or not all(math.isfinite(e) for e in ends):
+                return None
+            return min(ends), max(ends)
+    return None
+
+
+def _covers(interval: tuple[float, float] | None, true: float | None) -> bool | None:
+    if interval is None or true is None or not math.isfinite(true):
+        return None
+    return interval[0] <= true <= interval[1]
+
+
 def _error_pct(fitted: float | None, true: float | None) -> float | None:
     if fitted is None or true is None or not math.isfinite(fitted) or true == 0:
         return None
@@ -280,6 +313,7 @@ def score_case(record: dict[str, Any], truth: dict[str, Any], draw: dict[str, An
         ctx = _scoring_context(record, truth, true_params[effect])
         true_value = true_size(effect, true_params[effect])
         fitted, source, note = _fitted_value(effect, preferred, ctx) if items else (None, "", "missed")
+        interval = _fitted_interval(effect, preferred, ctx) if fitted is not None else None
         per_effect.append({
             "effect": effect, "detected": bool(items),
             "named_in": sorted({e for i in items for e in i.get("equations") or [i["equation"]]}),
@@ -288,6 +322,7 @@ def score_case(record: dict[str, Any], truth: dict[str, Any], draw: dict[str, An
             "effect_size": effect_size(record, list(expected.get(effect, []))),
             "true_value": true_value, "fitted_value": fitted, "fitted_from": source,
             "parameter_error_pct": _error_pct(fitted, true_value), "note": note,
+            "interval_90": list(interval) if interval else None, "interval_covers_truth": _covers(interval, true_value),
         })
     offsets_found = [p for p in true_offsets if p in offset_items]
     offset_errors = {}
@@ -321,10 +356,17 @@ def score_case(record: dict[str, Any], truth: dict[str, Any], draw: dict[str, An
         "offsets_missed": [p for p in true_offsets if p not in offset_items], "offset_errors_pct": offset_errors,
         "gap_before": before, "gap_after": after, "gap_shrink": _ratio(before, after),
         "window_gap_before": w_before, "window_gap_after": w_after, "shrink_factor": _ratio(w_before, w_after),
+        "interval_covers_truth": _all_known([e["interval_covers_truth"] for e in per_effect]),
         "effect_shrink": far.get("effect_shrink_factor"), "window_effect_shrink": far.get("window_effect_shrink_factor"),
         "ratio_to_noise": {k: v.get("ratio_to_noise") for k, v in states.items()},
         "effects_detail": per_effect,
     }
+
+
+def _all_known(values: list[bool | None]) -> bool | None:
+    """Whether every judged value is True (None when none was judged)."""
+    known = [v for v in values if v is not None]
+    return all(known) if known else None
 
 
 def _error_token(effect: dict[str, Any]) -> float | str:

@@ -1,0 +1,70 @@
+"""Whether the data identify a fitted effect parameter: an uncertainty that covers what the model gets wrong.
+
+The regression's standard error measures the noise only; it stays tight when the effect's shape is wrong or
+when the maneuvers disagree. A parameter's combined standard error is therefore the largest of three:
+
+- the regression's (``se``), from the residual variance and the design;
+- the bootstrap's over segments (``se_bootstrap``), where it was drawn;
+- the spread between the fitting maneuvers, each fitted alone: the sample standard deviation of the per-maneuver
+  values (``stability.per_maneuver``; for two maneuvers |a - b| / sqrt 2).
+
+Its 90 % interval is value +- 1.645 combined SEs. A size (a coefficient, a friction level, an amplitude, a
+relative parameter error, a time offset, a smoothing or a time constant) is identified when that interval
+neither covers zero nor spans more than a factor of ten, i.e. when 1.645 SE < (9/11) |value|. A location (a
+threshold, a level, a phase) has no such scale and is judged by nothing here; a setting held fixed or an integer
+(an order, a number of harmonics) has no standard error and is not judged either.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+#: two-sided 90 % quantile of the normal distribution
+Z_90 = 1.6448536269514722
+#: largest ratio of the interval's ends of an identified size
+MAX_RANGE_RATIO = 10.0
+#: parameter names that give a location, not a size (a name, or a prefix ending in "_")
+LOCATION_PARAMETERS = ("threshold", "level", "phase_")
+
+
+def is_location(name: str) -> bool:
+    """Whether the physical parameter ``name`` is a location (threshold, level, phase) rather than a size."""
+    return any(name == p or (p.endswith("_") and name.startswith(p)) for p in LOCATION_PARAMETERS)
+
+
+def combined_se(row: dict[str, Any], per_maneuver: dict[str, float] | None) -> float | None:
+    """The largest of the regression's SE, the bootstrap's SE and the per-maneuver values' standard deviation
+    (module docstring), or None when the parameter has none of them."""
+    candidates = [row.get("se"), row.get("se_bootstrap")]
+    values = [float(v) for v in (per_maneuver or {}).values() if v is not None and math.isfinite(float(v))]
+    if len(values) > 1:
+        candidates.append(float(np.std(values, ddof=1)))
+    finite = [float(c) for c in candidates if c is not None and math.isfinite(float(c))]
+    return max(finite) if finite else None
+
+
+def identification(row: dict[str, Any], per_maneuver: dict[str, float] | None) -> dict[str, Any]:
+    """The fields a physical parameter ``row`` (``name``, ``value``, ``se``, ``se_bootstrap``) gains:
+    ``se_combined``, ``interval_90`` ([low, high] or None) and ``identified`` (True, False, or None where not
+    judged) with ``not_identified_because`` (words, or None)."""
+    value = row.get("value")
+    se = combined_se(row, per_maneuver)
+    out: dict[str, Any] = {"se_combined": se, "interval_90": None, "identified": None, "not_identified_because": None}
+    if se is None or value is None or not math.isfinite(float(value)):
+        return out
+    value = float(value)
+    low, high = value - Z_90 * se, value + Z_90 * se
+    out["interval_90"] = [low, high]
+    if is_location(str(row.get("name", ""))):
+        return out
+    if low <= 0.0 <= high:
+        out["identified"], out["not_identified_because"] = False, "its 90 % interval covers zero"
+    elif max(abs(low), abs(high)) > MAX_RANGE_RATIO * min(abs(low), abs(high)):
+        out["identified"] = False
+        out["not_identified_because"] = f"its 90 % interval spans more than a factor {MAX_RANGE_RATIO:g}"
+    else:
+        out["identified"] = True
+    return out

@@ -1,0 +1,55 @@
+"""Whether the data identify a fitted parameter: the combined uncertainty and its 90 % interval."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from hybridfmu.diagnosis.identification import Z_90, combined_se, identification, is_location
+from hybridfmu.diagnosis.report import not_identified
+
+
+def test_the_combined_se_is_the_largest_of_regression_bootstrap_and_maneuver_spread():
+    row = {"name": "coulomb_level", "value": 1.0, "se": 0.01, "se_bootstrap": 0.02}
+    assert combined_se(row, None) == 0.02
+    assert combined_se(row, {"train": 1.0, "validation": 1.2}) == pytest.approx(0.2 / math.sqrt(2))
+    assert combined_se({"name": "x", "value": 1.0, "se": None}, {"train": 3.0}) is None
+
+
+@pytest.mark.parametrize("value, se, identified, because", [
+    (1.0, 0.1, True, None),
+    (1.0, 0.7, False, "covers zero"),                       # 1 +- 1.15
+    (-2.0, 1.1, False, "spans more than a factor 10"),      # -2 +- 1.81: -3.81 .. -0.19
+    (116.7, 398.0, False, "covers zero"),                   # a Stribeck breakaway the data do not fix
+    (0.383, 0.0024, True, None),
+])
+def test_a_size_is_identified_only_when_its_interval_neither_covers_zero_nor_spans_a_decade(value, se, identified,
+                                                                                           because):
+    out = identification({"name": "level_or_size", "value": value, "se": se}, None)
+    assert out["identified"] is identified
+    assert out["interval_90"] == pytest.approx([value - Z_90 * se, value + Z_90 * se])
+    assert (because is None and out["not_identified_because"] is None) or because in out["not_identified_because"]
+
+
+def test_a_maneuver_spread_makes_a_tight_regression_interval_honest():
+    """The pendulum's case: a Coulomb level with a regression SE 50x too small, but two maneuvers that disagree."""
+    row = {"name": "coulomb_level", "value": 0.383, "se": 0.0024, "se_bootstrap": 0.003}
+    out = identification(row, {"train": 0.30, "validation": 0.46})
+    assert out["se_combined"] == pytest.approx(0.16 / math.sqrt(2))
+    assert out["interval_90"][0] < 0.25 < out["interval_90"][1]
+
+
+def test_locations_and_unsearched_settings_are_not_judged():
+    assert is_location("threshold") and is_location("level") and is_location("phase_24")
+    assert not is_location("coulomb_level") and not is_location("amplitude_24")
+    assert identification({"name": "threshold", "value": 0.001, "se": 0.5}, None)["identified"] is None
+    assert identification({"name": "order", "value": 24, "se": None}, None) == {
+        "se_combined": None, "interval_90": None, "identified": None, "not_identified_because": None}
+
+
+def test_the_verdict_lists_what_is_not_identified():
+    chosen = [{"effect": "coulomb(v)", "parameters": [{"name": "coulomb_level", "identified": True},
+                                                      {"name": "breakaway_level", "identified": False}]},
+              {"effect": "periodic(x)", "parameters": [{"name": "order", "identified": None}]}]
+    assert not_identified(chosen) == ["coulomb(v): breakaway_level"]
