@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from hybridfmu.diagnosis.identification import Z_90, combined_se, identification, is_location
@@ -53,3 +54,21 @@ def test_the_verdict_lists_what_is_not_identified():
                                                       {"name": "breakaway_level", "identified": False}]},
               {"effect": "periodic(x)", "parameters": [{"name": "order", "identified": None}]}]
     assert not_identified(chosen) == ["coulomb(v): breakaway_level"]
+
+
+def test_effects_whose_estimates_correlate_are_grouped():
+    from hybridfmu.diagnosis.identification import indistinguishable_groups
+    from hybridfmu.diagnosis.report import group_text
+
+    sd = np.array([1.0, 2.0, 0.5, 3.0])  # A: 1 coefficient, B: 2, C: 1
+    corr = np.eye(4)
+    corr[0, 2] = corr[2, 0] = -0.95     # A with B's first coefficient
+    corr[1, 3] = corr[3, 1] = 0.3       # B's second with C: told apart
+    cov = corr * np.outer(sd, sd)
+    groups = indistinguishable_groups(["A", "B", "C"], [1, 2, 1], cov)
+    assert groups == [{"effects": ["A", "B"], "pairs": [{"effects": ["A", "B"], "correlation": pytest.approx(-0.95)}]}]
+    assert group_text(groups[0]) == "A and B"
+    corr[2, 3] = corr[3, 2] = 0.92      # and C with B: one group of three
+    groups = indistinguishable_groups(["A", "B", "C"], [1, 2, 1], corr * np.outer(sd, sd))
+    assert groups[0]["effects"] == ["A", "B", "C"] and group_text(groups[0]) == "A, B and C"
+    assert indistinguishable_groups(["A"], [1], np.eye(1)) == []

@@ -68,3 +68,59 @@ def identification(row: dict[str, Any], per_maneuver: dict[str, float] | None) -
     else:
         out["identified"] = True
     return out
+
+
+#: the correlation of two chosen effects' estimates above which the data do not tell them apart
+GROUP_CORRELATION = 0.9
+
+
+def indistinguishable_groups(names: list[str], sizes: list[int], cov: np.ndarray,
+                             threshold: float = GROUP_CORRELATION) -> list[dict[str, Any]]:
+    """Chosen effects whose estimates the data do not tell apart: linked when any coefficient of one correlates with
+    any of the other's at |r| >= ``threshold`` in the joint fit's covariance (their sensitivities look alike, so
+    only their joint effect is determined), joined into groups.
+
+    Args:
+        names: the chosen effects in the fit's order; sizes: their numbers of coefficients (same order).
+        cov: (sum(sizes), sum(sizes)) covariance of the joint fit's coefficients.
+
+    Returns:
+        One entry per group of two or more: ``effects`` (in ``names`` order) and ``pairs`` (each linked pair with its
+        ``correlation``, the signed coefficient correlation of largest magnitude).
+    """
+    cov = np.asarray(cov, dtype=float)
+    starts = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+    if cov.shape != (starts[-1], starts[-1]) or len(names) < 2:
+        return []
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    parent = list(range(len(names)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    pairs = []
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            block = corr[starts[i]:starts[i + 1], starts[j]:starts[j + 1]]
+            finite = block[np.isfinite(block)]
+            if not finite.size:
+                continue
+            r = float(finite[np.argmax(np.abs(finite))])
+            if abs(r) >= threshold:
+                pairs.append({"effects": [names[i], names[j]], "correlation": r})
+                parent[root(j)] = root(i)
+    groups: dict[int, list[int]] = {}
+    for i in range(len(names)):
+        groups.setdefault(root(i), []).append(i)
+    out = []
+    for members in groups.values():
+        if len(members) > 1:
+            member_names = [names[i] for i in members]
+            out.append({"effects": member_names,
+                        "pairs": [p for p in pairs if p["effects"][0] in member_names]})
+    return out

@@ -68,6 +68,12 @@ def _relative_error_text(item: dict[str, Any]) -> str:
     return f"{100.0 * float(row['value']):+.3g} %"
 
 
+def group_text(group: dict[str, Any]) -> str:
+    """``A and B`` / ``A, B and C`` of a group of effects the data do not tell apart."""
+    names = group["effects"]
+    return " and ".join([", ".join(names[:-1]), names[-1]]) if len(names) > 1 else names[0]
+
+
 def not_identified(chosen: list[dict[str, Any]]) -> list[str]:
     """``<effect>: <parameter>`` of every fitted parameter of the chosen effects that the data do not identify
     (:mod:`hybridfmu.diagnosis.identification`)."""
@@ -97,6 +103,10 @@ def verdict(result: DiagnosisResult) -> str:
         if errors:
             names = ", ".join(f"{c['effect']} ({_relative_error_text(c)})" for c in errors)
             parts.append(f"Parameter errors of the model: {names}.")
+        for group in result.which.get("groups") or []:
+            parts.append(f"{group_text(group)} cannot be told apart by these data (their estimates correlate "
+                         f"at {max(abs(p['correlation']) for p in group['pairs']):.2f}): only their joint effect is "
+                         "determined.")
         vague = not_identified(chosen)
         if vague:
             parts.append("Not identified with these data (the 90 % interval of the combined uncertainty covers zero or "
@@ -161,6 +171,7 @@ def diagnosis_record(result: DiagnosisResult, config: dict[str, Any]) -> dict[st
             "chosen": which["chosen"], "equations": which["equations"], "steps": which.get("steps") or [],
             "calibration": which.get("calibration") or [],
             "skipped_candidates": which["skipped"],
+            "indistinguishable": which.get("groups") or [],
         },
         "how_far": None if far is None else {k: v for k, v in far.items() if k != "trajectories"},
         "how_far_not_run": result.how_far_not_run if far is None else None,
@@ -269,6 +280,11 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
     if not which["chosen"]:
         lines += ["No candidate effect is named: none removes enough of the equation error "
                   "(see the candidate tables below).", ""]
+    for group in which.get("indistinguishable") or []:
+        pairs = "; ".join(f"{a} and {b}: r = {format_number(p['correlation'], 3)}"
+                          for p in group["pairs"] for a, b in [p["effects"]])
+        lines += [f"**Not told apart:** {group_text(group)}. Their coefficients' estimates correlate ({pairs}), so the "
+                  "data fix their joint effect but not how it splits between them; read their sizes together.", ""]
     if which["chosen"]:
         lines += ["Each parameter's combined SE is the largest of the regression's, the bootstrap's and the standard "
                   "deviation of the fitting maneuvers each fitted alone; a size whose 90 % interval covers zero or spans "

@@ -22,7 +22,7 @@ import numpy as np
 from hybridfmu.diagnosis.corrected_model import simulator_for
 from hybridfmu.diagnosis.derivatives import smooth_at
 from hybridfmu.diagnosis.export import DiagnosedModel
-from hybridfmu.diagnosis.identification import identification
+from hybridfmu.diagnosis.identification import identification, indistinguishable_groups
 from hybridfmu.diagnosis.joint import JOINT, StackedCache, effect_equations, effect_key, joint_candidates
 from hybridfmu.diagnosis.library import build_library
 from hybridfmu.diagnosis.inputs import CaseInputs, load_inputs
@@ -332,8 +332,11 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
     terms = [terms_of[c.pop("_key")] for c in chosen]
     calibration = [{**row, "equations": [problem.state_names[i] for i in row["equations"]]}
                    for row in selection.calibration]
+    groups = indistinguishable_groups([t.effect.name for t in selection.terms],
+                                      [len(t.coef) for t in selection.terms], selection.fit.cov) \
+        if selection.terms else []
     return {"chosen": chosen, "equations": equations, "steps": steps, "calibration": calibration, "skipped": skipped,
-            "terms": terms, "cache": cache, "n_candidates": len(candidates) + len(calibrate)}
+            "terms": terms, "cache": cache, "n_candidates": len(candidates) + len(calibrate), "groups": groups}
 
 
 # ----------------------------------------------------------------------------- how far
