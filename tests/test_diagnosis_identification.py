@@ -72,3 +72,16 @@ def test_effects_whose_estimates_correlate_are_grouped():
     groups = indistinguishable_groups(["A", "B", "C"], [1, 2, 1], corr * np.outer(sd, sd))
     assert groups[0]["effects"] == ["A", "B", "C"] and group_text(groups[0]) == "A, B and C"
     assert indistinguishable_groups(["A"], [1], np.eye(1)) == []
+
+
+def test_a_positive_scale_is_judged_on_its_log_scale():
+    tight = identification({"name": "smoothing", "value": 1.0, "se": 0.1}, None, log_scale=True)
+    assert tight["identified"] is True
+    assert tight["interval_90"] == pytest.approx([math.exp(-Z_90 * 0.1), math.exp(Z_90 * 0.1)])
+    # the demo's load-dependent friction: the two maneuvers refine the smoothing to 0.136 and 0.018 rad/s
+    vague = identification({"name": "smoothing", "value": 0.018, "se": 0.0055}, {"train": 0.136, "validation": 0.018},
+                           log_scale=True)
+    assert vague["identified"] is False and "spans more than a factor 10" in vague["not_identified_because"]
+    assert vague["interval_90"][0] > 0
+    assert identification({"name": "stribeck_velocity", "value": 0.0, "se": 0.1}, None, log_scale=True)[
+        "identified"] is None  # switched off

@@ -9,10 +9,12 @@ when the maneuvers disagree. A parameter's combined standard error is therefore 
   values (``stability.per_maneuver``; for two maneuvers |a - b| / sqrt 2).
 
 Its 90 % interval is value +- 1.645 combined SEs. A size (a coefficient, a friction level, an amplitude, a
-relative parameter error, a time offset, a smoothing or a time constant) is identified when that interval
-neither covers zero nor spans more than a factor of ten, i.e. when 1.645 SE < (9/11) |value|. A location (a
-threshold, a level, a phase) has no such scale and is judged by nothing here; a setting held fixed or an integer
-(an order, a number of harmonics) has no standard error and is not judged either.
+relative parameter error, a time offset) is identified when that interval neither covers zero nor spans more than
+a factor of ten, i.e. when 1.645 SE < (9/11) |value|. A positive scale searched on a log scale (a smoothing, a
+Stribeck velocity, a current scale) has its interval on that scale, value x/÷ exp(1.645 SE / value), and is
+identified when it spans no more than a factor of ten. A location (a threshold, a level, a phase) has no such scale
+and is judged by nothing here; a setting held fixed or an integer (an order, a number of harmonics) has no standard
+error and is not judged either.
 """
 
 from __future__ import annotations
@@ -46,16 +48,29 @@ def combined_se(row: dict[str, Any], per_maneuver: dict[str, float] | None) -> f
     return max(finite) if finite else None
 
 
-def identification(row: dict[str, Any], per_maneuver: dict[str, float] | None) -> dict[str, Any]:
+def identification(row: dict[str, Any], per_maneuver: dict[str, float] | None,
+                   log_scale: bool = False) -> dict[str, Any]:
     """The fields a physical parameter ``row`` (``name``, ``value``, ``se``, ``se_bootstrap``) gains:
     ``se_combined``, ``interval_90`` ([low, high] or None) and ``identified`` (True, False, or None where not
-    judged) with ``not_identified_because`` (words, or None)."""
+    judged) with ``not_identified_because`` (words, or None). ``log_scale``: a positive scale searched on a log
+    scale (its interval is taken on that scale; a value <= 0, the setting switched off, is not judged)."""
     value = row.get("value")
     se = combined_se(row, per_maneuver)
     out: dict[str, Any] = {"se_combined": se, "interval_90": None, "identified": None, "not_identified_because": None}
     if se is None or value is None or not math.isfinite(float(value)):
         return out
     value = float(value)
+    if log_scale:
+        if value <= 0.0:
+            return out
+        factor = math.exp(Z_90 * se / value)
+        out["interval_90"] = [value / factor, value * factor]
+        if factor * factor > MAX_RANGE_RATIO:
+            out["identified"] = False
+            out["not_identified_because"] = f"its 90 % interval spans more than a factor {MAX_RANGE_RATIO:g}"
+        else:
+            out["identified"] = True
+        return out
     low, high = value - Z_90 * se, value + Z_90 * se
     out["interval_90"] = [low, high]
     if is_location(str(row.get("name", ""))):

@@ -288,8 +288,9 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
     if which["chosen"]:
         lines += ["Each parameter's combined SE is the largest of the regression's, the bootstrap's and the standard "
                   "deviation of the fitting maneuvers each fitted alone; a size whose 90 % interval covers zero or spans "
-                  "more than a factor 10 is not identified by these data (a location such as a threshold is not "
-                  "judged).", ""]
+                  "more than a factor 10, or a positive scale searched on a log scale (a smoothing) whose interval on "
+                  "that scale spans more than a factor 10, is not identified by these data (a location such as a "
+                  "threshold is not judged).", ""]
     for c in which["chosen"]:
         acting = [named(e) for e in c.get("equations") or [c["equation"]]]
         scale = (record.get("report_scale") or {}).get(c["equation"])

@@ -295,7 +295,9 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
                 stability[row["name"]] = {"per_maneuver": values,
                                           "relative_spread": float(np.ptp(arr) / denom) if denom > 0 else 0.0}
             row["se_bootstrap"] = boot.get(row["name"])
-            row.update(identification(row, (stability.get(row["name"]) or {}).get("per_maneuver")))
+            row.update(identification(row, (stability.get(row["name"]) or {}).get("per_maneuver"),
+                                      log_scale=term.effect.log_scale
+                                      and row["name"] in term.effect.continuous_parameters()))
         terms_of[effect_key(term.effect)] = term
         chosen.append({
             "effect": term.effect.name, "kind": term.effect.kind, "equation": problem.state_names[primary],
