@@ -31,30 +31,39 @@ from __future__ import annotations
 
 import ctypes
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 
-#: term kind -> its code in ``effects.c`` and the number of ints it takes
-TERM_KINDS: dict[str, tuple[int, int]] = {
-    "viscous": (1, 1),
-    "quadratic": (2, 1),
-    "polynomial": (3, 1),
-    "coulomb": (4, 1),
-    "scaled_coulomb": (5, 2),
-    "periodic": (6, 1),
-    "saturation_above": (7, 1),
-    "saturation_below": (8, 1),
-    "limit_above": (9, 1),
-    "limit_below": (10, 1),
-    "spill": (11, 1),
-    "phase_deadtime": (12, 6),
+
+class TermKind(NamedTuple):
+    """How ``effects.c`` reads a term kind: its ``code``, the index space of each of its ints (``"x"``: a state,
+    ``"u"``: an input), the number of its reals (for the kinds of ``_REPEATED_REALS``: any positive multiple of it)
+    and whether it evaluates the model with changed inputs."""
+
+    code: int
+    ints: str
+    reals: int
+    evaluates_model: bool = False
+
+
+#: term kind -> how ``effects.c`` reads it (mirrors the enum there)
+TERM_KINDS: dict[str, TermKind] = {
+    "viscous": TermKind(1, "x", 1),
+    "quadratic": TermKind(2, "x", 1),
+    "polynomial": TermKind(3, "x", 1),
+    "coulomb": TermKind(4, "x", 4),
+    "scaled_coulomb": TermKind(5, "xu", 3),
+    "periodic": TermKind(6, "x", 3),
+    "saturation_above": TermKind(7, "x", 2),
+    "saturation_below": TermKind(8, "x", 2),
+    "limit_above": TermKind(9, "x", 2),
+    "limit_below": TermKind(10, "x", 2),
+    "spill": TermKind(11, "x", 2),
+    "phase_deadtime": TermKind(12, "uuuxxx", 3, evaluates_model=True),
 }
-#: kinds whose ints index inputs (position -> input) rather than states
-_INPUT_INTS = {"scaled_coulomb": (1,), "phase_deadtime": (0, 1, 2)}
-#: number of reals each kind takes (None: any; "periodic" a multiple of 3)
-_REAL_COUNTS = {"viscous": 1, "quadratic": 1, "coulomb": 4, "scaled_coulomb": 3, "saturation_above": 2,
-                "saturation_below": 2, "limit_above": 2, "limit_below": 2, "spill": 2, "phase_deadtime": 3}
+#: kinds with any positive number of reals that is a multiple of TermKind.reals (one per coefficient or harmonic)
+_REPEATED_REALS = ("polynomial", "periodic")
 
 
 @dataclass(frozen=True)
@@ -90,12 +99,12 @@ class EffectProgram:
         reals: list[float] = []
         for number, term in enumerate(self.terms):
             self._check(number, term)
-            code += [TERM_KINDS[term.kind][0], len(term.equations), *term.equations, len(term.ints), *term.ints,
+            code += [TERM_KINDS[term.kind].code, len(term.equations), *term.equations, len(term.ints), *term.ints,
                      len(term.reals)]
             reals += [float(r) for r in term.reals]
         self.code = np.array(code, dtype=np.int64)
         self.reals = np.array(reals if reals else [0.0], dtype=np.float64)
-        self.evaluates_model = any(term.kind == "phase_deadtime" for term in self.terms)
+        self.evaluates_model = any(TERM_KINDS[term.kind].evaluates_model for term in self.terms)
 
     def _check(self, number: int, term: EffectTerm) -> None:
         where = f"effect term {number} ({term.kind})"
@@ -104,17 +113,17 @@ class EffectProgram:
         if not term.equations or any(not 0 <= e < self.n_states for e in term.equations):
             raise ValueError(f"{where}: equations {list(term.equations)}: expected state indices in "
                              f"0..{self.n_states - 1}")
-        n_ints = TERM_KINDS[term.kind][1]
-        if len(term.ints) != n_ints:
-            raise ValueError(f"{where}: expected {n_ints} indices, got {len(term.ints)}")
-        for position, index in enumerate(term.ints):
-            size = self.n_inputs if position in _INPUT_INTS.get(term.kind, ()) else self.n_states
+        kind = TERM_KINDS[term.kind]
+        if len(term.ints) != len(kind.ints):
+            raise ValueError(f"{where}: expected {len(kind.ints)} indices, got {len(term.ints)}")
+        for position, (index, space) in enumerate(zip(term.ints, kind.ints)):
+            size = self.n_inputs if space == "u" else self.n_states
             if not 0 <= index < size:
                 raise ValueError(f"{where}: index {index} at position {position}: expected 0..{size - 1}")
-        count = _REAL_COUNTS.get(term.kind)
-        if (count is not None and len(term.reals) != count) or (term.kind == "periodic" and len(term.reals) % 3) \
-                or not term.reals:
-            raise ValueError(f"{where}: {len(term.reals)} real arguments do not fit the kind")
+        n_reals = len(term.reals)
+        fits = n_reals > 0 and n_reals % kind.reals == 0 if term.kind in _REPEATED_REALS else n_reals == kind.reals
+        if not fits:
+            raise ValueError(f"{where}: {n_reals} real arguments do not fit the kind")
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """The terms in Python (:attr:`python`): (N, n_x), (N, n_u) -> (N, n_x)."""

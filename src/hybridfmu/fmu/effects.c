@@ -48,17 +48,6 @@ static double hf_np_maximum(double a, double b) {
     return a >= b ? a : b;
 }
 
-int hf_effects_evaluate_model(const long long *code, size_t n_code) {
-    size_t p = 0;
-    while (p < n_code) {
-        const long long kind = code[p], n_eq = code[p + 1];
-        const long long n_int = code[p + 2 + n_eq];
-        if (kind == HF_TERM_PHASE_DEADTIME) return 1;
-        p += 3 + (size_t)n_eq + (size_t)n_int + 1;
-    }
-    return 0;
-}
-
 int hf_effects_add(const long long *code, size_t n_code, const double *reals, size_t nx, size_t nu,
                    const double *x, const double *u, const double *f, double *out, double *work,
                    hf_effect_eval_fn eval, void *context) {

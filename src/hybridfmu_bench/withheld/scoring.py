@@ -197,50 +197,49 @@ def _scoring_context(record: dict[str, Any], truth: dict[str, Any], parameters: 
                           true_parameters=parameters)
 
 
-def _fitted_value(effect: str, items: list[dict[str, Any]], ctx: ScoringContext) -> tuple[float | None, str, str]:
-    """(fitted value, named effect it comes from, note) of the first item with a conversion."""
+def _fitted_value(effect: str, items: list[dict[str, Any]], ctx: ScoringContext
+                  ) -> tuple[float | None, str, str, tuple[float, float] | None]:
+    """(fitted value, named effect it comes from, note, 90 % interval) of the first item with a conversion. The
+    interval is the conversion at the ends of the parameters' 90 % intervals (``interval_90`` of the diagnosis;
+    every conversion rises or falls with each of its parameters), None where the item has none."""
     scoring = SCORING.get(effect)
     if scoring is None:
-        return None, "", "no scoring for this effect"
+        return None, "", "no scoring for this effect", None
     notes = []
     for item in items:
         for conversion in scoring.conversions:
             if fnmatch.fnmatchcase(item["effect"], conversion.pattern):
-                params = {p["name"]: p["value"] for p in item["parameters"] if p.get("value") is not None}
+                rows = [p for p in item["parameters"] if p.get("value") is not None]
+                params = {p["name"]: p["value"] for p in rows}
                 try:
-                    return float(conversion.fitted(params, ctx)), f"{item['effect']} in d{item['equation']}/dt", ""
+                    value = float(conversion.fitted(params, ctx))
                 except ScoreMismatch as err:
                     notes.append(f"{item['effect']}: {err}")
+                    continue
                 except KeyError as err:
                     notes.append(f"{item['effect']}: no parameter {err}")
-    return None, "", "; ".join(notes) or "no conversion for " + ", ".join(sorted({i["effect"] for i in items}))
+                    continue
+                return value, f"{item['effect']} in d{item['equation']}/dt", "", _interval(conversion, rows, ctx)
+    return (None, "", "; ".join(notes) or "no conversion for " + ", ".join(sorted({i["effect"] for i in items})),
+            None)
 
 
-def _fitted_interval(effect: str, items: list[dict[str, Any]], ctx: ScoringContext) -> tuple[float, float] | None:
-    """The 90 % interval of :func:`_fitted_value`'s quantity: its conversion at the ends of the parameters' 90 %
-    intervals (``interval_90`` of the diagnosis; every conversion rises or falls with each of its parameters), or None
-    where the item that gives the value has no interval."""
-    scoring = SCORING.get(effect)
-    if scoring is None:
+def _interval(conversion: Conversion, rows: list[dict[str, Any]], ctx: ScoringContext
+              ) -> tuple[float, float] | None:
+    """``conversion`` at the lower and the upper ends of the parameter rows' ``interval_90`` (a row without one at its
+    value), ordered; None when no row has an interval or an end is not finite."""
+    if not any(p.get("interval_90") for p in rows):
         return None
-    for item in items:
-        for conversion in scoring.conversions:
-            if not fnmatch.fnmatchcase(item["effect"], conversion.pattern):
-                continue
-            rows = [p for p in item["parameters"] if p.get("value") is not None]
-            ends = []
-            for side in (0, 1):
-                params = {p["name"]: (p["interval_90"][side] if p.get("interval_90") else p["value"]) for p in rows}
-                try:
-                    ends.append(float(conversion.fitted(params, ctx)))
-                except (ScoreMismatch, KeyError, ZeroDivisionError):
-                    break
-            if len(ends) < 2:
-                continue
-            if not any(p.get("interval_90") for p in rows) or not all(math.isfinite(e) for e in ends):
-                return None
-            return min(ends), max(ends)
-    return None
+    ends = []
+    for side in (0, 1):
+        params = {p["name"]: (p["interval_90"][side] if p.get("interval_90") else p["value"]) for p in rows}
+        try:
+            ends.append(float(conversion.fitted(params, ctx)))
+        except (ScoreMismatch, KeyError, ZeroDivisionError):
+            return None
+    if not all(math.isfinite(e) for e in ends):
+        return None
+    return min(ends), max(ends)
 
 
 def _covers(interval: tuple[float, float] | None, true: float | None) -> bool | None:
@@ -312,8 +311,7 @@ def score_case(record: dict[str, Any], truth: dict[str, Any], draw: dict[str, An
         preferred = [i for i in items if _acts_on(i, acting)] + [i for i in items if not _acts_on(i, acting)]
         ctx = _scoring_context(record, truth, true_params[effect])
         true_value = true_size(effect, true_params[effect])
-        fitted, source, note = _fitted_value(effect, preferred, ctx) if items else (None, "", "missed")
-        interval = _fitted_interval(effect, preferred, ctx) if fitted is not None else None
+        fitted, source, note, interval = _fitted_value(effect, preferred, ctx) if items else (None, "", "missed", None)
         per_effect.append({
             "effect": effect, "detected": bool(items),
             "named_in": sorted({e for i in items for e in i.get("equations") or [i["equation"]]}),
