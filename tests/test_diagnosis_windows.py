@@ -32,5 +32,6 @@ def test_windows_side_by_side_equal_one_by_one_including_end_stops(ipbmotor_fmu)
         for w, start in enumerate(first):
             piece = slice(start, start + 101)
             one = simulate(model, simulate_open_loop, time_s[piece], u[piece], x0[w], corr)
-            np.testing.assert_allclose(batch[w], one, rtol=1e-9, atol=1e-9)
+            # the same scheme (hybridfmu.runge_kutta) in NumPy and in the shim's C: the same numbers to the bit
+            np.testing.assert_array_equal(batch[w], one)
     assert np.min(batch[1, :, 2]) == 0.0  # the stop was reached and handled

@@ -30,6 +30,7 @@ from hybridfmu.diagnosis.effects import EffectInputs, input_derivative
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.selection import Term
 from hybridfmu.fmu.effect_program import EffectProgram, EffectTerm
+from hybridfmu.runge_kutta import RK4, numpy_axpy
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -59,11 +60,7 @@ def rk4_simulate(model: Any, time_s: np.ndarray, u: np.ndarray, x0: np.ndarray,
 
     for k in range(len(time_s) - 1):
         h, uk = time_s[k + 1] - time_s[k], u[k:k + 1]
-        k1 = rhs(x, uk)
-        k2 = rhs(x + 0.5 * h * k1, uk)
-        k3 = rhs(x + 0.5 * h * k2, uk)
-        k4 = rhs(x + h * k3, uk)
-        x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        x = RK4.plan(h).step(x, lambda state, _stage, held=uk: rhs(state, held), numpy_axpy)
         states[k + 1] = x
     return RK4Result(states)
 
@@ -344,11 +341,7 @@ def simulate_windows(model: Any, simulate_fn: Callable, time_s: np.ndarray, u: n
             k = first + j
             u_k = u[k]
             h = (time_s[k + 1] - time_s[k])[:, None]
-            k1 = rhs(x, u_k)
-            k2 = rhs(x + 0.5 * h * k1, u_k)
-            k3 = rhs(x + 0.5 * h * k2, u_k)
-            k4 = rhs(x + h * k3, u_k)
-            x = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            x = RK4.plan(h).step(x, lambda state, _stage, held=u_k: rhs(state, held), numpy_axpy)
             finite = np.all(np.isfinite(x), axis=1)
             clean &= finite
             x[~finite] = x0[~finite]

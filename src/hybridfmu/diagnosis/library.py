@@ -65,6 +65,7 @@ from hybridfmu.diagnosis.effects import (Effect, EffectInputs, first_order_lag, 
                                          param, shift_samples, smooth_sign)
 from hybridfmu.diagnosis.problem import Problem, positive_grid, quantile_grid
 from hybridfmu.fmu.effect_program import EffectTerm
+from hybridfmu.runge_kutta import RK4, numpy_axpy
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -551,15 +552,17 @@ class Overflow(Effect):
             f_j = float(np.asarray(model.derivatives(row[None, :], u_row[None, :]))[0, j])
             return f_j - (max(f_j, 0.0) if row[j] >= level else 0.0)
 
+        plan = RK4.plan(dt_s)
         value = float(x[0, j])
         for k in range(len(x)):
             row, u_row = x[k].copy(), inputs.u[k]
             x[k, j] = value
-            stages = []
-            for a in (0.0, 0.5, 0.5, 1.0):
-                row[j] = value + a * dt_s * (stages[-1] if stages else 0.0)
-                stages.append(rate(row, u_row))
-            value += dt_s / 6.0 * (stages[0] + 2.0 * stages[1] + 2.0 * stages[2] + stages[3])
+
+            def rate_at(x_j: float, _stage: int, row=row, u_row=u_row) -> float:
+                row[j] = x_j
+                return rate(row, u_row)
+
+            value = plan.step(value, rate_at, numpy_axpy)
         return x
 
     def regressors(self, inputs, setting):

@@ -26,6 +26,7 @@ from hybridfmu.diagnosis.derivatives import (
     hann_kernel, interval_means, interval_rates, smooth_same, white_noise_std,
 )
 from hybridfmu.progress import Progress
+from hybridfmu.runge_kutta import RK4, numpy_axpy
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -169,11 +170,11 @@ def rk4_mean_rate(model: Any, x: np.ndarray, u: np.ndarray, dt_s: float) -> np.n
 
     ``x`` (K, n_x), ``u`` (K, n_u) held over the step -> (K, n_x).
     """
-    k1 = model.derivatives(x, u)
-    k2 = model.derivatives(x + 0.5 * dt_s * k1, u)
-    k3 = model.derivatives(x + 0.5 * dt_s * k2, u)
-    k4 = model.derivatives(x + dt_s * k3, u)
-    return (k1 + 2.0 * (k2 + k3) + k4) / 6.0
+    plan = RK4.plan(dt_s, weight_scale=1.0)
+    stages = []
+    for i in range(RK4.stages):
+        stages.append(np.asarray(model.derivatives(plan.stage_state(x, stages, i, numpy_axpy), u), dtype=float))
+    return plan.combine(np.zeros_like(stages[0]), stages, numpy_axpy)
 
 
 def noise_floor_std(err: EquationError, noise_x: np.ndarray, centres: np.ndarray | None = None) -> np.ndarray:

@@ -432,7 +432,8 @@ static int hf_rk4(hf_model *m, double t, double h, const double *x, const double
     if ((st = hf_rhs(m, t + 0.5 * h, xs, u, k3, row))) return st;
     for (i = 0; i < nx; ++i) xs[i] = x[i] + h * k3[i];
     if ((st = hf_rhs(m, t + h, xs, u, k4, row))) return st;
-    for (i = 0; i < nx; ++i) x_new[i] = x[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+    /* the weights grouped as in hybridfmu.runge_kutta: x + (h/6) (k1 + k4) + (h/3) (k2 + k3) */
+    for (i = 0; i < nx; ++i) x_new[i] = x[i] + h / 6.0 * (k1[i] + k4[i]) + h / 3.0 * (k2[i] + k3[i]);
     HF_CHECK(m, m->set_time(m->component, t + h), HF_FN_SET_TIME, row);
     HF_CHECK(m, m->set_states(m->component, x_new, nx), HF_FN_SET_STATES, row);
     if (m->nz)

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from hybridfmu.runge_kutta import TABLEAUS
+
 
 @dataclass(frozen=True)
 class EndStop:
@@ -89,8 +91,8 @@ class NeuralFmuSpec:
             raise ValueError("model: the ANN needs at least one input signal (ann_states/ann_inputs/ann_derivatives)")
         if self.ann_output_init not in ("zero", "random"):
             raise ValueError(f"model.ann_output_init: expected 'zero' or 'random', got {self.ann_output_init!r}")
-        if self.solver not in ("rk4", "euler"):
-            raise ValueError(f"model.solver: expected 'rk4' or 'euler', got {self.solver!r}")
+        if self.solver not in TABLEAUS:
+            raise ValueError(f"model.solver: expected one of {', '.join(map(repr, TABLEAUS))}, got {self.solver!r}")
         if self.delay_groups:
             listed = [name for inputs in self.delay_groups.values() for name in inputs]
             unknown = [name for name in listed if name not in self.input_names]

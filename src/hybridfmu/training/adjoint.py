@@ -17,11 +17,27 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from hybridfmu import runge_kutta
 from hybridfmu.fmu.neural import NeuralWeights
 from hybridfmu.model.fmu_layer import (coefficient_kernel, jacobian_function, jacobian_kernel, neural_recorder_function,
                                        neural_rollout_function, numpy_function, numpy_kernel, value_function)
 from hybridfmu.model.neural_fmu import FusedDerivative
+from hybridfmu.runge_kutta import NODE_END, NODE_MIDDLE, NODE_START, numpy_axpy, pairwise_sum
 from hybridfmu.training.numpy_adjoint import NumpyRollout, NumpyWeights
+
+
+def torch_axpy(y: torch.Tensor, k: torch.Tensor, c: float) -> torch.Tensor:
+    """y + c k in one torch operation (``hybridfmu.runge_kutta.Axpy``)."""
+    return torch.add(y, k, alpha=c)
+
+
+def step_nodes(grid: list, half: list | None, k: int) -> dict:
+    """What a stage of step k takes at each node of the scheme: ``grid[k]`` at its start, ``half[k]`` (None
+    for a scheme without a middle node) in its middle, ``grid[k + 1]`` at its end."""
+    nodes = {NODE_START: grid[k], NODE_END: grid[k + 1]}
+    if half is not None:
+        nodes[NODE_MIDDLE] = half[k]
+    return nodes
 
 
 @dataclass
@@ -56,6 +72,7 @@ class SolverEngine:
         self.c_rollout = neural_rollout_function(stage.rhs)
         self.h = h
         self.method = method
+        self.tableau = runge_kutta.tableau(method)
         self.clamp = clamp
 
     # ------------------------------------------------------------------ forward
@@ -114,19 +131,18 @@ class SolverEngine:
         if records is None and self.numpy_rhs is not None:
             return self._run_numpy(wts, x0, u_grid, u_half, z_grid, z_half)
         n_steps = u_grid.shape[0] - 1
-        h = self.h
+        plan, nodes = self.tableau.plan(self.h), self.tableau.c
+        middle = NODE_MIDDLE in nodes
+        grid, half = list(zip(u_grid, z_grid)), list(zip(u_half, z_half)) if middle else None
         states = [x0]
         x = x0
         for k in range(n_steps):
             stage_records = [] if records is not None else None
-            if self.method == "rk4":
-                k1 = self._stage(wts, x, u_grid[k], z_grid[k], stage_records)
-                k2 = self._stage(wts, torch.add(x, k1, alpha=0.5 * h), u_half[k], z_half[k], stage_records)
-                k3 = self._stage(wts, torch.add(x, k2, alpha=0.5 * h), u_half[k], z_half[k], stage_records)
-                k4 = self._stage(wts, torch.add(x, k3, alpha=h), u_grid[k + 1], z_grid[k + 1], stage_records)
-                x = torch.add(torch.add(x, k1 + k4, alpha=h / 6.0), k2 + k3, alpha=h / 3.0)
-            else:
-                x = torch.add(x, self._stage(wts, x, u_grid[k], z_grid[k], stage_records), alpha=h)
+
+            def derivative(state, i, inputs=step_nodes(grid, half, k), stage_records=stage_records):
+                return self._stage(wts, state, *inputs[nodes[i]], stage_records)
+
+            x = plan.step(x, derivative, torch_axpy)
             x, mask = self._apply_clamp(x)
             if records is not None:
                 if not bool(torch.isfinite(x).all()):
@@ -179,16 +195,12 @@ class SolverEngine:
         states = np.full((n_steps + 1,) + tuple(x0.shape), np.nan)
         x = x0.detach().numpy().copy()
         states[0] = x
-        rk4 = self.method == "rk4"
+        plan, nodes = self.tableau.plan(h), self.tableau.c
+        grid = list(zip(u_grid, z_grid))
+        half = list(zip(u_half, z_half)) if NODE_MIDDLE in nodes else None
         for k in range(n_steps):
-            if rk4:
-                k1 = stage(x, u_grid[k], z_grid[k])
-                k2 = stage(x + (0.5 * h) * k1, u_half[k], z_half[k])
-                k3 = stage(x + (0.5 * h) * k2, u_half[k], z_half[k])
-                k4 = stage(x + h * k3, u_grid[k + 1], z_grid[k + 1])
-                x = x + (h / 6.0) * (k1 + k4) + (h / 3.0) * (k2 + k3)
-            else:
-                x = x + h * stage(x, u_grid[k], z_grid[k])
+            x = plan.step(x, lambda state, i, inputs=step_nodes(grid, half, k): stage(state, *inputs[nodes[i]]),
+                          numpy_axpy)
             if self.clamp is not None:
                 i_pos, i_rate, lower, upper = self.clamp
                 outside = (x[:, i_pos] <= lower) | (x[:, i_pos] >= upper)
@@ -238,34 +250,32 @@ class SolverEngine:
         wts_t = wts.transposed()
         g_u_grid = grad_states.new_zeros((n_steps + 1,) + tuple(self._u_shape))
         g_z_grid = grad_states.new_zeros((n_steps + 1,) + tuple(self._z_shape))
-        g_u_half = g_u_grid.new_zeros((n_steps,) + tuple(self._u_shape)) if self.method == "rk4" else None
-        g_z_half = g_z_grid.new_zeros((n_steps,) + tuple(self._z_shape)) if self.method == "rk4" else None
+        nodes = self.tableau.c
+        middle = NODE_MIDDLE in nodes
+        g_u_half = g_u_grid.new_zeros((n_steps,) + tuple(self._u_shape)) if middle else None
+        g_z_half = g_z_grid.new_zeros((n_steps,) + tuple(self._z_shape)) if middle else None
+        plan = self.tableau.plan(h)
         lam = grad_states[n_steps].clone()
         for k in range(n_steps - 1, -1, -1):
             stage_records, mask = records[k]
             if mask is not None:
                 lam = lam * mask
-            if self.method == "rk4":
-                lam_third = lam * (h / 3.0)
-                gx4, gu4, gz4 = self._stage_backward(wts_t, lam * (h / 6.0), stage_records[3], acc)
-                gx3, gu3, gz3 = self._stage_backward(
-                    wts_t, torch.add(lam_third, gx4, alpha=h), stage_records[2], acc)
-                gx2, gu2, gz2 = self._stage_backward(
-                    wts_t, torch.add(lam_third, gx3, alpha=0.5 * h), stage_records[1], acc)
-                gx1, gu1, gz1 = self._stage_backward(
-                    wts_t, torch.add(lam * (h / 6.0), gx2, alpha=0.5 * h), stage_records[0], acc)
-                g_u_grid[k + 1] += gu4
-                g_z_grid[k + 1] += gz4
-                g_u_grid[k] += gu1
-                g_z_grid[k] += gz1
-                g_u_half[k] = gu2 + gu3
-                g_z_half[k] = gz2 + gz3
-                lam = lam + ((gx1 + gx2) + (gx3 + gx4)) + grad_states[k]
-            else:
-                gx, gu, gz = self._stage_backward(wts_t, lam * h, stage_records[0], acc)
-                g_u_grid[k] += gu
-                g_z_grid[k] += gz
-                lam = lam + gx + grad_states[k]
+            input_grads: list = [None] * len(nodes)
+
+            def stage_backward(gy, i, stage_records=stage_records, input_grads=input_grads):
+                g_x, g_u, g_z = self._stage_backward(wts_t, gy, stage_records[i], acc)
+                input_grads[i] = (g_u, g_z)
+                return g_x
+
+            state_grads = plan.adjoint_step(lam, stage_backward, torch_axpy)
+            for node, grads_u, grads_z, index in ((NODE_START, g_u_grid, g_z_grid, k),
+                                                  (NODE_END, g_u_grid, g_z_grid, k + 1),
+                                                  (NODE_MIDDLE, g_u_half, g_z_half, k)):
+                at_node = [input_grads[i] for i in range(len(nodes)) if nodes[i] == node]
+                if at_node:
+                    grads_u[index] += pairwise_sum([g for g, _ in at_node])
+                    grads_z[index] += pairwise_sum([g for _, g in at_node])
+            lam = lam + pairwise_sum(state_grads) + grad_states[k]
         weight_grads = acc.weight_grads(wts)
         return lam, g_u_grid, g_u_half, g_z_grid, g_z_half, weight_grads
 

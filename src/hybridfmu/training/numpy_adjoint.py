@@ -16,6 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hybridfmu import runge_kutta
+from hybridfmu.runge_kutta import NODE_END, NODE_MIDDLE, NODE_START, numpy_axpy, pairwise_sum
+
 
 @dataclass(frozen=True)
 class NumpyWeights:
@@ -45,7 +48,8 @@ class NumpyRollout:
     def __init__(self, kernel, weights: NumpyWeights, h: float, method: str,
                  clamp: tuple[int, int, float, float] | None, coefficients: bool = False) -> None:
         self.kernel, self.w, self.h, self.clamp = kernel, weights, float(h), clamp
-        self.stages = 4 if method == "rk4" else 1
+        self.tableau = runge_kutta.tableau(method)
+        self.stages = self.tableau.stages
         self.masks: dict[int, np.ndarray] = {}
         self.coefficients = bool(coefficients)
         self.sensitivity: np.ndarray | None = None
@@ -114,28 +118,21 @@ class NumpyRollout:
         n_steps = u_grid.shape[0] - 1
         batch, n_x = x0.shape
         self._allocate(n_steps, batch, n_x, u_grid.shape[2])
-        h = self.h
+        plan, nodes, n_stages = self.tableau.plan(self.h), self.tableau.c, self.stages
+        grid = list(zip(u_grid, z_grid))
+        half = list(zip(u_half, z_half)) if NODE_MIDDLE in nodes else None
         states = np.empty((n_steps + 1, batch, n_x))
         states[0] = x0
         x = states[0]
         stage, isfinite = self._stage, np.isfinite
         for k in range(n_steps):
-            if self.stages == 4:
-                j = 4 * k
-                k1 = stage(j, x, u_grid[k], z_grid[k])
-                k2 = stage(j + 1, x + (0.5 * h) * k1, u_half[k], z_half[k])
-                k3 = stage(j + 2, x + (0.5 * h) * k2, u_half[k], z_half[k])
-                k4 = stage(j + 3, x + h * k3, u_grid[k + 1], z_grid[k + 1])
-                k1 += k4
-                k2 += k3
-                nxt = states[k + 1]
-                np.multiply(k1, h / 6.0, out=nxt)
-                nxt += x
-                nxt += (h / 3.0) * k2
-            else:
-                nxt = states[k + 1]
-                np.multiply(stage(k, x, u_grid[k], z_grid[k]), h, out=nxt)
-                nxt += x
+            inputs = {NODE_START: grid[k], NODE_END: grid[k + 1]}
+            if half is not None:
+                inputs[NODE_MIDDLE] = half[k]
+            states[k + 1] = plan.step(
+                x, lambda state, i, first=n_stages * k, inputs=inputs: stage(first + i, state, *inputs[nodes[i]]),
+                numpy_axpy)
+            nxt = states[k + 1]
             if self.clamp is not None:
                 self._apply_clamp(k, nxt)
             if not isfinite(nxt).all():
@@ -180,7 +177,7 @@ class NumpyRollout:
         n_records = self.xf.shape[0]
         n_steps = n_records // self.stages
         batch = self.xf.shape[1]
-        w, h = self.w, self.h
+        w, plan, n_stages = self.w, self.tableau.plan(self.h), self.stages
         self.w_out_t = np.ascontiguousarray(w.w_out.T)
         self.w_xd = np.ascontiguousarray(w.w_xd_t.T)
         self.hidden_t = [np.ascontiguousarray(weight_t.T) for weight_t, _ in w.hidden]
@@ -194,19 +191,8 @@ class NumpyRollout:
             mask = self.masks.get(k)
             if mask is not None:
                 lam *= mask
-            if self.stages == 4:
-                j = 4 * k
-                lam_sixth, lam_third = lam * (h / 6.0), lam * (h / 3.0)
-                gx4 = back(j + 3, lam_sixth)
-                gx3 = back(j + 2, lam_third + h * gx4)
-                gx2 = back(j + 1, lam_third + (0.5 * h) * gx3)
-                gx1 = back(j, lam_sixth + (0.5 * h) * gx2)
-                gx1 += gx2
-                gx3 += gx4
-                gx1 += gx3
-                lam += gx1
-            else:
-                lam += back(k, lam * h)
+            lam += pairwise_sum(plan.adjoint_step(lam, lambda gy, i, first=n_stages * k: back(first + i, gy),
+                                                  numpy_axpy))
             lam += grad_states[k]
         if self.coefficients:  # sum over stages and rows of g_F^T df/dc
             self.coefficient_gradient = np.einsum("jbi,jbic->c", self.g_fmu, self.sensitivity)
@@ -215,17 +201,22 @@ class NumpyRollout:
     def _input_gradients(self, n_steps: int):
         """Gradients of u_grid (n+1, B, n_u), u_half, z_grid (n+1, B, H0), z_half from the stages'."""
         gu, gz = self.gu, self.ga[0]
+        nodes, n_stages = self.tableau.c, self.stages
         g_u_grid = np.zeros((n_steps + 1,) + gu.shape[1:])
         g_z_grid = np.zeros((n_steps + 1,) + gz.shape[1:])
-        if self.stages == 4:
-            g_u_grid[1:] += gu[3::4]
-            g_u_grid[:-1] += gu[0::4]
-            g_z_grid[1:] += gz[3::4]
-            g_z_grid[:-1] += gz[0::4]
-            return g_u_grid, gu[1::4] + gu[2::4], g_z_grid, gz[1::4] + gz[2::4]
-        g_u_grid[:-1] = gu
-        g_z_grid[:-1] = gz
-        return g_u_grid, None, g_z_grid, None
+        half = {}
+        for node, grid_steps in ((NODE_START, slice(None, -1)), (NODE_END, slice(1, None)), (NODE_MIDDLE, None)):
+            members = [i for i in range(n_stages) if nodes[i] == node]
+            if not members:
+                continue
+            node_u = pairwise_sum([gu[i::n_stages] for i in members])
+            node_z = pairwise_sum([gz[i::n_stages] for i in members])
+            if grid_steps is None:
+                half = {"u": node_u, "z": node_z}
+            else:
+                g_u_grid[grid_steps] += node_u
+                g_z_grid[grid_steps] += node_z
+        return g_u_grid, half.get("u"), g_z_grid, half.get("z")
 
     def _weight_gradients(self) -> list[np.ndarray]:
         def flat(array: np.ndarray) -> np.ndarray:

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import torch
 
+from hybridfmu import runge_kutta
 from hybridfmu.model.neural_fmu import NeuralFmu
-from hybridfmu.training.adjoint import ENGINES, rollout_adjoint
+from hybridfmu.runge_kutta import NODE_END, NODE_MIDDLE, NODE_START
+from hybridfmu.training.adjoint import ENGINES, rollout_adjoint, torch_axpy
 
 #: ``rollout``'s gradients options that name one engine of the adjoint.
 GRADIENT_ENGINES = {f"adjoint_{engine}": engine for engine in ENGINES}
@@ -45,10 +47,11 @@ def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.T
     spec = model.spec
     h = spec.sample_period_s
     stage = model.fused()
-    rk4 = spec.solver == "rk4"
+    tableau = runge_kutta.tableau(spec.solver)
+    middle = NODE_MIDDLE in tableau.c  # inputs half a sample into each step
     u_grid_t = model.delay(u_seq, start_index, n_steps + 1, 0.0).transpose(0, 1).contiguous()  # (n+1, B, n_u)
     z_grid_t = stage.input_term(u_grid_t)  # (n+1, B, H)
-    u_half_t = model.delay(u_seq, start_index, n_steps if rk4 else 0, 0.5).transpose(0, 1).contiguous()
+    u_half_t = model.delay(u_seq, start_index, n_steps if middle else 0, 0.5).transpose(0, 1).contiguous()
     z_half_t = stage.input_term(u_half_t)
     if gradients == "adjoint" or gradients in GRADIENT_ENGINES:
         states_t = rollout_adjoint(stage, h, spec.solver, _end_stop_indices(model), x0,
@@ -63,17 +66,19 @@ def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.T
     u_grid, z_grid = u_grid_t.unbind(0), z_grid_t.unbind(0)
     u_half, z_half = u_half_t.unbind(0), z_half_t.unbind(0)
     clamp = _end_stop(model)
+    plan = tableau.plan(h)
+
+    def derivative_of_step(k: int):
+        """Stage i of step k: the derivative with the inputs at the stage's node."""
+        inputs = {NODE_START: (u_grid[k], z_grid[k]), NODE_END: (u_grid[k + 1], z_grid[k + 1])}
+        if middle:
+            inputs[NODE_MIDDLE] = (u_half[k], z_half[k])
+        return lambda state, i: stage(state, *inputs[tableau.c[i]])
+
     x = x0
     states = [x0]
     for k in range(n_steps):
-        if spec.solver == "rk4":
-            k1 = stage(x, u_grid[k], z_grid[k])
-            k2 = stage(torch.add(x, k1, alpha=0.5 * h), u_half[k], z_half[k])
-            k3 = stage(torch.add(x, k2, alpha=0.5 * h), u_half[k], z_half[k])
-            k4 = stage(torch.add(x, k3, alpha=h), u_grid[k + 1], z_grid[k + 1])
-            x = torch.add(torch.add(x, k1 + k4, alpha=h / 6.0), k2 + k3, alpha=h / 3.0)
-        else:
-            x = torch.add(x, stage(x, u_grid[k], z_grid[k]), alpha=h)
+        x = plan.step(x, derivative_of_step(k), torch_axpy)
         if clamp is not None:
             x = clamp(x)
         states.append(x)
