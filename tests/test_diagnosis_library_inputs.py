@@ -17,11 +17,11 @@ from hybridfmu.diagnosis.selection import Term
 
 
 def _chosen(result):
-    return [c["effect"] for c in result.which["chosen"]]
+    return [c["effect"] for c in result.which.chosen]
 
 
 def _params(result, index=0):
-    return {p["name"]: p for p in result.which["chosen"][index]["parameters"]}
+    return {p["name"]: p for p in result.which.chosen[index]["parameters"]}
 
 
 # ----------------------------------------------------------------------------- helpers of the input changes
@@ -130,7 +130,7 @@ def test_a_sensor_lag_is_found_with_its_time_constant_and_undone_in_the_simulati
     assert lag["value"] == pytest.approx(0.05 + 0.005, rel=0.03)
     assert 0 < lag["se"] < 0.01 * lag["value"]
     far = result.how_far
-    assert far["gap_after"] < 0.05 * far["gap_before"]
+    assert far.gap_after < 0.05 * far.gap_before
 
 
 def test_a_slow_actuator_is_found_as_a_negative_lag_with_its_exact_shape():
@@ -143,10 +143,10 @@ def test_a_slow_actuator_is_found_as_a_negative_lag_with_its_exact_shape():
     assert params["lag_s"]["value"] == pytest.approx(-0.05, rel=0.01)
     assert params["lag_s"]["se"] is not None and params["lag_s"]["se"] < 0.001
     assert params["scale"]["value"] == pytest.approx(1.0, abs=0.01)
-    steps = result.which["equations"]["v"]["steps"][0]["candidates"]
+    steps = result.which.equations["v"]["steps"][0]["candidates"]
     assert steps[0]["effect"] == "input_lag(F)" and steps[0]["setting"]["actuator_lag_s"] > 0
     far = result.how_far
-    assert far["gap_after"] < 0.01 * far["gap_before"]
+    assert far.gap_after < 0.01 * far.gap_before
 
 
 @pytest.mark.parametrize("case", ["deadzone", "above", "below"])
@@ -163,4 +163,4 @@ def test_an_input_dead_zone_or_saturation_is_found_with_its_level(case):
     assert params[key]["se"] is not None and params[key]["se"] < 0.01 * abs(value)
     assert params["scale"]["value"] == pytest.approx(1.0, abs=0.01)
     far = result.how_far
-    assert far["gap_after"] < 0.01 * far["gap_before"]
+    assert far.gap_after < 0.01 * far.gap_before

@@ -101,20 +101,20 @@ def test_overflow_of_an_unmeasured_state_is_named_first_and_its_share_and_level_
     model, helper = TwoTanks(), TwoTanks()
     problem = tank_problem(model)
     result = run_diagnosis(problem, model, tank_maneuvers(overflow=True), helper=helper)
-    named = [c for c in result.which["chosen"] if c["kind"] != "parameter"]
-    assert named and named[0]["effect"] == "overflow(x1->x2)", [c["effect"] for c in result.which["chosen"]]
+    named = [c for c in result.which.chosen if c["kind"] != "parameter"]
+    assert named and named[0]["effect"] == "overflow(x1->x2)", [c["effect"] for c in result.which.chosen]
     values = {p["name"]: p["value"] for p in named[0]["parameters"]}
     assert values["share"] == pytest.approx(TRUE_SHARE, abs=0.15)
     assert values["level"] == pytest.approx(TRUE_LEVEL, rel=0.15)
     far = result.how_far
-    assert far["after"]["level_rmse"] < 0.5 * far["before"]["level_rmse"]
+    assert far.after["level_rmse"] < 0.5 * far.before["level_rmse"]
 
 
 def test_no_overflow_in_the_data_names_none():
     model, helper = TwoTanks(), TwoTanks()
     problem = tank_problem(model)
     result = run_diagnosis(problem, model, tank_maneuvers(overflow=False), helper=helper, open_loop=False)
-    assert [c["effect"] for c in result.which["chosen"]] == []
+    assert [c["effect"] for c in result.which.chosen] == []
 
 
 def miscalibrated_tanks():

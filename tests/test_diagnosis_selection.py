@@ -17,11 +17,11 @@ def _extra(func):
 
 
 def _names(result):
-    return [c["effect"] for c in result.which["chosen"]]
+    return [c["effect"] for c in result.which.chosen]
 
 
 def _param(result, name):
-    return {p["name"]: p["value"] for p in result.which["chosen"][0]["parameters"]}[name]
+    return {p["name"]: p["value"] for p in result.which.chosen[0]["parameters"]}[name]
 
 
 CASES = {
@@ -42,7 +42,7 @@ def test_a_known_effect_is_named_alone_with_its_parameter(case):
     result = run_diagnosis(problem, model, msd_maneuvers(extra, duration_s=20.0), open_loop=False)
     assert _names(result) == [name]
     assert _param(result, parameter) == pytest.approx(value, rel=0.1, abs=0.02)
-    assert result.which["chosen"][0]["equation"] == "v"
+    assert result.which.chosen[0]["equation"] == "v"
     assert result.where["carrier"] == "v"
 
 
@@ -68,7 +68,7 @@ def test_nothing_is_named_when_the_model_is_right():
     result = run_diagnosis(problem, model, msd_maneuvers(None, noise=(2e-4, 2e-3), duration_s=20.0))
     assert _names(result) == []
     assert result.where["states"]["v"]["ratio_to_noise"] < 1.5
-    assert result.how_far["shrink_factor"] == pytest.approx(1.0)
+    assert result.how_far.shrink_factor == pytest.approx(1.0)
 
 
 def test_how_far_shrinks_the_open_loop_gap_on_the_test_maneuver():
@@ -76,10 +76,10 @@ def test_how_far_shrinks_the_open_loop_gap_on_the_test_maneuver():
     problem, model = msd_problem()
     result = run_diagnosis(problem, model, msd_maneuvers(extra, duration_s=20.0))
     far = result.how_far
-    assert [s["model"] for s in far["steps"]] == ["FMU", "+ coulomb(v) (dv/dt)"]
+    assert [s["model"] for s in far.steps] == ["FMU", "+ coulomb(v) (dv/dt)"]
     for key in ("position_rmse", "position_mae", "velocity_rmse", "velocity_mae"):
-        assert far["after"][key] < 0.1 * far["before"][key]
-    assert far["shrink_factor"] > 10
+        assert far.after[key] < 0.1 * far.before[key]
+    assert far.shrink_factor > 10
 
 
 def test_how_far_attributes_the_shrink_to_the_parameter_corrections_and_to_the_effects():
@@ -90,14 +90,14 @@ def test_how_far_attributes_the_shrink_to_the_parameter_corrections_and_to_the_e
     result = run_diagnosis(problem, model, msd_maneuvers(extra, duration_s=20.0, truth_model=MassSpringDamper(m=1.1)))
     far = result.how_far
     assert sorted(_names(result)) == ["coulomb(v)", "parameter(m)"]
-    only = far["parameters_only"]
+    only = far.parameters_only
     assert only["effects"] == ["parameter(m)"] and only["model"] == "parameter corrections only"
-    assert far["parameter_shrink_factor"] * far["effect_shrink_factor"] == pytest.approx(far["shrink_factor"])
-    assert far["window_parameter_shrink_factor"] * far["window_effect_shrink_factor"] == pytest.approx(
-        far["window_gap_before"] / far["window_gap_after"])
-    assert far["effect_shrink_factor"] > 3  # the friction, not the mass, closes most of the gap
-    from hybridfmu.diagnosis.report import attribution_sentence, verdict
-    assert "only its parameter errors corrected (parameter(m))" in attribution_sentence(far)
+    assert far.parameter_shrink_factor * far.effect_shrink_factor == pytest.approx(far.shrink_factor)
+    assert far.window_parameter_shrink_factor * far.window_effect_shrink_factor == pytest.approx(
+        far.window_gap_before / far.window_gap_after)
+    assert far.effect_shrink_factor > 3  # the friction, not the mass, closes most of the gap
+    from hybridfmu.diagnosis.report import attribution_sentence, held_out_record, verdict
+    assert "only its parameter errors corrected (parameter(m))" in attribution_sentence(held_out_record(far))
     assert "the effects beyond the parameter corrections ×" in verdict(result)
 
 
@@ -106,7 +106,7 @@ def test_with_nothing_but_parameter_errors_the_effects_add_nothing():
     result = run_diagnosis(problem, model, msd_maneuvers(None, duration_s=20.0, truth_model=MassSpringDamper(m=1.1)))
     far = result.how_far
     assert _names(result) == ["parameter(m)"]
-    assert far["effect_shrink_factor"] == 1.0 and far["parameter_shrink_factor"] == pytest.approx(far["shrink_factor"])
+    assert far.effect_shrink_factor == 1.0 and far.parameter_shrink_factor == pytest.approx(far.shrink_factor)
 
 
 def test_unmeasured_states_come_from_the_simulation_and_are_reported():

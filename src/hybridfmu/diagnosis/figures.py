@@ -73,7 +73,7 @@ def regions_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
 
 def candidates_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
     """Share of the residual the best candidates remove at the first selection step, per equation."""
-    equations = result.which["equations"]
+    equations = result.which.equations
     n = max(len(equations), 1)
     fig, axes = plt.subplots(1, n, figsize=(6.0 * n, 4.0), squeeze=False)
     threshold = 100 * float((result.settings.get("selection") or {}).get("min_relative_improvement", 0.03))
@@ -96,9 +96,9 @@ def candidates_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
 def effects_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
     """Per chosen effect: the partial residual (residual minus the other chosen terms) against the term."""
     which = result.which
-    terms = which["terms"]
+    terms = which.terms
     problem = result.problem
-    cache = which["cache"]
+    cache = which.cache
     names = result.fit_names
     n = max(len(terms), 1)
     fig, axes = plt.subplots(1, n, figsize=(4.6 * n, 4.0), squeeze=False)
@@ -107,7 +107,7 @@ def effects_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
                         ha="center", va="center", fontsize=9, wrap=True)
         axes[0, 0].set_axis_off()
         return _save(fig, path, dpi)
-    for ax, term, item in zip(axes[0], terms, which["chosen"]):  # terms in the rank order of ``chosen``
+    for ax, term, item in zip(axes[0], terms, which.chosen):  # terms in the rank order of ``chosen``
         eq = problem.state_names.index(item["equation"])  # the equation it explains most of
         y = cache.target(eq, names)
         others = [t for t in terms if t is not term]
@@ -145,7 +145,7 @@ def step_colours(values: list[float]) -> list[str]:
 def waterfall_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
     """Normalised open-loop gap on the test maneuver(s): the FMU and after each effect (green: the step shrank
     the gap, red: it widened it)."""
-    steps = result.how_far["steps"]
+    steps = result.how_far.steps
     keys = [("gap", "whole maneuver")] + ([("window_gap", "restarted windows")] if "window_gap" in steps[0] else [])
     fig, axes = plt.subplots(1, len(keys), figsize=(5.5 * len(keys), 4.0), squeeze=False)
     labels = [s["model"] for s in steps]
@@ -167,7 +167,7 @@ def open_loop_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
     """Target states of the test maneuver(s): measured, FMU, FMU + all chosen effects."""
     problem = result.problem
     far = result.how_far
-    names = list(far["trajectories"])
+    names = list(far.trajectories)
     targets = [problem.state_names.index(s) for s in problem.target_weights]
     fig, axes = plt.subplots(len(targets) * len(names), 1, figsize=(11.0, 2.6 * len(targets) * len(names)),
                              squeeze=False)
@@ -175,7 +175,7 @@ def open_loop_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
         p = result.prepared[name]
         t = p.measured.time_s
         sl = _thin(len(t))
-        variants = list(far["trajectories"][name])
+        variants = list(far.trajectories[name])
         shown = {"FMU", variants[-1]}
         for k, idx in enumerate(targets):
             ax = axes[len(targets) * i + k, 0]
@@ -183,7 +183,7 @@ def open_loop_figure(result: DiagnosisResult, path: Path, dpi: int) -> Path:
             ax.plot(t[sl], p.measured.x[sl, idx], "k", lw=1.2, label="measured")
             for label in variants:
                 if label in shown:
-                    ax.plot(t[sl], far["trajectories"][name][label][sl, idx], lw=0.8, label=label)
+                    ax.plot(t[sl], far.trajectories[name][label][sl, idx], lw=0.8, label=label)
             ax.set_xlabel("time (s)")
             ax.set_ylabel(problem.display(state), fontsize=8)
             ax.set_title(f"{name}: open loop", fontsize=9)

@@ -20,6 +20,7 @@ from hybridfmu.diagnosis.joint import effect_equations
 from hybridfmu.diagnosis.prepare import MeasuredManeuver, PreparedManeuver
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.refit import Refit, RefitSpec, parameters_set, refit_terms, simulate_corrected
+from hybridfmu.diagnosis.result import HeldOutCheck
 from hybridfmu.diagnosis.selection import Term
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
@@ -55,9 +56,9 @@ def _refit_record(refit: Refit) -> dict[str, Any]:
 
 def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
             test_names: list[str], terms: list[Term], problem: Problem,
-            refit: RefitSpec | None = None, refit_names: list[str] | None = None) -> dict[str, Any]:
-    """Open-loop errors on the test maneuvers: the model, and after each chosen effect (cumulative, rank order).
-    Returns steps, ``before``/``after`` (``<signal>_rmse``, ``<signal>_mae``, ``gap``).
+            refit: RefitSpec | None = None, refit_names: list[str] | None = None) -> HeldOutCheck:
+    """Open-loop errors on the test maneuvers: the model, and after each chosen effect (cumulative, rank order)
+    (:class:`hybridfmu.diagnosis.result.HeldOutCheck`).
 
     With ``refit`` (:func:`hybridfmu.diagnosis.refit.refit_spec`), every variant, the model alone among them,
     is first recalibrated with its effects by output error on the maneuvers ``refit_names``, each variant from the
@@ -97,15 +98,14 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
                                [t.effect.name for t in terms],
                                {name: dict(fitted.initial_states_of(name, refit)) for name in prepared
                                 if fitted.initial_states_of(name, refit)} if fitted is not None else {})
-    result = {"steps": steps, "before": {k: before[k] for k in keys}, "after": {k: after[k] for k in keys},
-              "gap_before": before["gap"], "gap_after": after["gap"],
-              "shrink_factor": before["gap"] / after["gap"] if after["gap"] and after["gap"] > 0 else float("inf"),
-              "notes": notes, "trajectories": trajectories, "diagnosed": diagnosed}
-    if "window_gap" in before:
-        result["window_gap_before"], result["window_gap_after"] = before["window_gap"], after["window_gap"]
-    result.update(_attributed(model, helper, simulate_fn, prepared, test_names, terms, steps, alone, problem, refit,
-                              refit_names, window_s))
-    return result
+    return HeldOutCheck(
+        steps=steps, before={k: before[k] for k in keys}, after={k: after[k] for k in keys},
+        gap_before=before["gap"], gap_after=after["gap"],
+        shrink_factor=before["gap"] / after["gap"] if after["gap"] and after["gap"] > 0 else float("inf"),
+        notes=notes, trajectories=trajectories, diagnosed=diagnosed,
+        window_gap_before=before.get("window_gap"), window_gap_after=after.get("window_gap"),
+        **_attributed(model, helper, simulate_fn, prepared, test_names, terms, steps, alone, problem, refit,
+                      refit_names, window_s))
 
 
 def _variant(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],

@@ -14,7 +14,7 @@ from hybridfmu.diagnosis.export import DIAGNOSED_MODEL, save_diagnosed
 from hybridfmu.io import write_json_atomic, write_text_atomic
 
 if TYPE_CHECKING:
-    from hybridfmu.diagnosis.result import DiagnosisResult
+    from hybridfmu.diagnosis.result import DiagnosisResult, HeldOutCheck
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -84,7 +84,7 @@ def verdict(result: DiagnosisResult) -> str:
     """One paragraph: which equation carries the gap, what was found, how far it shrank."""
     problem = result.problem
     where = result.where
-    chosen = result.which["chosen"]
+    chosen = result.which.chosen
     parts = []
     carrier = where["carrier"]
     if carrier:
@@ -103,7 +103,7 @@ def verdict(result: DiagnosisResult) -> str:
         if errors:
             names = ", ".join(f"{c['effect']} ({_relative_error_text(c)})" for c in errors)
             parts.append(f"Parameter errors of the model: {names}.")
-        for group in result.which.get("groups") or []:
+        for group in result.which.groups:
             parts.append(f"{group_text(group)} cannot be told apart by these data (their estimates correlate "
                          f"at {max(abs(p['correlation']) for p in group['pairs']):.2f}): only their joint effect is "
                          "determined.")
@@ -117,16 +117,16 @@ def verdict(result: DiagnosisResult) -> str:
                      f"(equation error / noise floor: {ratios}).")
     far = result.how_far
     if far:
-        before, after = far["before"], far["after"]
+        before, after = far.before, far.after
         quoted = "; ".join(f"{problem.labels.get(s, s)} RMS {before[f'{sig}_rmse']:.4g} -> {after[f'{sig}_rmse']:.4g} "
                            f"{problem.unit(s)}" for s, sig in ((s, problem.state_signal[s])
                                                                   for s in problem.target_weights))
-        parts.append(f"Open loop on the held-out test data: {quoted} (normalised gap {far['gap_before']:.4g} -> "
-                     f"{far['gap_after']:.4g}, factor {far['shrink_factor']:.3g}"
-                     + (f"; the effects beyond the parameter corrections {_factor(far.get('effect_shrink_factor'))}"
-                        + (f", over the windows {_factor(far.get('window_effect_shrink_factor'))}"
-                           if far.get("window_effect_shrink_factor") is not None else "")
-                        if far.get("parameters_only") else "") + ").")
+        parts.append(f"Open loop on the held-out test data: {quoted} (normalised gap {far.gap_before:.4g} -> "
+                     f"{far.gap_after:.4g}, factor {far.shrink_factor:.3g}"
+                     + (f"; the effects beyond the parameter corrections {_factor(far.effect_shrink_factor)}"
+                        + (f", over the windows {_factor(far.window_effect_shrink_factor)}"
+                           if far.window_effect_shrink_factor is not None else "")
+                        if far.parameters_only else "") + ").")
     elif result.how_far_not_run:
         parts.append(f"Held-out check not run: {result.how_far_not_run}")
     return " ".join(parts)
@@ -167,16 +167,31 @@ def diagnosis_record(result: DiagnosisResult, config: dict[str, Any]) -> dict[st
             "open_loop_growth": [{k: v for k, v in item.items() if k != "normalised_error"} for item in (growth or [])],
         },
         "which": {
-            "found_effects": list(dict.fromkeys(c["effect"] for c in which["chosen"])),
-            "chosen": which["chosen"], "equations": which["equations"], "steps": which.get("steps") or [],
-            "calibration": which.get("calibration") or [],
-            "skipped_candidates": which["skipped"],
-            "indistinguishable": which.get("groups") or [],
+            "found_effects": which.found_effects,
+            "chosen": which.chosen, "equations": which.equations, "steps": which.steps,
+            "calibration": which.calibration,
+            "skipped_candidates": which.skipped,
+            "indistinguishable": which.groups,
         },
-        "how_far": None if far is None else {k: v for k, v in far.items() if k != "trajectories"},
+        "how_far": None if far is None else held_out_record(far),
         "how_far_not_run": result.how_far_not_run if far is None else None,
     }
     return json_safe(record)
+
+
+def held_out_record(far: HeldOutCheck) -> dict[str, Any]:
+    """``diagnosis.json``'s ``how_far``: the check without its trajectories and model; the window figures only when
+    the check ran over windows."""
+    record = {"steps": far.steps, "before": far.before, "after": far.after, "gap_before": far.gap_before,
+              "gap_after": far.gap_after, "shrink_factor": far.shrink_factor, "notes": far.notes}
+    if far.windowed:
+        record.update(window_gap_before=far.window_gap_before, window_gap_after=far.window_gap_after)
+    record.update(parameters_only=far.parameters_only, parameter_shrink_factor=far.parameter_shrink_factor,
+                  effect_shrink_factor=far.effect_shrink_factor)
+    if far.windowed:
+        record.update(window_parameter_shrink_factor=far.window_parameter_shrink_factor,
+                      window_effect_shrink_factor=far.window_effect_shrink_factor)
+    return record
 
 
 def format_number(value: Any, digits: int = 4) -> str:

@@ -31,7 +31,7 @@ from hybridfmu.diagnosis.prepare import (MeasuredManeuver, PreparedManeuver, fil
                                          prepare_maneuver)
 from hybridfmu.diagnosis.problem import Problem, set_data_statistics
 from hybridfmu.diagnosis.refit import RefitSpec
-from hybridfmu.diagnosis.result import DiagnosisResult
+from hybridfmu.diagnosis.result import DiagnosisResult, EffectSelection
 from hybridfmu.diagnosis.regions import (RegionSamples, band_family, ranked_statements, region_table, reversal_mask,
                                          time_bins)
 from hybridfmu.diagnosis.selection import (DesignCache, EquationSelection, SelectionSettings, Term, best_setting,
@@ -243,18 +243,10 @@ def selection_inputs(prepared: dict[str, PreparedManeuver], fit_names: list[str]
 
 
 def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], problem: Problem,
-                   model: Any) -> dict[str, Any]:
+                   model: Any) -> EffectSelection:
     """One selection over all examined equations on the fitting maneuvers (:mod:`hybridfmu.diagnosis.joint`:
     changes of an input or a parameter act on every equation with one value), ranking, uncertainty and
-    stability.
-
-    Returns ``chosen`` (per named effect: ``equation`` where it explains most, ``equations`` all it acts on,
-    parameters, stability, drop-one score, rank), ``steps`` (the selection's steps; candidates with the
-    equations they act on), ``equations`` (per state: its residual before and after, in the equation's unit,
-    the chosen effects acting there and the steps' candidates acting there), ``calibration`` (per calibrated
-    parameter error: its relative error and whether it was kept, dropped or exchanged), ``skipped``, ``terms``,
-    ``cache`` (per-equation designs).
-    """
+    stability (:class:`hybridfmu.diagnosis.result.EffectSelection`)."""
     settings = problem.settings
     sel = SelectionSettings.from_config(settings.get("selection"))
     cache, stacked, candidates, calibrate, skipped = selection_inputs(prepared, fit_names, problem, model)
@@ -337,8 +329,8 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
     groups = indistinguishable_groups([t.effect.name for t in selection.terms],
                                       [len(t.coef) for t in selection.terms], selection.fit.cov) \
         if selection.terms else []
-    return {"chosen": chosen, "equations": equations, "steps": steps, "calibration": calibration, "skipped": skipped,
-            "terms": terms, "cache": cache, "n_candidates": len(candidates) + len(calibrate), "groups": groups}
+    return EffectSelection(chosen=chosen, equations=equations, steps=steps, calibration=calibration, skipped=skipped,
+                           terms=terms, cache=cache, n_candidates=len(candidates) + len(calibrate), groups=groups)
 
 
 # ----------------------------------------------------------------------------- how far
@@ -402,13 +394,14 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
     not_run = how_far_not_run(test_names, open_loop)
     if not_run is None:
         train_names = [n for n in fit_names if measured[n].role == "train"] or fit_names
-        far = how_far(model, helper, simulate_fn, prepared, test_names, which["terms"], problem, refit=refit, refit_names=train_names)
+        far = how_far(model, helper, simulate_fn, prepared, test_names, which.terms, problem, refit=refit,
+                      refit_names=train_names)
         growth = error_growth(model, simulate_fn, prepared, problem)
     else:
         LOGGER.warning("diagnosis: %s", not_run)
     # the model the held-out check ends with (recalibrated with its effects when refit is on)
-    diagnosed = far.pop("diagnosed") if far is not None else \
-        DiagnosedModel(list(which["terms"]), {}, problem, [t.effect.name for t in which["terms"]])
+    diagnosed = far.diagnosed if far is not None else \
+        DiagnosedModel(list(which.terms), {}, problem, [t.effect.name for t in which.terms])
     return DiagnosisResult(settings=problem.settings, problem=problem, prepared=prepared, fit_names=fit_names,
                            test_names=test_names, diagnosed=diagnosed, where=where, regions=regions, which=which,
                            how_far=far, how_far_not_run=not_run, growth=growth)
