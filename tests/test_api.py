@@ -67,3 +67,25 @@ def test_a_bad_config_is_named_with_its_file(tmp_path):
     path.write_text((REPO / "config" / "cases" / "tanks.yaml").read_text().replace("role: train", "role: training", 1))
     with pytest.raises(ConfigError, match=r"case\.yaml: .*config\.maneuvers\.train\.role"):
         api.load_case(path)
+
+
+def test_every_workflow_script_takes_its_functions_from_the_stages_module():
+    """The rules call src/ through hybridfmu.api.stages only (the bench's own package aside), and every stage it
+    lists is a function of the module it names."""
+    import ast
+    import inspect
+
+    from hybridfmu.api import stages
+
+    used = set()
+    for script in sorted((REPO / "workflow" / "scripts").glob("*.py")):
+        for node in ast.walk(ast.parse(script.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "hybridfmu":
+                assert node.module == "hybridfmu.api.stages", f"{script.name}: from {node.module} import ..."
+                used.update(alias.name for alias in node.names)
+    assert used and used <= set(stages.STAGES), sorted(used - set(stages.STAGES))
+    for name, module in stages.STAGES.items():
+        function = getattr(stages, name)
+        assert callable(function) and inspect.getmodule(function).__name__.startswith(module), (name, module)
+    with pytest.raises(AttributeError, match="has no stage 'train'"):
+        stages.train  # noqa: B018

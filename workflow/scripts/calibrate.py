@@ -1,7 +1,6 @@
 """Rule calibrate: fit the FMU's parameters and unmeasured initial states (hybridfmu.calibration)."""
 
-from hybridfmu.calibration import run_calibration
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import run_calibration, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 run_calibration(

@@ -1,8 +1,7 @@
 """Rule choose_grid: the grid rate and the FMU inputs' conventions between samples the config leaves out, from
 the train and validation maneuvers' logs."""
 
-from hybridfmu.data.ingest import choose_grid
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import choose_grid, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 config = dict(snakemake.params.config)

@@ -4,8 +4,7 @@ from pathlib import Path
 
 import torch
 
-from hybridfmu.evaluation.neural_comparison import compare_neural_fmu
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import compare_neural_fmu, setup_rule_logging
 
 torch.set_num_threads(1)
 setup_rule_logging(snakemake.log[0])

@@ -1,7 +1,6 @@
 """Rule evaluate: errors of the FMU and the best neural FMU (whole trajectories, zoomed intervals), MLflow run."""
 
-from hybridfmu.evaluation.evaluate import run_evaluation
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import run_evaluation, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 run_evaluation(

@@ -1,8 +1,6 @@
 """Rule hybrid_time_offset: each input group's time offset with the hybrid's physical layer (its delays' start)."""
 
-from hybridfmu.data.roles import case_roles
-from hybridfmu.evaluation.hybrid_offset import run_hybrid_time_offset
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import case_roles, run_hybrid_time_offset, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 run_hybrid_time_offset(

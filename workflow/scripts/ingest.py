@@ -1,8 +1,6 @@
 """Rule ingest: one raw log -> the case's signals in their model units on the case's grid (Parquet)."""
 
-from hybridfmu.data.grid import chosen_conventions, grid_rate_hz
-from hybridfmu.data.ingest import ingest_to_parquet
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import chosen_conventions, grid_rate_hz, ingest_to_parquet, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 config = dict(snakemake.params.config)

@@ -1,8 +1,6 @@
 """Rule plot: the paper's figures, training curves and the Hyperband overview, from saved results."""
 
-from hybridfmu.data.roles import case_roles
-from hybridfmu.evaluation.plots import draw_all
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import case_roles, draw_all, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 draw_all(

@@ -1,8 +1,6 @@
 """Rule report: report.md (improvement factors beside the paper's, figures, hyperparameters, learned dt)."""
 
-from hybridfmu.data.roles import case_roles
-from hybridfmu.evaluation.report import write_report
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import case_roles, setup_rule_logging, write_report
 
 setup_rule_logging(snakemake.log[0])
 write_report(

@@ -1,6 +1,5 @@
 """Rule robustness_seed: the whole case rerun with one more master seed (a nested Snakemake run)."""
-from hybridfmu.evaluation.robustness import run_seed
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import run_seed, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 run_seed(dict(snakemake.params.config), int(snakemake.wildcards.seed), snakemake.params.config_path,

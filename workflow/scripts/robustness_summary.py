@@ -1,6 +1,5 @@
 """Rule robustness_summary: the case's test figures pooled over every (seed, maneuver)."""
-from hybridfmu.evaluation.robustness import seed_wall_times, write_summary
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import seed_wall_times, setup_rule_logging, write_summary
 
 setup_rule_logging(snakemake.log[0])
 paths = {snakemake.params.own_seed: snakemake.input.own,

@@ -1,7 +1,6 @@
 """Rule select_segments: the informative spans of one ingested maneuver (JSON) and their plot."""
 
-from hybridfmu.data.segments_stage import select_segments_to_files
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import select_segments_to_files, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 select_segments_to_files(snakemake.input.data, snakemake.output.segments, snakemake.output.plot,

@@ -1,8 +1,6 @@
 """Rule simulate_baseline: the calibrated FMU open loop over one whole maneuver."""
 
-from hybridfmu.data.roles import case_roles
-from hybridfmu.evaluation.baseline import run_baseline
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import case_roles, run_baseline, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 run_baseline(

@@ -2,9 +2,7 @@
 
 import torch
 
-from hybridfmu.data.roles import case_roles
-from hybridfmu.evaluation.evaluate import simulate_best
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import case_roles, setup_rule_logging, simulate_best
 
 torch.set_num_threads(1)
 setup_rule_logging(snakemake.log[0])

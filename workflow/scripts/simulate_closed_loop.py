@@ -2,9 +2,8 @@
 
 import torch
 
-from hybridfmu.data.roles import case_roles
-from hybridfmu.evaluation.closed_loop import closed_loop_model, closed_loop_settings, write_closed_loop
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import (case_roles, closed_loop_model, closed_loop_settings, setup_rule_logging,
+                                  write_closed_loop)
 
 torch.set_num_threads(1)
 setup_rule_logging(snakemake.log[0])

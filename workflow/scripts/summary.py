@@ -1,8 +1,6 @@
 """Rule summary: the run's measured test figures as the documentation quotes them."""
 
-from hybridfmu.data.roles import case_roles
-from hybridfmu.evaluation.summary import write_case_summary
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import case_roles, setup_rule_logging, write_case_summary
 
 setup_rule_logging(snakemake.log[0])
 roles = case_roles(snakemake.params.case_sections)

@@ -1,8 +1,6 @@
 """Rule time_offset: the calibrated FMU against the measured targets on a short window (paper Fig. 6)."""
 
-from hybridfmu.data.roles import case_roles
-from hybridfmu.evaluation.offset import run_time_offset
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import case_roles, run_time_offset, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 run_time_offset(

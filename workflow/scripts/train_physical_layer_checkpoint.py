@@ -2,8 +2,7 @@
 
 import torch
 
-from hybridfmu.progress import setup_rule_logging
-from hybridfmu.training.finalists import write_physical_layer_checkpoint
+from hybridfmu.api.stages import setup_rule_logging, write_physical_layer_checkpoint
 
 torch.set_num_threads(1)
 setup_rule_logging(snakemake.log[0])

@@ -2,8 +2,7 @@
 
 import torch
 
-from hybridfmu.progress import setup_rule_logging
-from hybridfmu.training.trial import run_physical_layer_rollout
+from hybridfmu.api.stages import run_physical_layer_rollout, setup_rule_logging
 
 torch.set_num_threads(max(1, int(snakemake.threads)))
 setup_rule_logging(snakemake.log[0])

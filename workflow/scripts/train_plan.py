@@ -1,12 +1,8 @@
 """Rule hpo_plan: the search plan (brackets, rungs, configurations) and the MLflow parent run (runs that
 killed jobs left RUNNING in the case's experiment are ended as KILLED first)."""
 
-from hybridfmu.data.roles import case_roles
-from hybridfmu.io import read_json
-from hybridfmu.progress import setup_rule_logging
-from hybridfmu.tracking import retry_settings, tracking_uri
-from hybridfmu.tracking.mlflow_store import bound_http_requests
-from hybridfmu.training.hpo import plan_search
+from hybridfmu.api.stages import (bound_http_requests, case_roles, plan_search, read_json, retry_settings,
+                                  setup_rule_logging, tracking_uri)
 
 setup_rule_logging(snakemake.log[0])
 settings = retry_settings(snakemake.config.get("mlflow"))

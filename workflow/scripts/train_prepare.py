@@ -1,8 +1,6 @@
 """Rule hpo_prepare: arrays of the train and validation maneuvers, and the training data statistics."""
 
-from hybridfmu.data.roles import case_roles
-from hybridfmu.progress import setup_rule_logging
-from hybridfmu.training.hpo import prepare_training_data
+from hybridfmu.api.stages import case_roles, prepare_training_data, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 prepare_training_data(

@@ -8,11 +8,7 @@ from pathlib import Path
 
 import torch
 
-from hybridfmu.data.roles import case_roles
-from hybridfmu.progress import setup_rule_logging
-from hybridfmu.tracking import retry_settings
-from hybridfmu.tracking.jobs import job_guard
-from hybridfmu.training.trial import run_trial_rung
+from hybridfmu.api.stages import case_roles, job_guard, retry_settings, run_trial_rung, setup_rule_logging
 
 # intra-op threads: the job's share of the cores (rule train_rung's threads), not torch's default of all cores
 torch.set_num_threads(max(1, int(snakemake.threads)))

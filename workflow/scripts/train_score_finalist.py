@@ -3,9 +3,7 @@
 
 import torch
 
-from hybridfmu.data.roles import case_roles
-from hybridfmu.progress import setup_rule_logging
-from hybridfmu.training.finalists import score_candidate
+from hybridfmu.api.stages import case_roles, score_candidate, setup_rule_logging
 
 torch.set_num_threads(1)
 setup_rule_logging(snakemake.log[0])

@@ -1,8 +1,6 @@
 """Rule score_finalists: a search's final choice among its scored candidates -> {search}/finalists.json."""
 
-from hybridfmu.data.roles import case_roles
-from hybridfmu.progress import setup_rule_logging
-from hybridfmu.training.finalists import choose_among_candidates
+from hybridfmu.api.stages import case_roles, choose_among_candidates, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 choose_among_candidates(

@@ -5,10 +5,7 @@ Rungs whose MLflow logging failed are logged first (the queue beside the plan), 
 RUNNING are ended, and best.json names the best trial's MLflow run even when it was logged late.
 """
 
-from hybridfmu.progress import setup_rule_logging
-from hybridfmu.tracking import retry_settings
-from hybridfmu.training.search_tracking import catch_up_search
-from hybridfmu.training.hpo import select_best
+from hybridfmu.api.stages import catch_up_search, retry_settings, select_best, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 settings = retry_settings(snakemake.config.get("mlflow"))

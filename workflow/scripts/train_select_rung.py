@@ -1,7 +1,6 @@
 """Checkpoint rule select_rung: the survivors of one (bracket, rung) by validation objective."""
 
-from hybridfmu.progress import setup_rule_logging
-from hybridfmu.training.hpo import select_rung
+from hybridfmu.api.stages import select_rung, setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 select_rung(

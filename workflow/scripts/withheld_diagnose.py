@@ -3,7 +3,7 @@
 from pathlib import Path
 
 from hybridfmu_bench.withheld.suite import diagnose_case
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 maneuvers = list(snakemake.params.maneuvers)

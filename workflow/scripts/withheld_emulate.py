@@ -1,7 +1,7 @@
 """Rule withheld_emulate: emulate one truncated maneuver of a withheld-effect case."""
 
 from hybridfmu_bench.withheld.suite import emulate_case
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 emulate_case(snakemake.input.case, snakemake.wildcards.wmaneuver, snakemake.output.mdf, snakemake.output.truth,

@@ -1,7 +1,7 @@
 """Rule withheld_summary: score the withheld cases' diagnoses against their ground truth and aggregate."""
 
 from hybridfmu_bench.withheld.report import summarise
-from hybridfmu.progress import setup_rule_logging
+from hybridfmu.api.stages import setup_rule_logging
 
 setup_rule_logging(snakemake.log[0])
 summarise(list(snakemake.params.cases), list(snakemake.input.diagnoses), list(snakemake.input.truths),
