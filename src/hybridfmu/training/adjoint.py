@@ -22,22 +22,13 @@ from hybridfmu.fmu.neural import NeuralWeights
 from hybridfmu.model.fmu_layer import (coefficient_kernel, jacobian_function, jacobian_kernel, neural_recorder_function,
                                        neural_rollout_function, numpy_function, numpy_kernel, value_function)
 from hybridfmu.model.neural_fmu import FusedDerivative
-from hybridfmu.runge_kutta import NODE_END, NODE_MIDDLE, NODE_START, numpy_axpy, pairwise_sum
+from hybridfmu.runge_kutta import NODE_END, NODE_MIDDLE, NODE_START, node_inputs, numpy_axpy, pairwise_sum
 from hybridfmu.training.numpy_adjoint import NumpyRollout, NumpyWeights
 
 
 def torch_axpy(y: torch.Tensor, k: torch.Tensor, c: float) -> torch.Tensor:
     """y + c k in one torch operation (``hybridfmu.runge_kutta.Axpy``)."""
     return torch.add(y, k, alpha=c)
-
-
-def step_nodes(grid: list, half: list | None, k: int) -> dict:
-    """What a stage of step k takes at each node of the scheme: ``grid[k]`` at its start, ``half[k]`` (None
-    for a scheme without a middle node) in its middle, ``grid[k + 1]`` at its end."""
-    nodes = {NODE_START: grid[k], NODE_END: grid[k + 1]}
-    if half is not None:
-        nodes[NODE_MIDDLE] = half[k]
-    return nodes
 
 
 @dataclass
@@ -139,7 +130,7 @@ class SolverEngine:
         for k in range(n_steps):
             stage_records = [] if records is not None else None
 
-            def derivative(state, i, inputs=step_nodes(grid, half, k), stage_records=stage_records):
+            def derivative(state, i, inputs=node_inputs(grid, half, k), stage_records=stage_records):
                 return self._stage(wts, state, *inputs[nodes[i]], stage_records)
 
             x = plan.step(x, derivative, torch_axpy)
@@ -199,7 +190,7 @@ class SolverEngine:
         grid = list(zip(u_grid, z_grid))
         half = list(zip(u_half, z_half)) if NODE_MIDDLE in nodes else None
         for k in range(n_steps):
-            x = plan.step(x, lambda state, i, inputs=step_nodes(grid, half, k): stage(state, *inputs[nodes[i]]),
+            x = plan.step(x, lambda state, i, inputs=node_inputs(grid, half, k): stage(state, *inputs[nodes[i]]),
                           numpy_axpy)
             if self.clamp is not None:
                 i_pos, i_rate, lower, upper = self.clamp

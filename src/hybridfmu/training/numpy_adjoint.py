@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hybridfmu import runge_kutta
-from hybridfmu.runge_kutta import NODE_END, NODE_MIDDLE, NODE_START, numpy_axpy, pairwise_sum
+from hybridfmu.runge_kutta import NODE_END, NODE_MIDDLE, NODE_START, node_inputs, numpy_axpy, pairwise_sum
 
 
 @dataclass(frozen=True)
@@ -126,12 +126,8 @@ class NumpyRollout:
         x = states[0]
         stage, isfinite = self._stage, np.isfinite
         for k in range(n_steps):
-            inputs = {NODE_START: grid[k], NODE_END: grid[k + 1]}
-            if half is not None:
-                inputs[NODE_MIDDLE] = half[k]
-            states[k + 1] = plan.step(
-                x, lambda state, i, first=n_stages * k, inputs=inputs: stage(first + i, state, *inputs[nodes[i]]),
-                numpy_axpy)
+            states[k + 1] = plan.step(x, lambda state, i, first=n_stages * k, inputs=node_inputs(grid, half, k):
+                                      stage(first + i, state, *inputs[nodes[i]]), numpy_axpy)
             nxt = states[k + 1]
             if self.clamp is not None:
                 self._apply_clamp(k, nxt)

@@ -6,7 +6,7 @@ import torch
 
 from hybridfmu import runge_kutta
 from hybridfmu.model.neural_fmu import NeuralFmu
-from hybridfmu.runge_kutta import NODE_END, NODE_MIDDLE, NODE_START
+from hybridfmu.runge_kutta import NODE_MIDDLE, node_inputs
 from hybridfmu.training.adjoint import ENGINES, rollout_adjoint, torch_axpy
 
 #: ``rollout``'s gradients options that name one engine of the adjoint.
@@ -68,17 +68,13 @@ def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.T
     clamp = _end_stop(model)
     plan = tableau.plan(h)
 
-    def derivative_of_step(k: int):
-        """Stage i of step k: the derivative with the inputs at the stage's node."""
-        inputs = {NODE_START: (u_grid[k], z_grid[k]), NODE_END: (u_grid[k + 1], z_grid[k + 1])}
-        if middle:
-            inputs[NODE_MIDDLE] = (u_half[k], z_half[k])
-        return lambda state, i: stage(state, *inputs[tableau.c[i]])
-
+    grid = list(zip(u_grid, z_grid))
+    half = list(zip(u_half, z_half)) if middle else None
     x = x0
     states = [x0]
     for k in range(n_steps):
-        x = plan.step(x, derivative_of_step(k), torch_axpy)
+        x = plan.step(x, lambda state, i, inputs=node_inputs(grid, half, k): stage(state, *inputs[tableau.c[i]]),
+                      torch_axpy)
         if clamp is not None:
             x = clamp(x)
         states.append(x)
