@@ -43,6 +43,22 @@ def test_every_case_exists_once_per_seed(config):
     assert withheld.case_effects("s3__none") == []
 
 
+def test_a_case_is_drawn_from_its_id_alone_so_a_larger_suite_leaves_it_unchanged(config, tmp_path):
+    """Generated with only the selection that makes it exist (the rule's params), or within a suite with more seeds
+    and pairs: the same case config and draw."""
+    larger = copy.deepcopy(config)
+    larger["withheld"]["seeds"] = [0, 1, 2, 3, 4, 5]
+    larger["withheld"]["pairs"].append(["viscous_friction", "cogging"])
+    for name in ("s1__single_cogging__size2", "s2__pair_cogging__channel_time_offset", "s0__none"):
+        own = copy.deepcopy(config)
+        own["withheld"].update(withheld.case_selection(name))
+        assert withheld.case_names(own) and name in withheld.case_names(own)
+        drawn = [withheld.draw_case(c, name) for c in (config, own, larger)]
+        assert drawn[0] == drawn[1] == drawn[2]
+        assert withheld.case_config(own, name, "m.fmu", drawn[1]) == withheld.case_config(larger, name, "m.fmu",
+                                                                                          drawn[2])
+
+
 def test_stratified_log_uniform_stays_in_its_stratum_and_is_log_uniform_there():
     rng = np.random.default_rng(1)
     low, high, strata = 0.1, 3.0, 3

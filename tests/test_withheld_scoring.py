@@ -9,7 +9,7 @@ import math
 import pytest
 
 from hybridfmu_bench.withheld.report import (aggregate, above_limits, confusion_matrix, detection_limit,
-                                                 detection_limits, summarise)
+                                                 detection_limits, split_seeds, summarise)
 from hybridfmu_bench.withheld.scoring import effect_size, rejected_candidates, score_case
 from hybridfmu.evaluation.measured_blocks import replace_block
 from hybridfmu.io import write_json_atomic
@@ -274,6 +274,51 @@ def test_summary_files_from_synthetic_cases(tmp_path):
     assert "coulomb(omega)*\\|tau_load\\|" in text  # the strongest rejected candidate, escaped for the table
     readme = "intro\n<!-- measured:withheld -->\nold\n<!-- /measured:withheld -->\n"
     assert text.strip() in replace_block(readme, "withheld", text)
+
+
+def test_limits_come_from_the_calibration_seeds_and_the_evaluation_seeds_are_only_scored(tmp_path):
+    """Seed 0 calibrates, seed 1 evaluates: the limit is seed 0's alone (seed 1's small detected case would lower it),
+    seed 1's cases are judged against it, and the summary reports both splits and says which is out of sample."""
+    cases = {"s0__single_coulomb_friction__size1": (0.04, None), "s0__single_coulomb_friction__size2": (0.25, 0.05),
+             "s0__none": (None, None), "s1__single_coulomb_friction__size1": (0.01, 0.002),
+             "s1__single_coulomb_friction__size2": (0.36, 0.06), "s1__none": (None, None)}
+    paths = {"d": [], "t": [], "w": []}
+    for name, (improvement, torque) in cases.items():
+        effects = {} if name.endswith("none") else \
+            {"coulomb_friction": dict(COULOMB, coulomb_torque_nm=torque or 0.005)}
+        items = [chosen("coulomb(omega)", "omega", coulomb_level=torque / J)] if torque else []
+        first = {"omega": {"coulomb(omega)": improvement or 0.001}}
+        drawn = {**draw(name, {e: 1.0 for e in effects}, "none" if not effects else "single"),
+                 "seed": int(name.split("__")[0][1:])}
+        for key, data in (("d", record(items, first)), ("t", truth(effects)), ("w", drawn)):
+            paths[key].append(tmp_path / f"{name}.{key}.json")
+            write_json_atomic(paths[key][-1], data)
+    out = summarise(list(cases), paths["d"], paths["t"], paths["w"], tmp_path / "summary.csv",
+                    tmp_path / "confusion.png", tmp_path / "detection.png", tmp_path / "summary.md", EXPECTED,
+                    calibration_seeds=[0])
+    assert out["limits"]["coulomb_friction"]["limit"] == pytest.approx(0.5)  # seed 0: missed 0.2, detected 0.5
+    assert [r["split"] for r in out["rows"]] == ["calibration"] * 3 + ["evaluation"] * 3
+    assert [r["above_limit"] for r in out["rows"]] == [False, True, False, False, True, False]
+    evaluation = out["by_split"]["evaluation"]
+    assert out["measures"] is evaluation and evaluation["above_cases"] == ["s1__single_coulomb_friction__size2"]
+    assert evaluation["exact_set_accuracy"] == 1.0 and evaluation["exact_set_accuracy_all"] == 1.0
+    assert out["by_split"]["calibration"]["exact_set_accuracy_all"] == pytest.approx(0.5)
+    assert {a["case"] for a in out["alarms"]} <= {"s0__none"}  # the thresholds' evidence: calibration seeds only
+    with open(tmp_path / "summary.csv") as handle:
+        table = list(csv.DictReader(handle))
+    assert [(r["split"], r["above_limit"]) for r in table][3:5] == [("evaluation", "False"), ("evaluation", "True")]
+    text = (tmp_path / "summary.md").read_text()
+    assert "Seeds 0 calibrate" in text and "Seeds 1 evaluate" in text and "out of sample" in text
+    assert "| measure | calibration seeds | evaluation seeds | target | verdict |" in text
+    assert "every case with effects (no limit applied) | 50 % (1/2) | 100 % (2/2) |" in text
+    with pytest.raises(ValueError, match="calibration_seeds: \\[5\\]"):
+        summarise(list(cases), paths["d"], paths["t"], paths["w"], tmp_path / "s.csv", tmp_path / "c.png",
+                  tmp_path / "d.png", tmp_path / "s.md", EXPECTED, calibration_seeds=[5])
+
+
+def test_every_seed_calibrates_unless_told_and_the_summary_says_so(tmp_path):
+    assert split_seeds([0, 1, 2], None) == {0: "calibration", 1: "calibration", 2: "calibration"}
+    assert split_seeds([0, 1, 2], [2]) == {0: "evaluation", 1: "evaluation", 2: "calibration"}
 
 
 def test_a_background_condition_named_is_no_extra_but_a_withheld_effect_of_the_same_form_counts_first():

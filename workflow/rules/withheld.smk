@@ -4,22 +4,25 @@
 # the summary scores the diagnoses against the ground truth (hybridfmu_bench.withheld.report).
 # Cases (ids s<seed>__...) are wildcards, so `snakemake -j2 withheld` runs them in parallel.
 from hybridfmu_bench.withheld.suite import case_names as _withheld_case_names
+from hybridfmu_bench.withheld.suite import case_selection as _withheld_case_selection
 
 WITHHELD = f"{config.get('results_dir', 'results')}/withheld"
 WITHHELD_CASES = _withheld_case_names(config) if config.get("withheld", {}).get("maneuvers") else []
 WITHHELD_MANEUVERS = list(config.get("withheld", {}).get("maneuvers", {}))
 WITHHELD_DURATION_S = config.get("withheld", {}).get("duration_s", 6.0)
 # read by the summary only (a change of them rescores, it does not regenerate or rediagnose any case)
-WITHHELD_SUMMARY_KEYS = ("expected", "targets", "background")
+WITHHELD_SUMMARY_KEYS = ("expected", "targets", "background", "calibration_seeds")
 
 
-def withheld_case_sections():
-    """The main case's config a withheld case is generated from: no MLflow run, calibration, training,
-    search or evaluation happens for it, and its maneuvers are those of config.withheld."""
+def withheld_case_sections(case):
+    """The main case's config the withheld case ``case`` is generated from: no MLflow run, calibration, training,
+    search or evaluation happens for it, its maneuvers are those of config.withheld, and of the keys that choose
+    which cases exist it gets only those that make it exist (adding a seed or a pair reruns no other case)."""
     sections = config_sections("case", "results_dir", "seed", "fmu", "bench", "signals", "transforms", "roles",
                                "ingest", "segments", "model", "diagnosis")
     sections["withheld"] = {key: value for key, value in config.get("withheld", {}).items()
                             if key not in WITHHELD_SUMMARY_KEYS}
+    sections["withheld"].update(_withheld_case_selection(case))
     return sections
 
 
@@ -37,7 +40,7 @@ rule withheld_case:
     params:
         # the sections a generated case is derived from (hybridfmu_bench.withheld.suite.case_config) and that
         # its emulation, ingestion, segments and diagnosis read; withheld.expected/targets/background only reach the summary
-        config=withheld_case_sections(),
+        config=lambda wildcards: withheld_case_sections(wildcards.wcase),
         duration_s=WITHHELD_DURATION_S,
     log:
         f"{WITHHELD}/logs/withheld_case/{{wcase}}.log",
@@ -123,6 +126,7 @@ rule withheld_summary:
         expected=config.get("withheld", {}).get("expected", {}),
         targets=config.get("withheld", {}).get("targets", {}),
         background=config.get("withheld", {}).get("background", {}),
+        calibration_seeds=config.get("withheld", {}).get("calibration_seeds"),
     log:
         f"{WITHHELD}/logs/withheld_summary/withheld_summary.log",
     script:

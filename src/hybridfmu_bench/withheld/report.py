@@ -16,6 +16,11 @@ Every case is scored by :func:`hybridfmu_bench.withheld.scoring.score_case`; thi
   ``diagnosis.selection``;
 - the motor parameter offsets every case carries: how often each was found and its error.
 
+The seeds are split (``withheld.calibration_seeds``): the detection limits are set on the calibration seeds'
+cases only, and the false-alarm margins shown are theirs (the seeds any threshold of ``diagnosis.selection`` may be
+chosen on); the evaluation seeds' cases are scored with those limits and nothing else, so their measures are out of
+sample. Every measure is reported for both; without evaluation seeds the report says its figures are in sample.
+
 ``summary.md`` has no heading of its own, so it can be copied into the documentation's block ``withheld``
 (``python -m hybridfmu.evaluation.measured_blocks --block withheld=results/withheld/summary.md``).
 """
@@ -37,7 +42,7 @@ from hybridfmu.io import atomic_path, read_json, write_text_atomic
 
 __all__ = ["SUMMARY_COLUMNS", "DEFAULT_TARGETS", "summarise", "detection_limit", "detection_limits",
            "above_limits", "aggregate", "background_sizes", "confusion_matrix", "confusion_figure",
-           "detection_figure", "summary_markdown", "false_alarms"]
+           "detection_figure", "summary_markdown", "false_alarms", "split_seeds"]
 
 #: Columns of ``summary.csv`` (per-effect columns hold one value per withheld effect, ';'-joined in the order of
 #: ``true_effects``):
@@ -58,8 +63,9 @@ __all__ = ["SUMMARY_COLUMNS", "DEFAULT_TARGETS", "summarise", "detection_limit",
 #: diagnosis.open_loop.window_s: before / after); effect_shrink, window_effect_shrink (the shrink of the named effects on
 #: top of the parameter corrections, whole maneuver and windows: the diagnosis' effect_shrink_factor);
 #: interval_covers_truth (the 90 % intervals of every fitted size parameter contain the truth; empty: none fitted);
-#: ratio_to_noise (JSON: equation error / noise floor per equation).
-SUMMARY_COLUMNS = ["case", "seed", "kind", "stratum", "true_effects", "size_scale", "effect_size", "detected",
+#: ratio_to_noise (JSON: equation error / noise floor per equation); split (calibration / evaluation: the seed's
+#: role); above_limit (every withheld effect at or above its detection limit set on the calibration seeds).
+SUMMARY_COLUMNS = ["case", "seed", "split", "above_limit", "kind", "stratum", "true_effects", "size_scale", "effect_size", "detected",
                    "found_effects", "named_effects", "extra_effects", "exact", "where_correct", "named_in",
                    "parameter_error_pct", "true_size_parameters", "fitted_size_parameters", "true_params",
                    "fitted_params", "background_found", "offsets_true", "offsets_found", "offsets_missed", "offset_errors_pct",
@@ -174,6 +180,7 @@ def aggregate(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]],
     shrinks = [r["shrink_factor"] for r in above if r["shrink_factor"] is not None]
     whole = [r["gap_shrink"] for r in above if r["gap_shrink"] is not None]
     nones = [r for r in rows if r["kind"] == "none"]
+    with_effects = [r for r in rows if r["true_effects"]]
     effect_shrinks = [r["window_effect_shrink"] for r in above if r["exact"] and r.get("window_effect_shrink") is not None]
     none_shrinks = [r["window_effect_shrink"] for r in nones if r.get("window_effect_shrink") is not None]
     exact = sum(bool(r["exact"]) for r in above) / len(above) if above else None
@@ -183,6 +190,8 @@ def aggregate(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]],
         "n_cases": len(rows), "n_with_effects": sum(bool(r["true_effects"]) for r in rows), "n_above": len(above),
         "above_cases": [r["case"] for r in above],
         "exact_set_accuracy": exact, "n_exact": sum(bool(r["exact"]) for r in above),
+        "exact_set_accuracy_all": sum(bool(r["exact"]) for r in with_effects) / len(with_effects)
+        if with_effects else None, "n_exact_all": sum(bool(r["exact"]) for r in with_effects),
         "median_parameter_error_pct": median_error, "n_parameter_errors": len(errors), "n_mismatches": mismatches,
         "median_windowed_shrink": median_shrink, "n_shrinks": len(shrinks),
         "fraction_windowed_shrink_at_target": sum(s >= targets["windowed_shrink"] for s in shrinks) / len(shrinks)
@@ -359,20 +368,80 @@ def _verdict(value: bool | None) -> str:
     return "no case to judge" if value is None else ("met" if value else "NOT met")
 
 
-def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]], measures: dict[str, Any],
-                     alarms: list[dict[str, Any]], thresholds: dict[str, float], settings: dict[str, Any],
+def split_seeds(seeds: list[int], calibration_seeds: list[int] | None) -> dict[int, str]:
+    """Seed -> ``calibration`` or ``evaluation``: the seeds of ``withheld.calibration_seeds`` (all of them when it is
+    None) calibrate, the others evaluate."""
+    chosen = set(seeds if calibration_seeds is None else calibration_seeds)
+    return {int(seed): "calibration" if seed in chosen else "evaluation" for seed in seeds}
+
+
+def _measure_rows(by_split: dict[str, dict[str, Any] | None]) -> list[str]:
+    """The measures table: one column per split (calibration, evaluation), target, verdict (on the evaluation seeds
+    when there are any)."""
+    splits = [name for name, m in by_split.items() if m is not None]
+    judged = by_split.get("evaluation") or by_split["calibration"]
+    t, v = judged["targets"], judged["verdicts"]
+
+    def row(label: str, cell, target: str = "–", verdict: str = "–") -> str:
+        return f"| {label} | " + " | ".join(cell(by_split[name]) for name in splits) + f" | {target} | {verdict} |"
+
+    def mismatches(m):
+        return f", {m['n_mismatches']} mismatch" if m["n_mismatches"] else ""
+
+    w = _num(t["windowed_shrink"])
+    lines = ["| measure | " + " | ".join(f"{name} seeds" for name in splits) + " | target | verdict |",
+             "|---|" + "---|" * len(splits) + "---|---|",
+             row("cases with effects, all at or above their limits", lambda m: f"{m['n_above']} of {m['n_with_effects']}"),
+             row("exact set of named effects, cases above the limits (an extra or a miss is an error)",
+                 lambda m: f"{_pct(m['exact_set_accuracy'])} ({m['n_exact']}/{m['n_above']})",
+                 f"≥ {_pct(t['exact_set_accuracy'])}", _verdict(v["exact_set_accuracy"])),
+             row("exact set of named effects, every case with effects (no limit applied)",
+                 lambda m: f"{_pct(m['exact_set_accuracy_all'])} ({m['n_exact_all']}/{m['n_with_effects']})"),
+             row("median parameter error, cases above the limits",
+                 lambda m: f"{_num(m['median_parameter_error_pct'])} % (n = {m['n_parameter_errors']}{mismatches(m)})",
+                 f"≤ {_num(t['median_parameter_error_pct'])} %", _verdict(v["median_parameter_error_pct"])),
+             row("median windowed shrink of the open-loop gap, cases above the limits",
+                 lambda m: f"×{_num(m['median_windowed_shrink'])} (n = {m['n_shrinks']})", f"≥ ×{w}",
+                 _verdict(v["windowed_shrink"])),
+             row(f"cases with windowed shrink ≥ ×{w}", lambda m: _pct(m["fraction_windowed_shrink_at_target"])),
+             row("median whole-maneuver shrink", lambda m: f"×{_num(m['median_whole_shrink'])}"),
+             row("median windowed shrink of the named effects on top of the parameter corrections, exact cases",
+                 lambda m: f"×{_num(m.get('median_window_effect_shrink_exact'))} (n = {m.get('n_effect_shrinks', 0)})"),
+             row("largest windowed shrink of the named effects, none cases",
+                 lambda m: f"×{_num(m.get('max_window_effect_shrink_none'))}"),
+             row("named in the equation it acts on", lambda m: _pct(m["where_correct"])),
+             row("none case names nothing (every seed)", lambda m: f"{m['none_clean']}/{m['n_none']}", "all",
+                 _verdict(v["none_names_nothing"])),
+             ""]
+    return lines
+
+
+def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]],
+                     by_split: dict[str, dict[str, Any] | None], alarms: list[dict[str, Any]],
+                     thresholds: dict[str, float], settings: dict[str, Any],
                      background: dict[str, float | None] | None = None) -> str:
-    """The Markdown block of the check (no heading; every number from the run). ``settings``: the suite's
-    ``seeds``, ``size_range``, ``sizes_per_effect``, ``offset_scale_range`` (from the draw records);
-    ``background``: :func:`background_sizes`."""
+    """The Markdown block of the check (no heading; every number from the run). ``limits``: set on the calibration
+    seeds' cases; ``by_split``: :func:`aggregate` of the ``calibration`` and the ``evaluation`` seeds' cases (None
+    without evaluation seeds); ``settings``: the suite's ``seeds``, ``calibration_seeds``, ``size_range``,
+    ``sizes_per_effect``, ``offset_scale_range`` (from the draw records); ``background``: :func:`background_sizes`."""
     background = background or {}
-    t = measures["targets"]
     seeds = ", ".join(str(s) for s in settings.get("seeds", []))
+    calibration_seeds = settings.get("calibration_seeds") or settings.get("seeds", [])
+    evaluation_seeds = [s for s in settings.get("seeds", []) if s not in calibration_seeds]
     size_lo, size_hi = settings.get("size_range") or (None, None)
     offset_lo, offset_hi = settings.get("offset_scale_range") or (None, None)
     kinds = {kind: sum(r["kind"] == kind for r in rows) for kind in ("single", "pair", "none")}
+    calibration_rows = [r for r in rows if r.get("split", "calibration") == "calibration"]
+    if evaluation_seeds:
+        split = (f"Seeds {', '.join(map(str, calibration_seeds))} calibrate: the detection limits are set on their "
+                 "cases, and the false-alarm margins below are theirs (the cases any threshold of diagnosis.selection "
+                 f"may be chosen on). Seeds {', '.join(map(str, evaluation_seeds))} evaluate: their cases are scored "
+                 "with those limits and change nothing, so their column is out of sample.")
+    else:
+        split = ("Every seed calibrates (withheld.calibration_seeds holds them all; no evaluation seed): the "
+                 "detection limits are set on the same cases they judge, so every figure below is in sample.")
     lines = [
-        f"Withheld-effect check: {measures['n_cases']} cases (seeds {seeds}: {kinds['single']} single, "
+        f"Withheld-effect check: {len(rows)} cases (seeds {seeds}: {kinds['single']} single, "
         f"{kinds['pair']} pair, {kinds['none']} none), whose bench has effects the FMU lacks (size scale "
         f"{_num(size_lo)}–{_num(size_hi)} x the demo's, {settings.get('sizes_per_effect')} log strata per effect and "
         f"seed) and motor parameter offsets (x{_num(offset_lo)}–{_num(offset_hi)} the demo bench's). Effect size = the RMS share of the equation error left by the calibrated parameter "
@@ -380,12 +449,16 @@ def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any
         "effect named as a parameter error, the share it removes entering last); in the none cases it measures "
         "what the effect's candidates explain without the effect.",
         "",
+        split,
+        "",
+        "Single cases of the calibration seeds, which set the limits:",
+        "",
         "| bench effect | single cases | detected | detection limit (effect size) | size scale at the limit | "
         "effect size in the none cases | median parameter error | named where it acts |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for effect, limit in limits.items():
-        singles = [r for r in rows if r["kind"] == "single" and r["true_effects"] == [effect]]
+        singles = [r for r in calibration_rows if r["kind"] == "single" and r["true_effects"] == [effect]]
         errors = [r["parameter_error_pct"][0] for r in singles if isinstance(r["parameter_error_pct"][0], float)]
         mismatch = sum(r["parameter_error_pct"][0] == "mismatch" for r in singles)
         detected = [r for r in singles if r["detected"][0]]
@@ -398,59 +471,34 @@ def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any
                      f"{_num(limit['size_scale_at_limit'])} | {_num(background.get(effect))} | "
                      f"{_num(_median(errors))} %{f' ({mismatch} mismatch)' if mismatch else ''} | "
                      f"{where}/{len(detected)} |")
-    v = measures["verdicts"]
-    mismatches = f", {measures['n_mismatches']} mismatch" if measures["n_mismatches"] else ""
-    lines += [
-        "",
-        f"Cases whose withheld effects are all at or above their detection limits: {measures['n_above']} of "
-        f"{measures['n_with_effects']} with effects.",
-        "",
-        "| measure (cases above the limits) | value | target | verdict |",
-        "|---|---|---|---|",
-        f"| exact set of named effects (an extra or a miss is an error) | {_pct(measures['exact_set_accuracy'])} "
-        f"({measures['n_exact']}/{measures['n_above']}) | ≥ {_pct(t['exact_set_accuracy'])} | "
-        f"{_verdict(v['exact_set_accuracy'])} |",
-        f"| median parameter error | {_num(measures['median_parameter_error_pct'])} % "
-        f"(n = {measures['n_parameter_errors']}{mismatches}) | "
-        f"≤ {_num(t['median_parameter_error_pct'])} % | {_verdict(v['median_parameter_error_pct'])} |",
-        f"| median windowed shrink of the open-loop gap | ×{_num(measures['median_windowed_shrink'])} "
-        f"(n = {measures['n_shrinks']}) | ≥ ×{_num(t['windowed_shrink'])} | {_verdict(v['windowed_shrink'])} |",
-        f"| cases with windowed shrink ≥ ×{_num(t['windowed_shrink'])} | "
-        f"{_pct(measures['fraction_windowed_shrink_at_target'])} | – | – |",
-        f"| median whole-maneuver shrink | ×{_num(measures['median_whole_shrink'])} | – | – |",
-        f"| median windowed shrink of the named effects on top of the parameter corrections, exact cases | "
-        f"×{_num(measures.get('median_window_effect_shrink_exact'))} (n = {measures.get('n_effect_shrinks', 0)}) | – | – |",
-        f"| largest windowed shrink of the named effects, none cases | "
-        f"×{_num(measures.get('max_window_effect_shrink_none'))} | – | – |",
-        f"| named in the equation it acts on | {_pct(measures['where_correct'])} | – | – |",
-        f"| none case names nothing (every seed) | {measures['none_clean']}/{measures['n_none']} | all | "
-        f"{_verdict(v['none_names_nothing'])} |",
-        "",
-    ]
-    coverage = measures.get("interval_coverage") or {}
+    lines += ["", "Measures per split of the seeds (limits from the calibration seeds; the verdict judges the "
+              + ("evaluation seeds):" if evaluation_seeds else "calibration seeds, in sample):"), ""]
+    lines += _measure_rows(by_split)
+    coverage = (by_split.get("evaluation") or by_split["calibration"]).get("interval_coverage") or {}
     if coverage:
         lines += ["90 % intervals of the fitted size parameters (combined uncertainty, "
-                  "hybridfmu.diagnosis.identification) that contain the truth, every case:", "",
+                  "hybridfmu.diagnosis.identification) that contain the truth, every case of the "
+                  + ("evaluation" if evaluation_seeds else "calibration") + " seeds:", "",
                   "| bench effect | covered | share |", "|---|---|---|"]
         lines += [f"| {effect} | {c['covered']}/{c['n']} | {_pct(c['covered'] / c['n'])} |"
                   for effect, c in sorted(coverage.items())]
         lines.append("")
     lines += _offset_lines(rows)
     lines += _alarm_lines(alarms, thresholds)
-    errors = [r for r in rows if (r["case"] in measures["above_cases"] and not r["exact"])
-              or (r["kind"] == "none" and not r["exact"])]
+    errors = [r for r in rows if (r.get("above_limit") and not r["exact"]) or (r["kind"] == "none" and not r["exact"])]
     if errors:
         lines += ["Wrong sets (cases above the limits, and none cases):", "",
-                  "| case | withheld | found | effect size | named |", "|---|---|---|---|---|"]
-        lines += [f"| {r['case']} | {_names(r['true_effects'])} | {_names(r['found_effects'])} | "
-                  f"{', '.join(_num(s) for s in r['effect_size']) or '–'} | {_names(r['named_effects'])} |"
-                  for r in errors]
+                  "| case | split | withheld | found | effect size | named |", "|---|---|---|---|---|---|"]
+        lines += [f"| {r['case']} | {r.get('split', 'calibration')} | {_names(r['true_effects'])} | "
+                  f"{_names(r['found_effects'])} | {', '.join(_num(s) for s in r['effect_size']) or '–'} | "
+                  f"{_names(r['named_effects'])} |" for r in errors]
         lines.append("")
     pairs = [r for r in rows if r["kind"] == "pair"]
     if pairs:
-        lines += ["| pair case | effect sizes | found | exact | parameter errors (%) | windowed shrink | "
-                  "of it the named effects' |", "|---|---|---|---|---|---|---|"]
-        lines += [f"| {r['case']} | {', '.join(f'{e} {_num(s)}' for e, s in zip(r['true_effects'], r['effect_size']))}"
+        lines += ["| pair case | split | effect sizes | found | exact | parameter errors (%) | windowed shrink | "
+                  "of it the named effects' |", "|---|---|---|---|---|---|---|---|"]
+        lines += [f"| {r['case']} | {r.get('split', 'calibration')} | "
+                  f"{', '.join(f'{e} {_num(s)}' for e, s in zip(r['true_effects'], r['effect_size']))}"
                   f" | {_names(r['found_effects'])} | {r['exact']} | "
                   f"{', '.join(_num(e) for e in r['parameter_error_pct'])} | ×{_num(r['shrink_factor'])} | "
                   f"×{_num(r.get('window_effect_shrink'))} |"
@@ -535,7 +583,8 @@ def summarise(names: list[str], diagnosis_paths: list[str | Path], truth_paths: 
               draw_paths: list[str | Path], csv_path: str | Path, confusion_path: str | Path,
               detection_path: str | Path, markdown_path: str | Path, expected: dict[str, list[str]] | None = None,
               targets: dict[str, float] | None = None,
-              background: dict[str, list[str]] | None = None) -> dict[str, Any]:
+              background: dict[str, list[str]] | None = None,
+              calibration_seeds: list[int] | None = None) -> dict[str, Any]:
     """Score every case against its ground truth and write the CSV, the figures and the Markdown block.
 
     Args:
@@ -544,10 +593,13 @@ def summarise(names: list[str], diagnosis_paths: list[str | Path], truth_paths: 
         expected: ``withheld.expected`` (bench effect -> diagnosis effect name patterns).
         targets: ``withheld.targets`` (over :data:`DEFAULT_TARGETS`).
         background: ``withheld.background`` (condition present in every case -> diagnosis effect name patterns).
+        calibration_seeds: ``withheld.calibration_seeds`` (None: every seed calibrates, nothing is out of sample).
 
     Returns:
-        ``rows`` (scored cases), ``limits`` (per effect), ``measures`` (aggregate with verdicts), ``alarms``,
-        ``background`` (:func:`background_sizes`).
+        ``rows`` (scored cases with their ``split`` and ``above_limit``), ``limits`` (per effect, from the
+        calibration seeds), ``by_split`` (:func:`aggregate` with verdicts of the ``calibration`` and the
+        ``evaluation`` seeds, None without any), ``measures`` (the evaluation seeds', else the calibration seeds'),
+        ``alarms`` (calibration seeds), ``background`` (:func:`background_sizes`).
     """
     if not (len(names) == len(diagnosis_paths) == len(truth_paths) == len(draw_paths)):
         raise ValueError("withheld summary: expected one diagnosis, truth and draw file per case, got "
@@ -560,19 +612,33 @@ def summarise(names: list[str], diagnosis_paths: list[str | Path], truth_paths: 
         if row["case"] != name:
             raise ValueError(f"{w}: draw record of case {row['case']!r}, expected {name!r}")
         rows.append(row)
-    limits = detection_limits(rows)
-    measures = aggregate(rows, limits, targets)
-    alarms = false_alarms(records, rows)
+    seeds = sorted({d["seed"] for d in draws.values()})
+    unknown = sorted(set(calibration_seeds or []) - set(seeds))
+    if unknown:
+        raise ValueError(f"config.withheld.calibration_seeds: {unknown} are not seeds of the suite {seeds}")
+    split = split_seeds(seeds, calibration_seeds)
+    for row in rows:
+        row["split"] = split[int(row["seed"])]
+    calibration_rows = [r for r in rows if r["split"] == "calibration"]
+    evaluation_rows = [r for r in rows if r["split"] == "evaluation"]
+    limits = detection_limits(calibration_rows)
+    for row in rows:
+        row["above_limit"] = above_limits(row, limits)
+    by_split = {"calibration": aggregate(calibration_rows, limits, targets),
+                "evaluation": aggregate(evaluation_rows, limits, targets) if evaluation_rows else None}
+    alarms = false_alarms(records, calibration_rows)
     thresholds = selection_thresholds(next(iter(records.values()))) if records else {}
     first = next(iter(draws.values()), {})
-    settings = {"seeds": sorted({d["seed"] for d in draws.values()}), "size_range": first.get("size_range"),
+    settings = {"seeds": seeds, "calibration_seeds": [s for s in seeds if split[s] == "calibration"],
+                "size_range": first.get("size_range"),
                 "sizes_per_effect": max((d.get("strata") or 0 for d in draws.values()), default=0) or "–",
                 "offset_scale_range": first.get("offset_scale_range"),
                 "files": [Path(p).name for p in (csv_path, detection_path, confusion_path)]}
     write_csv(rows, csv_path)
     confusion_figure(rows, confusion_path)
-    background = background_sizes(records, rows, expected)
-    detection_figure(rows, limits, detection_path, background)
-    write_text_atomic(markdown_path, summary_markdown(rows, limits, measures, alarms, thresholds, settings, background))
-    return {"rows": rows, "limits": limits, "measures": measures, "alarms": alarms, "background": background}
+    background = background_sizes(records, calibration_rows, expected)
+    detection_figure(calibration_rows, limits, detection_path, background)
+    write_text_atomic(markdown_path, summary_markdown(rows, limits, by_split, alarms, thresholds, settings, background))
+    return {"rows": rows, "limits": limits, "measures": by_split["evaluation"] or by_split["calibration"],
+            "by_split": by_split, "alarms": alarms, "background": background}
 

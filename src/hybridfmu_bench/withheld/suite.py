@@ -150,6 +150,20 @@ def case_names(config: dict[str, Any]) -> list[str]:
     return [f"s{seed}__{base}" for seed in _seeds(section) for base in bases]
 
 
+#: The keys of ``config.withheld`` that choose which cases exist (a case's own config and draws depend on its id,
+#: :func:`case_rng`, not on the other cases).
+SELECTION_KEYS = ("seeds", "effects", "pairs", "none_case")
+
+
+def case_selection(name: str) -> dict[str, Any]:
+    """The selection keys (:data:`SELECTION_KEYS`) that make case ``name`` exist and nothing else: its seed, its
+    effect (single), its pair, or the none case. A rule that generates one case passes these instead of the suite's,
+    so adding a seed, a pair or an effect to the suite leaves the other cases' inputs unchanged."""
+    case = parse_case(name)
+    return {"seeds": [case.seed], "effects": list(case.effects) if case.kind == "single" else [],
+            "pairs": [list(case.effects)] if case.kind == "pair" else [], "none_case": case.kind == "none"}
+
+
 @dataclass(frozen=True)
 class CaseId:
     """A parsed case id: seed, kind (``single``, ``pair``, ``none``), withheld effects, size stratum (singles)."""
