@@ -25,13 +25,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from fractions import Fraction
+from functools import cached_property, lru_cache
 from typing import Any, Callable, Sequence
 
 #: ``axpy(y, k, c) -> y + c * k``: the one array operation a step needs, in the caller's array library.
 Axpy = Callable[[Any, Any, float], Any]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # compared and hashed as the object: each scheme exists once
 class ButcherTableau:
     """An explicit Runge-Kutta scheme.
 
@@ -60,25 +61,42 @@ class ButcherTableau:
     def stages(self) -> int:
         return len(self.b)
 
-    def plan(self, h: Any, weight_scale: Any = None) -> "StepPlan":
-        """The step's coefficients for the step size ``h`` (a float, or an array broadcasting against the
-        states, e.g. (W, 1) for windows of different steps). ``weight_scale`` (default ``h``) multiplies the
-        weights instead: 1.0 gives the step's mean rate, sum_i b_i k_i, instead of its increment."""
-        scale = h if weight_scale is None else weight_scale
-        stage_terms = tuple(tuple((j, _scaled(h, a_ij)) for j, a_ij in enumerate(row) if a_ij != 0)
+    @cached_property
+    def _structure(self) -> tuple:
+        """The tableau as integers, computed once: per stage its nonzero (j, numerator, denominator) of a_ij; the
+        weight groups ((numerator, denominator), stages) in the order of their first stage; every weight's
+        (numerator, denominator)."""
+        stage_terms = tuple(tuple((j, a_ij.numerator, a_ij.denominator) for j, a_ij in enumerate(row) if a_ij != 0)
                             for row in self.a)
         groups: dict[Fraction, list[int]] = {}
         for i, weight in enumerate(self.b):
             if weight != 0:
                 groups.setdefault(weight, []).append(i)
-        weight_groups = tuple((_scaled(scale, weight), tuple(members)) for weight, members in groups.items())
-        return StepPlan(self, stage_terms, weight_groups,
-                        tuple(_scaled(scale, weight) for weight in self.b))
+        weight_groups = tuple(((w.numerator, w.denominator), tuple(members)) for w, members in groups.items())
+        weights = tuple((w.numerator, w.denominator) for w in self.b)
+        return stage_terms, weight_groups, weights
+
+    def plan(self, h: Any, weight_scale: Any = None) -> "StepPlan":
+        """The step's coefficients for the step size ``h`` (a float, or an array broadcasting against the
+        states, e.g. (W, 1) for windows of different steps). ``weight_scale`` (default ``h``) multiplies the
+        weights instead: 1.0 gives the step's mean rate, sum_i b_i k_i, instead of its increment.
+
+        A coefficient ``h w`` of a weight ``w = p/q`` is computed as ``h * p / q``, the way a hand-written step
+        writes it (h/6 for 1/6, 0.5 h for 1/2, h for 1)."""
+        if isinstance(h, float) and (weight_scale is None or isinstance(weight_scale, float)):
+            return _cached_plan(self, h, weight_scale)  # a step size of a uniform grid: the same plan every step
+        return self._make_plan(h, weight_scale)
+
+    def _make_plan(self, h: Any, weight_scale: Any) -> "StepPlan":
+        scale = h if weight_scale is None else weight_scale
+        stage_terms, weight_groups, _ = self._structure
+        return StepPlan(self, tuple(tuple((j, h * p / q) for j, p, q in row) for row in stage_terms),
+                        tuple((scale * p / q, members) for (p, q), members in weight_groups), scale)
 
 
-def _scaled(h: Any, weight: Fraction) -> Any:
-    """h * weight as a hand-written step computes it: h/6 for 1/6, 0.5 h for 1/2, h for 1."""
-    return h * weight.numerator / weight.denominator
+@lru_cache(maxsize=64)
+def _cached_plan(tableau: ButcherTableau, h: float, weight_scale: float | None) -> "StepPlan":
+    return tableau._make_plan(h, weight_scale)
 
 
 @dataclass(frozen=True)
@@ -89,13 +107,18 @@ class StepPlan:
         tableau: the scheme.
         stage_terms: per stage i, the terms (j, h a_ij) of its state, nonzero a_ij only, in the order of j.
         weight_groups: (h b, the stages with that weight), in the order of each group's first stage.
-        weights: h b_i per stage (the adjoint's seed of each stage).
+        weight_scale: what the weights are multiplied by (h, or 1 for a mean rate).
     """
 
     tableau: ButcherTableau
     stage_terms: tuple[tuple[tuple[int, Any], ...], ...]
     weight_groups: tuple[tuple[Any, tuple[int, ...]], ...]
-    weights: tuple[Any, ...]
+    weight_scale: Any
+
+    def weight(self, i: int) -> Any:
+        """h b_i: the adjoint's seed of stage i."""
+        p, q = self.tableau._structure[2][i]
+        return self.weight_scale * p / q
 
     def stage_state(self, x: Any, stages: Sequence[Any], i: int, axpy: Axpy) -> Any:
         """The state at which stage i is evaluated: x + sum_j (h a_ij) k_j, from the stages k_0..k_(i-1)."""
@@ -131,7 +154,7 @@ class StepPlan:
         n = self.tableau.stages
         grads: list[Any] = [None] * n
         for i in range(n - 1, -1, -1):
-            gy = lam * self.weights[i]
+            gy = lam * self.weight(i)
             for l in range(i + 1, n):
                 for j, coefficient in self.stage_terms[l]:
                     if j == i:
