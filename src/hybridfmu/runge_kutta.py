@@ -182,6 +182,7 @@ _HALF = Fraction(1, 2)
 #: rollouts hold the inputs of these three instants per step).
 NODE_START, NODE_MIDDLE, NODE_END = Fraction(0), _HALF, Fraction(1)
 
+
 def node_inputs(grid: Sequence[Any], middle: Sequence[Any] | None, k: int) -> dict[Fraction, Any]:
     """What a stage of step k takes at each node: ``grid[k]`` at the step's start, ``middle[k]`` half a step in
     (None for a scheme without that node), ``grid[k + 1]`` at its end."""
