@@ -316,7 +316,7 @@ def test_limits_come_from_the_calibration_seeds_and_the_evaluation_seeds_are_onl
                   tmp_path / "d.png", tmp_path / "s.md", EXPECTED, calibration_seeds=[5])
 
 
-def test_every_seed_calibrates_unless_told_and_the_summary_says_so(tmp_path):
+def test_every_seed_calibrates_unless_other_seeds_are_named():
     assert split_seeds([0, 1, 2], None) == {0: "calibration", 1: "calibration", 2: "calibration"}
     assert split_seeds([0, 1, 2], [2]) == {0: "evaluation", 1: "evaluation", 2: "calibration"}
 

@@ -65,12 +65,13 @@ __all__ = ["SUMMARY_COLUMNS", "DEFAULT_TARGETS", "summarise", "detection_limit",
 #: interval_covers_truth (the 90 % intervals of every fitted size parameter contain the truth; empty: none fitted);
 #: ratio_to_noise (JSON: equation error / noise floor per equation); split (calibration / evaluation: the seed's
 #: role); above_limit (every withheld effect at or above its detection limit set on the calibration seeds).
-SUMMARY_COLUMNS = ["case", "seed", "split", "above_limit", "kind", "stratum", "true_effects", "size_scale", "effect_size", "detected",
-                   "found_effects", "named_effects", "extra_effects", "exact", "where_correct", "named_in",
-                   "parameter_error_pct", "true_size_parameters", "fitted_size_parameters", "true_params",
-                   "fitted_params", "background_found", "offsets_true", "offsets_found", "offsets_missed", "offset_errors_pct",
-                   "gap_before", "gap_after", "gap_shrink", "window_gap_before", "window_gap_after", "shrink_factor",
-                   "effect_shrink", "window_effect_shrink", "interval_covers_truth", "ratio_to_noise"]
+SUMMARY_COLUMNS = ["case", "seed", "split", "above_limit", "kind", "stratum", "true_effects", "size_scale",
+                   "effect_size", "detected", "found_effects", "named_effects", "extra_effects", "exact",
+                   "where_correct", "named_in", "parameter_error_pct", "true_size_parameters",
+                   "fitted_size_parameters", "true_params", "fitted_params", "background_found", "offsets_true",
+                   "offsets_found", "offsets_missed", "offset_errors_pct", "gap_before", "gap_after", "gap_shrink",
+                   "window_gap_before", "window_gap_after", "shrink_factor", "effect_shrink", "window_effect_shrink",
+                   "interval_covers_truth", "ratio_to_noise"]
 
 #: Targets of the check (``withheld.targets`` overrides them).
 DEFAULT_TARGETS = {"exact_set_accuracy": 0.9, "median_parameter_error_pct": 15.0, "windowed_shrink": 3.0}
