@@ -295,7 +295,7 @@ def test_limits_come_from_the_calibration_seeds_and_the_evaluation_seeds_are_onl
             write_json_atomic(paths[key][-1], data)
     out = summarise(list(cases), paths["d"], paths["t"], paths["w"], tmp_path / "summary.csv",
                     tmp_path / "confusion.png", tmp_path / "detection.png", tmp_path / "summary.md", EXPECTED,
-                    calibration_seeds=[0])
+                    calibration_seeds=[0], headline_path=tmp_path / "headline.md")
     assert out["limits"]["coulomb_friction"]["limit"] == pytest.approx(0.5)  # seed 0: missed 0.2, detected 0.5
     assert [r["split"] for r in out["rows"]] == ["calibration"] * 3 + ["evaluation"] * 3
     assert [r["above_limit"] for r in out["rows"]] == [False, True, False, False, True, False]
@@ -310,6 +310,13 @@ def test_limits_come_from_the_calibration_seeds_and_the_evaluation_seeds_are_onl
     text = (tmp_path / "summary.md").read_text()
     assert "Seeds 0 calibrate" in text and "Seeds 1 evaluate" in text and "out of sample" in text
     assert "| measure | calibration seeds | evaluation seeds | target | verdict |" in text
+    # the README's short account: the same rows of the same measures, both splits, said which one is out of sample
+    headline = (tmp_path / "headline.md").read_text()
+    assert "6 emulated cases" in headline and "seeds 1 are scored with them (out of sample" in headline
+    table_rows = [line for line in headline.splitlines() if line.startswith("| exact set")]
+    assert len(table_rows) == 2 and all(line in text for line in table_rows)
+    assert "| exact set of named effects, every case with effects (no limit applied) | 50 % (1/2) | 100 % (2/2) |" \
+        in headline
     assert "every case with effects (no limit applied) | 50 % (1/2) | 100 % (2/2) |" in text
     with pytest.raises(ValueError, match="calibration_seeds: \\[5\\]"):
         summarise(list(cases), paths["d"], paths["t"], paths["w"], tmp_path / "s.csv", tmp_path / "c.png",

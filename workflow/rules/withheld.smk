@@ -121,6 +121,7 @@ rule withheld_summary:
         confusion=f"{WITHHELD}/confusion.png",
         detection=f"{WITHHELD}/detection.png",
         markdown=f"{WITHHELD}/summary.md",
+        headline=f"{WITHHELD}/headline.md",
     params:
         cases=WITHHELD_CASES,
         expected=config.get("withheld", {}).get("expected", {}),
@@ -139,3 +140,4 @@ rule withheld:
         f"{WITHHELD}/confusion.png",
         f"{WITHHELD}/detection.png",
         f"{WITHHELD}/summary.md",
+        f"{WITHHELD}/headline.md",

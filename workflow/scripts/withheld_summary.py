@@ -8,4 +8,5 @@ summarise(list(snakemake.params.cases), list(snakemake.input.diagnoses), list(sn
           list(snakemake.input.draws), snakemake.output.csv, snakemake.output.confusion, snakemake.output.detection,
           snakemake.output.markdown, expected=dict(snakemake.params.expected), targets=dict(snakemake.params.targets),
           background=dict(snakemake.params.background),
-          calibration_seeds=None if snakemake.params.calibration_seeds is None else list(snakemake.params.calibration_seeds))
+          calibration_seeds=None if snakemake.params.calibration_seeds is None else list(snakemake.params.calibration_seeds),
+          headline_path=snakemake.output.headline)

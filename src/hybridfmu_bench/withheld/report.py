@@ -376,9 +376,14 @@ def split_seeds(seeds: list[int], calibration_seeds: list[int] | None) -> dict[i
     return {int(seed): "calibration" if seed in chosen else "evaluation" for seed in seeds}
 
 
-def _measure_rows(by_split: dict[str, dict[str, Any] | None]) -> list[str]:
+#: the measures of the README's short table (:func:`headline_markdown`), keys of :func:`_measure_rows`
+HEADLINE_MEASURES = ("exact_above", "exact_all", "parameter_error", "effect_shrink_exact", "effect_shrink_none",
+                     "none_clean")
+
+
+def _measure_rows(by_split: dict[str, dict[str, Any] | None], only: tuple[str, ...] | None = None) -> list[str]:
     """The measures table: one column per split (calibration, evaluation), target, verdict (on the evaluation seeds
-    when there are any)."""
+    when there are any); ``only``: the keys of the rows to show (all by default), in the table's order."""
     splits = [name for name, m in by_split.items() if m is not None]
     judged = by_split.get("evaluation") or by_split["calibration"]
     t, v = judged["targets"], judged["verdicts"]
@@ -390,31 +395,56 @@ def _measure_rows(by_split: dict[str, dict[str, Any] | None]) -> list[str]:
         return f", {m['n_mismatches']} mismatch" if m["n_mismatches"] else ""
 
     w = _num(t["windowed_shrink"])
-    lines = ["| measure | " + " | ".join(f"{name} seeds" for name in splits) + " | target | verdict |",
-             "|---|" + "---|" * len(splits) + "---|---|",
-             row("cases with effects, all at or above their limits", lambda m: f"{m['n_above']} of {m['n_with_effects']}"),
-             row("exact set of named effects, cases above the limits (an extra or a miss is an error)",
-                 lambda m: f"{_pct(m['exact_set_accuracy'])} ({m['n_exact']}/{m['n_above']})",
-                 f"≥ {_pct(t['exact_set_accuracy'])}", _verdict(v["exact_set_accuracy"])),
-             row("exact set of named effects, every case with effects (no limit applied)",
-                 lambda m: f"{_pct(m['exact_set_accuracy_all'])} ({m['n_exact_all']}/{m['n_with_effects']})"),
-             row("median parameter error, cases above the limits",
-                 lambda m: f"{_num(m['median_parameter_error_pct'])} % (n = {m['n_parameter_errors']}{mismatches(m)})",
-                 f"≤ {_num(t['median_parameter_error_pct'])} %", _verdict(v["median_parameter_error_pct"])),
-             row("median windowed shrink of the open-loop gap, cases above the limits",
-                 lambda m: f"×{_num(m['median_windowed_shrink'])} (n = {m['n_shrinks']})", f"≥ ×{w}",
-                 _verdict(v["windowed_shrink"])),
-             row(f"cases with windowed shrink ≥ ×{w}", lambda m: _pct(m["fraction_windowed_shrink_at_target"])),
-             row("median whole-maneuver shrink", lambda m: f"×{_num(m['median_whole_shrink'])}"),
-             row("median windowed shrink of the named effects on top of the parameter corrections, exact cases",
-                 lambda m: f"×{_num(m.get('median_window_effect_shrink_exact'))} (n = {m.get('n_effect_shrinks', 0)})"),
-             row("largest windowed shrink of the named effects, none cases",
-                 lambda m: f"×{_num(m.get('max_window_effect_shrink_none'))}"),
-             row("named in the equation it acts on", lambda m: _pct(m["where_correct"])),
-             row("none case names nothing (every seed)", lambda m: f"{m['none_clean']}/{m['n_none']}", "all",
-                 _verdict(v["none_names_nothing"])),
-             ""]
-    return lines
+    rows = [
+        ("n_above", row("cases with effects, all at or above their limits",
+                        lambda m: f"{m['n_above']} of {m['n_with_effects']}")),
+        ("exact_above", row("exact set of named effects, cases above the limits (an extra or a miss is an error)",
+                            lambda m: f"{_pct(m['exact_set_accuracy'])} ({m['n_exact']}/{m['n_above']})",
+                            f"≥ {_pct(t['exact_set_accuracy'])}", _verdict(v["exact_set_accuracy"]))),
+        ("exact_all", row("exact set of named effects, every case with effects (no limit applied)",
+                          lambda m: f"{_pct(m['exact_set_accuracy_all'])} ({m['n_exact_all']}/{m['n_with_effects']})")),
+        ("parameter_error", row("median parameter error, cases above the limits",
+                                lambda m: f"{_num(m['median_parameter_error_pct'])} % (n = {m['n_parameter_errors']}"
+                                          f"{mismatches(m)})",
+                                f"≤ {_num(t['median_parameter_error_pct'])} %",
+                                _verdict(v["median_parameter_error_pct"]))),
+        ("windowed_shrink", row("median windowed shrink of the open-loop gap, cases above the limits",
+                                lambda m: f"×{_num(m['median_windowed_shrink'])} (n = {m['n_shrinks']})", f"≥ ×{w}",
+                                _verdict(v["windowed_shrink"]))),
+        ("shrink_at_target", row(f"cases with windowed shrink ≥ ×{w}",
+                                 lambda m: _pct(m["fraction_windowed_shrink_at_target"]))),
+        ("whole_shrink", row("median whole-maneuver shrink", lambda m: f"×{_num(m['median_whole_shrink'])}")),
+        ("effect_shrink_exact", row("median windowed shrink of the named effects on top of the parameter "
+                                    "corrections, exact cases",
+                                    lambda m: f"×{_num(m.get('median_window_effect_shrink_exact'))} "
+                                              f"(n = {m.get('n_effect_shrinks', 0)})")),
+        ("effect_shrink_none", row("largest windowed shrink of the named effects, none cases",
+                                   lambda m: f"×{_num(m.get('max_window_effect_shrink_none'))}")),
+        ("where", row("named in the equation it acts on", lambda m: _pct(m["where_correct"]))),
+        ("none_clean", row("none case names nothing (every seed)", lambda m: f"{m['none_clean']}/{m['n_none']}",
+                           "all", _verdict(v["none_names_nothing"]))),
+    ]
+    header = ["| measure | " + " | ".join(f"{name} seeds" for name in splits) + " | target | verdict |",
+              "|---|" + "---|" * len(splits) + "---|---|"]
+    return header + [text for key, text in rows if only is None or key in only] + [""]
+
+
+def headline_markdown(by_split: dict[str, dict[str, Any] | None], settings: dict[str, Any]) -> str:
+    """The README's short account of the check: which seeds calibrate and which evaluate, and the measures of
+    :data:`HEADLINE_MEASURES` per split (every number from the run; the full account is ``summary.md``)."""
+    seeds = settings.get("seeds", [])
+    calibration_seeds = settings.get("calibration_seeds") or seeds
+    evaluation_seeds = [s for s in seeds if s not in calibration_seeds]
+    n_cases = sum((m or {}).get("n_cases", 0) for m in by_split.values())
+    if evaluation_seeds:
+        intro = (f"Diagnosis checked on {n_cases} emulated cases with effects withheld from the FMU: the detection "
+                 f"limits are set on the cases of seeds {', '.join(map(str, calibration_seeds))}; the cases of seeds "
+                 f"{', '.join(map(str, evaluation_seeds))} are scored with them (out of sample; the verdict judges "
+                 "them).")
+    else:
+        intro = (f"Diagnosis checked on {n_cases} emulated cases with effects withheld from the FMU; every seed sets "
+                 "the detection limits it is judged by (in sample).")
+    return "\n".join([intro, "", *_measure_rows(by_split, HEADLINE_MEASURES)])
 
 
 def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]],
@@ -585,8 +615,10 @@ def summarise(names: list[str], diagnosis_paths: list[str | Path], truth_paths: 
               detection_path: str | Path, markdown_path: str | Path, expected: dict[str, list[str]] | None = None,
               targets: dict[str, float] | None = None,
               background: dict[str, list[str]] | None = None,
-              calibration_seeds: list[int] | None = None) -> dict[str, Any]:
-    """Score every case against its ground truth and write the CSV, the figures and the Markdown block.
+              calibration_seeds: list[int] | None = None,
+              headline_path: str | Path | None = None) -> dict[str, Any]:
+    """Score every case against its ground truth and write the CSV, the figures, the Markdown block and (to
+    ``headline_path``, if given) the README's short account (:func:`headline_markdown`).
 
     Args:
         names: case ids; ``diagnosis_paths``, ``truth_paths`` (one truth file per case, any maneuver),
@@ -640,6 +672,8 @@ def summarise(names: list[str], diagnosis_paths: list[str | Path], truth_paths: 
     background = background_sizes(records, calibration_rows, expected)
     detection_figure(calibration_rows, limits, detection_path, background)
     write_text_atomic(markdown_path, summary_markdown(rows, limits, by_split, alarms, thresholds, settings, background))
+    if headline_path is not None:
+        write_text_atomic(headline_path, headline_markdown(by_split, settings))
     return {"rows": rows, "limits": limits, "measures": by_split["evaluation"] or by_split["calibration"],
             "by_split": by_split, "alarms": alarms, "background": background}
 
