@@ -8,13 +8,18 @@ Commits and ``--repeats`` alternate, so that a before/after comparison shares th
 rule's wall time from Snakemake's benchmark file (``{results}/benchmarks/<rule>/<rule>.tsv``, seconds); run it
 from the folder that holds ``--results`` (the finished run's project).
 
-Prints a table and, last line, a JSON object: per commit the rule's wall times (s) and their median, and
-the ratio of the first commit's median to each other's. ``--markdown FILE`` writes the table as Markdown (for the
-docs: ``python -m hybridfmu.evaluation.measured_blocks --block <name>=FILE``).
+``--cores N`` gives the job N cores (``snakemake -jN``; a rule that declares threads gets up to N). Each run's
+``--target`` is compared with the first commit's first run: a JSON file with the keys that differ on every
+run (:data:`VOLATILE_KEYS`: an MLflow run id, elapsed times) left out, any other file byte for byte.
+
+Prints a table and, last line, a JSON object: per commit the rule's wall times (s) and their median, whether
+its outputs equal the first commit's, and the ratio of the first commit's median to each other's.
+``--markdown FILE`` writes the table as Markdown (for the docs: ``python -m hybridfmu.evaluation.measured_blocks
+--block <name>=FILE``).
 
     python benchmarks/stage_wall.py --results results/ipb --rule diagnose --target results/ipb/diagnosis/diagnosis.json
         --inputs fmu data segments calibration [--commit 357ca3c --commit HEAD] [--configfile FILE] [--repeats 1]
-        [--markdown FILE]
+        [--cores 1] [--markdown FILE]
 """
 
 from __future__ import annotations
@@ -34,6 +39,26 @@ from pathlib import Path
 from workflow_wall import clone, resolve
 
 
+#: Keys of a JSON output whose values differ on every run, left out when outputs are compared.
+VOLATILE_KEYS = frozenset({"mlflow_run_id", "elapsed_s"})
+
+
+def comparable(path: Path) -> object:
+    """What of an output file must be the same on every run: a JSON file's content without
+    :data:`VOLATILE_KEYS` (at any depth), any other file's bytes."""
+    if path.suffix != ".json":
+        return path.read_bytes()
+
+    def strip(value: object) -> object:
+        if isinstance(value, dict):
+            return {k: strip(v) for k, v in value.items() if k not in VOLATILE_KEYS}
+        if isinstance(value, list):
+            return [strip(v) for v in value]
+        return value
+
+    return strip(json.loads(path.read_text()))
+
+
 def touch_tree(folder: Path) -> None:
     """Give every file under ``folder`` the current time (the copied inputs newer than the clone's sources)."""
     now = time.time()
@@ -43,13 +68,15 @@ def touch_tree(folder: Path) -> None:
 
 
 def run_stage(checkout: Path, results: Path, inputs: list[str], rule: str, target: str,
-              configfile: str | None) -> dict:
-    """Copy the inputs into ``checkout`` and rerun ``rule``; returns {"rule_s", "command_s"}."""
+              configfile: str | None, cores: int = 1) -> dict:
+    """Copy the inputs into ``checkout`` and rerun ``rule`` with ``cores`` cores; returns {"rule_s", "command_s",
+    "output"} (``output``: :func:`comparable` of the target)."""
     case_results = checkout / results
     for name in inputs:
         shutil.copytree(results / name, case_results / name, symlinks=True)
     touch_tree(case_results)
-    command = [sys.executable, "-m", "snakemake", "-j1", "--rerun-triggers=mtime", "--forcerun", rule]
+    command = [sys.executable, "-m", "snakemake", f"-j{int(cores)}", "--rerun-triggers=mtime", "--forcerun",
+               rule]
     if configfile:
         command += ["--configfile", configfile]
     command += ["--", target]
@@ -67,17 +94,19 @@ def run_stage(checkout: Path, results: Path, inputs: list[str], rule: str, targe
         raise FileNotFoundError(f"{tsv}: the rule {rule!r} wrote no benchmark file (is it the rule's name?)")
     with tsv.open() as stream:
         rows = list(csv.DictReader(stream, delimiter="\t"))
-    return {"rule_s": float(rows[-1]["s"]), "command_s": command_s}
+    return {"rule_s": float(rows[-1]["s"]), "command_s": command_s, "output": comparable(checkout / target)}
 
 
-def markdown(summary: dict, rule: str, results: str, ratios: dict) -> str:
+def markdown(summary: dict, rule: str, results: str, ratios: dict, target: str, cores: int) -> str:
     """The table of the runs as Markdown."""
-    lines = [f"Rule `{rule}` rerun on the inputs of `{results}`, one job at a time, side by side on this machine "
-             f"({os.cpu_count()} cores; `benchmarks/stage_wall.py`):", "",
-             "| commit | wall time of the rule | runs | against the first commit |", "|---|---|---|---|"]
+    lines = [f"Rule `{rule}` rerun on the inputs of `{results}`, one job at a time with {cores} core(s), side by side "
+             f"on this machine ({os.cpu_count()} cores; `benchmarks/stage_wall.py`):", "",
+             f"| commit | wall time of the rule | runs | against the first commit | `{Path(target).name}` as the "
+             "first commit's |", "|---|---|---|---|---|"]
     for commit, figures in summary.items():
         runs = ", ".join(f"{s:.0f} s" for s in figures["rule_s"])
-        lines.append(f"| {commit[:10]} | {figures['median_s']:.0f} s | {runs} | ×{ratios[commit]:.2f} |")
+        same = "the same" if figures["same_output"] else "**differs**"
+        lines.append(f"| {commit[:10]} | {figures['median_s']:.0f} s | {runs} | ×{ratios[commit]:.2f} | {same} |")
     return "\n".join(lines) + "\n"
 
 
@@ -90,6 +119,7 @@ def main() -> None:
     parser.add_argument("--commit", action="append", help="commit to run (repeatable; default HEAD)")
     parser.add_argument("--configfile", default=None, help="case config (default: the demo)")
     parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--cores", type=int, default=1, help="cores of the job (snakemake -jN)")
     parser.add_argument("--markdown", type=Path, default=None, help="write the table as Markdown to this file")
     args = parser.parse_args()
     commits = [resolve(c) for c in (args.commit or ["HEAD"])]
@@ -97,15 +127,22 @@ def main() -> None:
     if results.is_absolute() or not results.is_dir():
         raise SystemExit(f"--results {results}: expected an existing folder relative to the repository's results "
                          "layout, e.g. results/ipb")
-    summary = {c: {"rule_s": [], "command_s": []} for c in commits}
+    summary = {c: {"rule_s": [], "command_s": [], "same_output": True} for c in commits}
+    reference = None
     with tempfile.TemporaryDirectory(prefix="hybridfmu-stage-") as tmp:
         for repeat in range(args.repeats):
             for commit in commits:
                 label = f"{commit[:10]} run {repeat + 1}/{args.repeats}"
                 print(f"{label} ...", file=sys.stderr, flush=True)
                 checkout = clone(commit, Path(tmp) / f"{commit[:10]}-{repeat}")
-                figures = run_stage(checkout, results, args.inputs, args.rule, args.target, args.configfile)
-                print(f"  {label}: rule {args.rule} in {figures['rule_s']:.0f} s", file=sys.stderr, flush=True)
+                figures = run_stage(checkout, results, args.inputs, args.rule, args.target, args.configfile,
+                                    args.cores)
+                output = figures.pop("output")
+                reference = output if reference is None else reference
+                summary[commit]["same_output"] &= output == reference
+                print(f"  {label}: rule {args.rule} in {figures['rule_s']:.0f} s, {args.target} "
+                      f"{'as the first' if output == reference else 'differs from the first'}", file=sys.stderr,
+                      flush=True)
                 for key in ("rule_s", "command_s"):
                     summary[commit][key].append(figures[key])
                 shutil.rmtree(checkout, ignore_errors=True)
@@ -113,13 +150,14 @@ def main() -> None:
         figures["median_s"] = statistics.median(figures["rule_s"])
     first = summary[commits[0]]["median_s"]
     ratios = {c: first / figures["median_s"] for c, figures in summary.items()}
-    print(f"{'commit':<12} {'median, s':>10}  {'vs first':>8}  runs, s")
+    print(f"{'commit':<12} {'median, s':>10}  {'vs first':>8}  {'output':>8}  runs, s")
     for commit, figures in summary.items():
         print(f"{commit[:10]:<12} {figures['median_s']:>10.0f}  {ratios[commit]:>7.2f}x  "
+              f"{'same' if figures['same_output'] else 'DIFFERS':>8}  "
               + ", ".join(f"{s:.0f}" for s in figures["rule_s"]))
     if args.markdown:
         args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        args.markdown.write_text(markdown(summary, args.rule, str(results), ratios))
+        args.markdown.write_text(markdown(summary, args.rule, str(results), ratios, args.target, args.cores))
     print(json.dumps({"rule": args.rule, "results": str(results), "commits": summary, "ratios": ratios}))
 
 

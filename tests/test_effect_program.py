@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from diagnosis_models import MassSpringDamper, msd_maneuvers, msd_problem
-from hybridfmu.diagnosis.corrected_model import CorrectedModel
+from hybridfmu.diagnosis.corrected_model import CorrectedModel, simulate_windows
 from hybridfmu.diagnosis.effects_motor import InverterDeadtime
 from hybridfmu.diagnosis.joint import JointEffect
 from hybridfmu.diagnosis.library import Coulomb, Limit, Overflow, Periodic, ScaledCoulomb, Viscous, build_library
@@ -141,6 +141,25 @@ def test_an_fmu_simulation_with_the_effects_in_c_equals_the_callback_per_stage(i
     assert np.array_equal(in_c, called_back)
     assert np.max(np.abs(in_c - plain)) > 1e-3  # the terms act
     assert np.array_equal(plain, again)  # nothing of the program stays behind
+
+
+def test_windows_with_the_effects_in_c_equal_the_windows_side_by_side(ipbmotor_fmu):
+    """The restarted windows of the open-loop check: with an effect program each window runs in the C step loop,
+    the same states to the bit as the windows side by side with the terms called back per stage."""
+    time_s = np.arange(0.0, 0.1, 1e-4)
+    u = np.empty((len(time_s), 5))
+    u[:, :3] = 0.5 + 0.3 * np.sin(2 * np.pi * 40 * time_s[:, None] + np.array([0.0, 2.1, 4.2]))
+    u[:, 3], u[:, 4] = 24.0, 0.05
+    with load_fmu(ipbmotor_fmu) as fmu, load_fmu(ipbmotor_fmu) as helper:
+        x0 = np.asarray(fmu.initial_states, dtype=float)
+        corrected = CorrectedModel(motor_terms(), MotorProblem(), helper)
+        whole = simulate_open_loop(fmu, time_s, u, x0, correction=corrected.correction()).states
+        first = np.arange(0, len(time_s) - 200, 200)
+        in_c = simulate_windows(fmu, simulate_open_loop, time_s, u, whole[first], first, 200, corrected.correction())
+        side_by_side = simulate_windows(fmu, simulate_open_loop, time_s, u, whole[first], first, 200, corrected)
+    assert np.all(np.isfinite(in_c))
+    np.testing.assert_array_equal(in_c, side_by_side)
+    np.testing.assert_array_equal(in_c[1], whole[200:401])  # a window from the whole run's state continues it
 
 
 def test_a_term_without_a_c_form_keeps_the_callback(library):

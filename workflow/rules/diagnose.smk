@@ -47,6 +47,8 @@ rule diagnose:
     params:
         maneuvers=DIAGNOSIS_MANEUVERS,
         config=DIAGNOSIS_CONFIG,
+    # the selections on each fitting maneuver alone run beside the main one (the same results on one core)
+    threads: 2
     log:
         f"{RESULTS}/logs/diagnose/diagnose.log",
     benchmark:

@@ -16,4 +16,5 @@ diagnose(
     segments_paths=dict(zip(maneuvers, snakemake.input.segments)),
     out_dir=Path(snakemake.output.json).parent,
     calibration_path=snakemake.input.calibration,
+    workers=snakemake.threads,
 )

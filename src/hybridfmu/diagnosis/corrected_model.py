@@ -29,6 +29,7 @@ import numpy as np
 from hybridfmu.diagnosis.effects import EffectInputs, input_derivative
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.selection import Term
+from hybridfmu.fmu.bridge import FmuModel
 from hybridfmu.fmu.effect_program import EffectProgram, EffectTerm
 from hybridfmu.runge_kutta import RK4, numpy_axpy
 
@@ -309,20 +310,34 @@ class CorrectedModel:
                 m.set_parameters(values)
 
 
+def _steps_in_c(model: Any, correction: Callable | None) -> bool:
+    """Whether a simulation of ``model`` with ``correction`` runs its solver stages in C only: an FMU (its C step
+    loop) with no correction or an effect program."""
+    return isinstance(model, FmuModel) and (correction is None or isinstance(correction, EffectProgram))
+
+
 def simulate_windows(model: Any, simulate_fn: Callable, time_s: np.ndarray, u: np.ndarray, x0: np.ndarray,
                      first: np.ndarray, n_steps: int, correction: Callable | None) -> np.ndarray:
-    """Open-loop simulations of many windows side by side: (W, n_steps + 1, n_x) states.
+    """Open-loop simulations of many windows: (W, n_steps + 1, n_x) states.
 
     Window w starts at sample ``first[w]`` from ``x0[w]`` (n_x,) and runs ``n_steps`` samples of the
-    grid ``time_s`` (T,) with the inputs ``u`` (T, n_u) held per sample, by the same fixed-step RK4 as
-    ``simulate_fn`` as one batch of vectorised model evaluations. Windows whose event indicators change
-    sign (end stops, mode switches) or whose states become non-finite are simulated again on their own
-    with ``simulate_fn``, which handles the events.
+    grid ``time_s`` (T,) with the inputs ``u`` (T, n_u) held per sample. An FMU whose correction its C step
+    loop evaluates (none, or an :class:`~hybridfmu.fmu.effect_program.EffectProgram`) simulates each window
+    on its own with ``simulate_fn`` (no Python per solver stage). Otherwise the windows run side by side, by
+    the same fixed-step RK4 as ``simulate_fn``, as one batch of vectorised model evaluations; windows whose
+    event indicators change sign (end stops, mode switches) or whose states become non-finite are then
+    simulated again on their own with ``simulate_fn``, which handles the events. Both ways give the same
+    states to the bit.
     """
     first = np.asarray(first, dtype=int)
     n_w, n_x = len(first), len(x0[0]) if len(first) else 0
     out = np.empty((n_w, n_steps + 1, n_x))
     if n_w == 0:
+        return out
+    if _steps_in_c(model, correction):
+        for w, start in enumerate(first):
+            piece = slice(int(start), int(start) + n_steps + 1)
+            out[w] = simulate(model, simulate_fn, time_s[piece], u[piece], np.asarray(x0[w]), correction)
         return out
     x = np.array(x0, dtype=float)
     out[:, 0] = x

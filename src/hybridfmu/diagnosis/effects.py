@@ -23,6 +23,7 @@ need machine knowledge (e.g. :mod:`hybridfmu.diagnosis.effects_motor`).
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from functools import cached_property
 from typing import Any, Callable
 
@@ -33,6 +34,9 @@ from hybridfmu.fmu.effect_program import EffectTerm
 
 #: Samples of the input derivative's Savitzky-Golay window when no window is configured.
 DEFAULT_LAG_DERIVATIVE_SAMPLES = 5
+
+#: Shifted inputs an :class:`EffectInputs` keeps (:meth:`EffectInputs.shifted_inputs`).
+SHIFTED_INPUTS_KEPT = 16
 
 
 def input_derivative(u: np.ndarray, dt_s: float, window_s: float | None = None) -> np.ndarray:
@@ -140,6 +144,7 @@ class EffectInputs:
         self._sensitivities: dict[str, np.ndarray | None] = {}
         self.u_samples = u_samples
         self.dt_s = float(dt_s)
+        self._shifted: OrderedDict[tuple, np.ndarray] = OrderedDict()
 
     @property
     def n(self) -> int:
@@ -161,11 +166,21 @@ class EffectInputs:
     def shifted_inputs(self, offset_s: float, columns: list[int] | None = None) -> np.ndarray:
         """Inputs seen ``offset_s`` later (M, n_u), or only the input ``columns`` (M, len(columns)): the held
         signal's mean over each shifted interval, i.e. linear interpolation of the samples at the fractional index
-        k + offset / dt (ends held)."""
+        k + offset / dt (ends held). The last few are kept (read-only): the members of a time offset acting on
+        several equations ask for the same shift one after another."""
         if self.u_samples is None or self.dt_s <= 0:
             raise RuntimeError("shifted inputs need the logged input samples and the sampling interval")
+        key = (float(offset_s), None if columns is None else tuple(columns))
+        if key in self._shifted:
+            self._shifted.move_to_end(key)
+            return self._shifted[key]
         samples = self.u_samples if columns is None else self.u_samples[:, columns]
-        return shift_samples(samples, offset_s, self.dt_s)[:self.n]
+        shifted = shift_samples(samples, offset_s, self.dt_s)[:self.n]
+        shifted.setflags(write=False)
+        self._shifted[key] = shifted
+        if len(self._shifted) > SHIFTED_INPUTS_KEPT:
+            self._shifted.popitem(last=False)
+        return shifted
 
     def sensitivity(self, parameter: str) -> np.ndarray | None:
         """p * df/dp (M, n_x) by central finite differences of the model's derivatives, or None when the

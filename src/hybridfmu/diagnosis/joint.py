@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from hybridfmu.diagnosis.effects import Effect
+from hybridfmu.diagnosis.memo import DesignMemo, setting_key
 
 #: Pseudo equation index of the stacked problem (all examined equations at once).
 JOINT = -1
@@ -144,6 +145,9 @@ class StackedCache:
         self.base = base
         self.equations = list(equations)
         self.maneuvers = base.maneuvers
+        self._designs = DesignMemo()
+        #: results of :func:`hybridfmu.diagnosis.selection.best_setting` by its arguments
+        self.best_settings: dict[tuple, tuple] = {}
 
     def _weight(self, equation: int, name: str) -> float:
         std = float(self.maneuvers[name].noise_std[equation])
@@ -162,7 +166,11 @@ class StackedCache:
 
     def design(self, effect: Effect, setting: dict[str, float], names: list[str]) -> np.ndarray:
         """(n, n_coef) weighted regressors: a joint effect's members in their blocks, a local effect in its own,
-        zeros elsewhere."""
+        zeros elsewhere (read-only; built once per effect, setting and maneuvers)."""
+        return self._designs.get((effect_key(effect), setting_key(setting), tuple(names)),
+                                 lambda: self._build_design(effect, setting, names))
+
+    def _build_design(self, effect: Effect, setting: dict[str, float], names: list[str]) -> np.ndarray:
         width = len(effect.coefficient_names(setting))
         parts = []
         for eq in self.equations:

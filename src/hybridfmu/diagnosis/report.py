@@ -484,7 +484,8 @@ def log_to_mlflow(record: dict[str, Any], paths: dict[str, Any], config: dict[st
 
 
 def diagnose(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, str | Path],
-             segments_paths: dict[str, str | Path], out_dir: str | Path, mlflow: bool = True, calibration_path: str | Path | None = None) -> dict[str, Any]:
+             segments_paths: dict[str, str | Path], out_dir: str | Path, mlflow: bool = True,
+             calibration_path: str | Path | None = None, workers: int = 1) -> dict[str, Any]:
     """Diagnose the sim-to-real gap of a case; write ``diagnosis.json``, ``report.md`` and figures.
 
     Args:
@@ -496,12 +497,13 @@ def diagnose(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str,
         mlflow: log the run to MLflow.
         calibration_path: ``{results}/calibration/calibration.json`` (calibrated parameters and unmeasured
             initial states), or None for the FMU with ``config.fmu.parameters``.
+        workers: processes the diagnosis may use (the rule's threads; the same results with any number).
     Returns:
         The ``diagnosis.json`` record.
     """
     from hybridfmu.diagnosis.run import analyse
 
-    result = analyse(config, fmu_path, data_paths, segments_paths, calibration_path)
+    result = analyse(config, fmu_path, data_paths, segments_paths, calibration_path, workers=workers)
     paths = write_outputs(result, config, out_dir)
     if mlflow:
         paths["record"]["mlflow_run_id"] = log_to_mlflow(paths["record"], paths, config)

@@ -19,6 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from hybridfmu.diagnosis.beside import Beside
 from hybridfmu.diagnosis.corrected_model import simulator_for
 from hybridfmu.diagnosis.derivatives import smooth_at
 from hybridfmu.diagnosis.export import DiagnosedModel
@@ -243,13 +244,24 @@ def selection_inputs(prepared: dict[str, PreparedManeuver], fit_names: list[str]
 
 
 def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], problem: Problem,
-                   model: Any) -> EffectSelection:
+                   model: Any, workers: int = 1) -> EffectSelection:
     """One selection over all examined equations on the fitting maneuvers (:mod:`hybridfmu.diagnosis.joint`:
     changes of an input or a parameter act on every equation with one value), ranking, uncertainty and
-    stability (:class:`hybridfmu.diagnosis.result.EffectSelection`)."""
+    stability (:class:`hybridfmu.diagnosis.result.EffectSelection`). With ``workers`` > 1 the selections on each
+    fitting maneuver alone (the stability check) run in forked processes beside the main one
+    (:mod:`hybridfmu.diagnosis.beside`; the same results)."""
     settings = problem.settings
     sel = SelectionSettings.from_config(settings.get("selection"))
     cache, stacked, candidates, calibrate, skipped = selection_inputs(prepared, fit_names, problem, model)
+
+    def alone(name: str) -> Callable[[], dict[str, list[str]]]:
+        def select() -> dict[str, list[str]]:
+            chosen = select_equation(stacked, JOINT, candidates, [name], sel, label=f"all equations on {name}",
+                                     calibrate=calibrate)
+            return _chosen_names(chosen, problem)
+        return select
+
+    separate_selections = Beside({n: alone(n) for n in fit_names} if len(fit_names) > 1 else {}, workers)
     started = time.perf_counter()
     selection = select_equation(stacked, JOINT, candidates, fit_names, sel, label="all equations",
                                 calibrate=calibrate)
@@ -260,12 +272,7 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
                                    settings["seed"])
     per_maneuver = {n: _fit_on(stacked, selection, [n], sel) for n in fit_names} \
         if selection.terms and len(fit_names) > 1 else {}
-    separate: dict[str, dict[str, list[str]]] = {}
-    if len(fit_names) > 1:
-        for n in fit_names:
-            alone = select_equation(stacked, JOINT, candidates, [n], sel, label=f"all equations on {n}",
-                                    calibrate=calibrate)
-            separate[n] = _chosen_names(alone, problem)
+    separate: dict[str, dict[str, list[str]]] = separate_selections.results()
     chosen: list[dict[str, Any]] = []
     terms_of: dict[tuple[str, int], Term] = {}
     for j, term in enumerate(selection.terms):
@@ -360,7 +367,7 @@ def prepare_all(problem: Problem, model: Any, measured: dict[str, MeasuredManeuv
 
 def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredManeuver], *, helper: Any = None,
                   simulate_fn: Callable | None = None, open_loop: bool = True,
-                  refit: RefitSpec | None = None) -> DiagnosisResult:
+                  refit: RefitSpec | None = None, workers: int = 1) -> DiagnosisResult:
     """Where / which / how far on loaded maneuvers.
 
     Args:
@@ -371,6 +378,7 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
         open_loop: also simulate open loop (how far, error growth).
         refit: recalibrate every variant of the held-out check with its effects on the train maneuvers
             (:func:`hybridfmu.diagnosis.refit.refit_spec`), or None.
+        workers: processes the selection may use (:func:`select_effects`; the same results with any number).
     """
     simulate_fn = simulate_fn or simulator_for(model)
     prepared, fit_names, test_names = prepare_all(problem, model, measured, simulate_fn)
@@ -389,7 +397,7 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
                           "statements": ranked_statements(table, problem.rate_unit(eq),
                                                           int(problem.settings["regions"]["top_statements"]), at_noise),
                           "top_time_bins": per_time[:8]}
-    which = select_effects(prepared, fit_names, problem, model)
+    which = select_effects(prepared, fit_names, problem, model, workers)
     far = growth = None
     not_run = how_far_not_run(test_names, open_loop)
     if not_run is None:
@@ -409,7 +417,7 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
 
 def analyse(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, str | Path],
             segments_paths: dict[str, str | Path], calibration_path: str | Path | None = None,
-            open_loop: bool = True) -> DiagnosisResult:
+            open_loop: bool = True, workers: int = 1) -> DiagnosisResult:
     """Run the whole diagnosis of a case from its files (see :func:`hybridfmu.diagnosis.report.diagnose`).
 
     Args:
@@ -419,19 +427,22 @@ def analyse(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str, 
         calibration_path: ``{results}/calibration/calibration.json`` (parameters and unmeasured initial
             states), or None for the FMU with ``config.fmu.parameters``.
         open_loop: also simulate open loop.
+        workers: processes the selection may use (:func:`run_diagnosis`).
     """
     case = load_inputs(config, fmu_path, data_paths, segments_paths, calibration_path)
-    return analyse_inputs(config, case, None if calibration_path is None else str(calibration_path), open_loop)
+    return analyse_inputs(config, case, None if calibration_path is None else str(calibration_path), open_loop,
+                          workers)
 
 
 def analyse_inputs(config: dict[str, Any], case: CaseInputs, calibration_source: str | None = None,
-                   open_loop: bool = True) -> DiagnosisResult:
+                   open_loop: bool = True, workers: int = 1) -> DiagnosisResult:
     """The whole diagnosis of loaded inputs (:func:`load_inputs`, :func:`case_inputs`); ``config`` is the validated
-    case config they came from, ``calibration_source`` where the calibration was read (for the record)."""
+    case config they came from, ``calibration_source`` where the calibration was read (for the record),
+    ``workers`` the processes the selection may use."""
     from hybridfmu.diagnosis.refit import refit_spec
 
     result = run_diagnosis(case.problem, case.model, case.measured, helper=case.helper, open_loop=open_loop,
-                           refit=refit_spec(config, case.settings))
+                           refit=refit_spec(config, case.settings), workers=workers)
     result.calibration = calibration_source
     result.model_parameters = dict(case.parameters)
     return result

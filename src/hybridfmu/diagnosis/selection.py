@@ -28,6 +28,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -37,6 +38,7 @@ from hybridfmu.config import ConfigError
 from hybridfmu.diagnosis.derivatives import smooth_at
 from hybridfmu.diagnosis.effects import Effect, EffectInputs
 from hybridfmu.diagnosis.joint import Block, JointEffect, effect_equations, effect_key
+from hybridfmu.diagnosis.memo import DesignMemo, setting_key
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -106,19 +108,18 @@ class SelectionSettings:
         return cls(**section)
 
 
-def _setting_key(setting: dict[str, float]) -> tuple:
-    return tuple(sorted((k, round(float(v), 12)) for k, v in setting.items()))
-
-
 class DesignCache:
     """Kernel-averaged effect regressors at the fitting centres, cached per (effect, setting, maneuver)."""
 
     def __init__(self, maneuvers: list[ManeuverFitData]) -> None:
         self.maneuvers = {m.name: m for m in maneuvers}
         self._cache: dict[tuple, np.ndarray] = {}
+        self._stacked = DesignMemo()
+        #: results of :func:`best_setting` by its arguments (a pure function of them and the data)
+        self.best_settings: dict[tuple, tuple] = {}
 
     def _one(self, effect: Effect, setting: dict[str, float], name: str) -> np.ndarray:
-        key = (effect.name, effect.equation, _setting_key(setting), name)
+        key = (effect.name, effect.equation, setting_key(setting), name)
         if key not in self._cache:
             data = self.maneuvers[name]
             regressors = np.asarray(effect.regressors(data.inputs, setting), dtype=float)
@@ -128,12 +129,16 @@ class DesignCache:
             design = smooth_at(regressors, data.kernel, data.centres) if len(data.centres) else \
                 np.zeros((0, regressors.shape[1]))
             design[~np.isfinite(design)] = 0.0
+            design.setflags(write=False)
             self._cache[key] = design
         return self._cache[key]
 
     def design(self, effect: Effect, setting: dict[str, float], names: list[str]) -> np.ndarray:
-        """Stacked (n, n_coef) kernel-averaged regressors over the maneuvers ``names``."""
-        return np.concatenate([self._one(effect, setting, name) for name in names], axis=0)
+        """Stacked (n, n_coef) kernel-averaged regressors over the maneuvers ``names`` (read-only)."""
+        if len(names) == 1:
+            return self._one(effect, setting, names[0])
+        return self._stacked.get((effect.name, effect.equation, setting_key(setting), tuple(names)),
+                                 lambda: np.concatenate([self._one(effect, setting, name) for name in names], axis=0))
 
     def target(self, equation: int, names: list[str]) -> np.ndarray:
         """(n,) kernel-averaged equation error of state ``equation`` at the centres of ``names``."""
@@ -197,15 +202,30 @@ def count_parameters(term: Term, grid_size: int) -> int:
     return n
 
 
-@dataclass
 class LinearFit:
-    """Least-squares fit of a set of terms. ``coef`` per term, ``cov`` of all coefficients."""
+    """Least-squares fit of a set of terms: ``coefs`` per term, ``rss``, ``n`` fitted rows, ``residual`` (n,); ``cov``
+    of all coefficients, computed when first read (most fits of a selection compare residuals only)."""
 
-    coefs: list[np.ndarray]
-    cov: np.ndarray
-    rss: float
-    n: int
-    residual: np.ndarray
+    def __init__(self, coefs: list[np.ndarray], rss: float, n: int, residual: np.ndarray,
+                 scaled_design: np.ndarray | None = None, scale: np.ndarray | None = None) -> None:
+        self.coefs = coefs
+        self.rss = rss
+        self.n = n
+        self.residual = residual
+        self._scaled_design = scaled_design
+        self._scale = scale
+
+    @cached_property
+    def cov(self) -> np.ndarray:
+        """(n_coef, n_coef) covariance of the coefficients: sigma^2 (D^T D)^+ of the column-scaled design D over the
+        scales' outer product, sigma^2 the residual variance (rss over the degrees of freedom)."""
+        if self._scaled_design is None or self._scaled_design.shape[1] == 0:
+            return np.zeros((0, 0))
+        design = self._scaled_design
+        sigma2 = float(self.residual @ self.residual) / max(self.n - design.shape[1], 1)
+        # a general product of two arrays, as ever: NumPy takes a symmetric kernel for D^T D, which rounds otherwise
+        gram = design.T @ design.copy()
+        return sigma2 * np.linalg.pinv(gram) / np.outer(self._scale, self._scale)
 
 
 def stacked_design(cache: DesignCache, terms: list[Term], equation: int,
@@ -228,24 +248,20 @@ def fit_terms(cache: DesignCache, terms: list[Term], equation: int, names: list[
     y, design, sizes = stacked_design(cache, terms, equation, names)
     if row_mask is not None:
         y, design = y[row_mask], design[row_mask]
-    n = len(y)
+    scaled = scale = None
     if design.shape[1]:
         scale = np.sqrt(np.sum(design ** 2, axis=0))
         scale[scale == 0] = 1.0
-        coef_scaled, *_ = np.linalg.lstsq(design / scale, y, rcond=None)
+        scaled = design / scale
+        coef_scaled, *_ = np.linalg.lstsq(scaled, y, rcond=None)
         coef = coef_scaled / scale
         residual = y - design @ coef
-        dof = max(n - design.shape[1], 1)
-        sigma2 = float(residual @ residual) / dof
-        gram = (design / scale).T @ (design / scale)
-        cov = sigma2 * np.linalg.pinv(gram) / np.outer(scale, scale)
     else:
         coef = np.zeros(0)
         residual = y
-        cov = np.zeros((0, 0))
     splits = np.cumsum(sizes)[:-1] if sizes else []
-    return LinearFit(coefs=list(np.split(coef, splits)) if sizes else [], cov=cov,
-                     rss=float(residual @ residual), n=n, residual=residual)
+    return LinearFit(coefs=list(np.split(coef, splits)) if sizes else [], rss=float(residual @ residual),
+                     n=len(y), residual=residual, scaled_design=scaled, scale=scale)
 
 
 #: A candidate whose design columns the other terms' reproduce up to this share of their energy (1 - R^2) cannot be
@@ -426,6 +442,23 @@ def _structure(effect: Effect, setting: dict[str, float]) -> tuple:
 
 def best_setting(cache: DesignCache, active: list[Term], effect: Effect, equation: int, names: list[str],
                  iterations: int, refine: bool = True) -> tuple[Term, float, list[dict[str, Any]]]:
+    """:func:`find_best_setting`, computed once per (the active terms' effects and settings, effect, equation,
+    maneuvers, iterations, refine) and cache: the forward steps, the exchanges and the polish ask for the same
+    candidate beside the same terms many times. Returns a new term and profile at every call."""
+    key = (tuple((effect_key(t.effect), setting_key(t.setting)) for t in active), effect_key(effect), equation,
+           tuple(names), int(iterations), bool(refine))
+    memo = getattr(cache, "best_settings", None)
+    if memo is None:
+        return find_best_setting(cache, active, effect, equation, names, iterations, refine)
+    if key not in memo:
+        memo[key] = find_best_setting(cache, active, effect, equation, names, iterations, refine)
+    term, rss, profile = memo[key]
+    return (Term(term.effect, dict(term.setting), term.coef.copy(), dict(term.setting_se)), rss,
+            [{**row, "setting": dict(row["setting"])} for row in profile])
+
+
+def find_best_setting(cache: DesignCache, active: list[Term], effect: Effect, equation: int, names: list[str],
+                      iterations: int, refine: bool = True) -> tuple[Term, float, list[dict[str, Any]]]:
     """Best nonlinear setting of ``effect`` added to ``active``: (term, rss, profile over the grid).
 
     Settings are compared by BIC (:func:`block_bic`: n log(rss / n) + n_coef log n for one equation, n fitted

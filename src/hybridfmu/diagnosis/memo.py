@@ -1,0 +1,48 @@
+"""A memo of the selection's design arrays, per (effect, setting, maneuvers), within a memory budget.
+
+The forward selection, its exchanges and the refits on each maneuver fit the same effects at the same
+settings many times over; a stacked design (``hybridfmu.diagnosis.joint.StackedCache.design``) depends on
+nothing else, so it is built once. Keys round settings to 12 decimals (:func:`setting_key`).
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from typing import Callable, Hashable
+
+import numpy as np
+
+#: Bytes of design arrays a :class:`DesignMemo` keeps (the least recently used go first beyond it).
+DEFAULT_DESIGN_BUDGET_BYTES = 512 * 2 ** 20
+
+
+def setting_key(setting: dict[str, float]) -> tuple:
+    """A hashable form of a nonlinear setting: its items sorted by name, values rounded to 12 decimals."""
+    return tuple(sorted((k, round(float(v), 12)) for k, v in setting.items()))
+
+
+class DesignMemo:
+    """Arrays by key, the least recently used dropped once they hold more than ``budget_bytes``.
+
+    The arrays it returns are read-only (one array serves every caller)."""
+
+    def __init__(self, budget_bytes: int = DEFAULT_DESIGN_BUDGET_BYTES) -> None:
+        self.budget_bytes = int(budget_bytes)
+        self._arrays: OrderedDict[Hashable, np.ndarray] = OrderedDict()
+        self._bytes = 0
+
+    def get(self, key: Hashable, compute: Callable[[], np.ndarray]) -> np.ndarray:
+        """The array of ``key``, from ``compute()`` the first time (or again after it was dropped)."""
+        array = self._arrays.get(key)
+        if array is not None:
+            self._arrays.move_to_end(key)
+            return array
+        array = np.asarray(compute())
+        array.setflags(write=False)
+        self._arrays[key] = array
+        self._bytes += array.nbytes
+        while self._bytes > self.budget_bytes and len(self._arrays) > 1:
+            _, dropped = self._arrays.popitem(last=False)
+            self._bytes -= dropped.nbytes
+        return array
+

@@ -1,0 +1,65 @@
+"""Parts of the diagnosis run in forked workers beside the caller: the same results as in the caller."""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+
+from diagnosis_models import msd_maneuvers, msd_problem
+from hybridfmu.diagnosis.beside import Beside, can_fork
+from hybridfmu.diagnosis.run import run_diagnosis
+
+needs_fork = pytest.mark.skipif(not can_fork(), reason="worker processes cannot be forked here")
+
+
+@needs_fork
+def test_parts_run_in_other_processes_and_return_their_results():
+    beside = Beside({"a": lambda: (os.getpid(), 1), "b": lambda: (os.getpid(), 2)}, workers=3)
+    assert beside.in_workers
+    results = beside.results()
+    assert {key: value for key, (_, value) in results.items()} == {"a": 1, "b": 2}
+    assert all(pid != os.getpid() for pid, _ in results.values())
+
+
+def test_one_worker_runs_the_parts_in_the_caller_when_asked():
+    ran = []
+    beside = Beside({"a": lambda: ran.append("a") or os.getpid()}, workers=1)
+    assert not beside.in_workers and ran == []
+    assert beside.results() == {"a": os.getpid()} and ran == ["a"]
+
+
+@needs_fork
+def test_an_exception_in_a_worker_is_raised_by_results():
+    def fails() -> None:
+        raise ValueError("part failed")
+
+    beside = Beside({"ok": lambda: 1, "bad": fails}, workers=2)
+    with pytest.raises(ValueError, match="part failed"):
+        beside.results()
+
+
+@needs_fork
+def test_the_selections_on_each_maneuver_alone_are_the_same_beside_the_main_one():
+    """A Coulomb friction the model lacks, two fitting maneuvers: the stability check's selections on each maneuver
+    alone, in two workers beside the main selection, give the record of one process, every figure to the bit."""
+    def friction(x, u):
+        out = np.zeros_like(x)
+        out[:, 1] = -0.4 * np.tanh(x[:, 1] / 0.005)
+        return out
+
+    records = []
+    for workers in (1, 3):
+        problem, model = msd_problem()
+        result = run_diagnosis(problem, model, msd_maneuvers(friction, duration_s=10.0), open_loop=False,
+                               workers=workers)
+        records.append(result.which)
+    one, beside = records
+    assert [c["effect"] for c in one.chosen] == ["coulomb(v)"]
+    assert one.chosen[0]["stability"] == beside.chosen[0]["stability"]
+    per_maneuver = one.equations["v"]["selection_per_maneuver"]
+    assert per_maneuver == beside.equations["v"]["selection_per_maneuver"]
+    assert sorted(per_maneuver) == ["train", "validation"] and per_maneuver["train"] == ["coulomb(v)"]
+    assert all(math.isfinite(p["value"]) for p in beside.chosen[0]["parameters"])
