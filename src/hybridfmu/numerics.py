@@ -16,13 +16,18 @@ threads than over one and rounds differently too. PyTorch's intra-op threads sta
 checks both bit for bit.
 
 The variables only act when set before the libraries load, so they are set in the environment of the
-Snakemake process (the Snakefile) and inherited by every job it starts, locally or on a cluster.
+Snakemake process (the Snakefile) and inherited by every job it starts, locally or on a cluster. Snakemake
+sets the thread variables of a job to the rule's ``threads``; a rule that uses its threads as processes (the
+diagnosis) keeps each process' math libraries at one thread with :func:`one_math_thread`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
-from typing import Mapping, MutableMapping
+from typing import Iterator, Mapping, MutableMapping
+
+from threadpoolctl import threadpool_limits
 
 #: Environment variable -> value that fixes one math library's kernel choice (see the module docstring).
 PINNED_KERNELS: dict[str, str] = {
@@ -61,3 +66,11 @@ def describe_numerics(environ: Mapping[str, str] | None = None) -> str:
     environ = os.environ if environ is None else environ
     return "numerics: " + ", ".join(f"{name}={environ.get(name, 'unset')}"
                                     for name in (*PINNED_KERNELS, *THREAD_VARIABLES))
+
+
+@contextlib.contextmanager
+def one_math_thread() -> Iterator[None]:
+    """Within the block, the loaded math libraries' thread pools (OpenBLAS, MKL, OpenMP) use one thread,
+    whatever their variables say; restored afterwards (processes forked within inherit the limit)."""
+    with threadpool_limits(limits=1):
+        yield

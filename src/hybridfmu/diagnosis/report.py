@@ -12,6 +12,7 @@ import numpy as np
 from hybridfmu.diagnosis import figures
 from hybridfmu.diagnosis.export import DIAGNOSED_MODEL, save_diagnosed
 from hybridfmu.io import write_json_atomic, write_text_atomic
+from hybridfmu.numerics import one_math_thread
 
 if TYPE_CHECKING:
     from hybridfmu.diagnosis.result import DiagnosisResult, HeldOutCheck
@@ -503,7 +504,8 @@ def diagnose(config: dict[str, Any], fmu_path: str | Path, data_paths: dict[str,
     """
     from hybridfmu.diagnosis.run import analyse
 
-    result = analyse(config, fmu_path, data_paths, segments_paths, calibration_path, workers=workers)
+    with one_math_thread():  # workers are processes: each computes on one thread, as every job does
+        result = analyse(config, fmu_path, data_paths, segments_paths, calibration_path, workers=workers)
     paths = write_outputs(result, config, out_dir)
     if mlflow:
         paths["record"]["mlflow_run_id"] = log_to_mlflow(paths["record"], paths, config)
