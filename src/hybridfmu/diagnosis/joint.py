@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from hybridfmu.diagnosis.effects import Effect
-from hybridfmu.diagnosis.memo import DesignMemo, setting_key
+from hybridfmu.diagnosis.memo import DesignMemo, LruMemo, setting_key
 
 #: Pseudo equation index of the stacked problem (all examined equations at once).
 JOINT = -1
@@ -148,6 +148,8 @@ class StackedCache:
         self._designs = DesignMemo()
         #: results of :func:`hybridfmu.diagnosis.selection.best_setting` by its arguments
         self.best_settings: dict[tuple, tuple] = {}
+        #: the latest fits of :func:`hybridfmu.diagnosis.selection.fit_terms`
+        self.fits = LruMemo()
 
     def _weight(self, equation: int, name: str) -> float:
         std = float(self.maneuvers[name].noise_std[equation])

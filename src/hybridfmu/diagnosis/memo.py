@@ -1,19 +1,23 @@
-"""A memo of the selection's design arrays, per (effect, setting, maneuvers), within a memory budget.
+"""Memos of the selection: design arrays per (effect, setting, maneuvers) within a memory budget, the latest fits.
 
 The forward selection, its exchanges and the refits on each maneuver fit the same effects at the same
 settings many times over; a stacked design (``hybridfmu.diagnosis.joint.StackedCache.design``) depends on
-nothing else, so it is built once. Keys round settings to 12 decimals (:func:`setting_key`).
+nothing else, so it is built once, and a fit the selection has just made is not solved again. Keys round
+settings to 12 decimals (:func:`setting_key`).
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
-from typing import Callable, Hashable
+from typing import Any, Callable, Hashable
 
 import numpy as np
 
 #: Bytes of design arrays a :class:`DesignMemo` keeps (the least recently used go first beyond it).
 DEFAULT_DESIGN_BUDGET_BYTES = 512 * 2 ** 20
+
+#: Entries an :class:`LruMemo` keeps.
+DEFAULT_LRU_ENTRIES = 256
 
 
 def setting_key(setting: dict[str, float]) -> tuple:
@@ -46,3 +50,24 @@ class DesignMemo:
             self._bytes -= dropped.nbytes
         return array
 
+
+class LruMemo:
+    """The latest ``entries`` values by key (the least recently used dropped first)."""
+
+    def __init__(self, entries: int = DEFAULT_LRU_ENTRIES) -> None:
+        self.entries = int(entries)
+        self._values: OrderedDict[Hashable, Any] = OrderedDict()
+
+    def get(self, key: Hashable) -> Any:
+        """The value of ``key``, or None."""
+        value = self._values.get(key)
+        if value is not None:
+            self._values.move_to_end(key)
+        return value
+
+    def put(self, key: Hashable, value: Any) -> None:
+        """Keep ``value`` for ``key``."""
+        self._values[key] = value
+        self._values.move_to_end(key)
+        while len(self._values) > self.entries:
+            self._values.popitem(last=False)

@@ -29,7 +29,7 @@ import logging
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
@@ -38,7 +38,7 @@ from hybridfmu.config import ConfigError
 from hybridfmu.diagnosis.derivatives import smooth_at
 from hybridfmu.diagnosis.effects import Effect, EffectInputs
 from hybridfmu.diagnosis.joint import Block, JointEffect, effect_equations, effect_key
-from hybridfmu.diagnosis.memo import DesignMemo, setting_key
+from hybridfmu.diagnosis.memo import DesignMemo, LruMemo, setting_key
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -117,6 +117,8 @@ class DesignCache:
         self._stacked = DesignMemo()
         #: results of :func:`best_setting` by its arguments (a pure function of them and the data)
         self.best_settings: dict[tuple, tuple] = {}
+        #: the latest fits of :func:`fit_terms`
+        self.fits = LruMemo()
 
     def _one(self, effect: Effect, setting: dict[str, float], name: str) -> np.ndarray:
         key = (effect.name, effect.equation, setting_key(setting), name)
@@ -207,25 +209,28 @@ class LinearFit:
     of all coefficients, computed when first read (most fits of a selection compare residuals only)."""
 
     def __init__(self, coefs: list[np.ndarray], rss: float, n: int, residual: np.ndarray,
-                 scaled_design: np.ndarray | None = None, scale: np.ndarray | None = None) -> None:
+                 covariance: Callable[[], np.ndarray] | None = None) -> None:
         self.coefs = coefs
         self.rss = rss
         self.n = n
         self.residual = residual
-        self._scaled_design = scaled_design
-        self._scale = scale
+        self._covariance = covariance
 
     @cached_property
     def cov(self) -> np.ndarray:
-        """(n_coef, n_coef) covariance of the coefficients: sigma^2 (D^T D)^+ of the column-scaled design D over the
-        scales' outer product, sigma^2 the residual variance (rss over the degrees of freedom)."""
-        if self._scaled_design is None or self._scaled_design.shape[1] == 0:
-            return np.zeros((0, 0))
-        design = self._scaled_design
-        sigma2 = float(self.residual @ self.residual) / max(self.n - design.shape[1], 1)
-        # a general product of two arrays, as ever: NumPy takes a symmetric kernel for D^T D, which rounds otherwise
-        gram = design.T @ design.copy()
-        return sigma2 * np.linalg.pinv(gram) / np.outer(self._scale, self._scale)
+        """(n_coef, n_coef) covariance of the coefficients (:func:`coefficient_covariance`)."""
+        return self._covariance() if self._covariance is not None else np.zeros((0, 0))
+
+
+def coefficient_covariance(scaled: np.ndarray, scale: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    """sigma^2 (D^T D)^+ of the column-scaled design D (n, k) over the scales' (k,) outer product, sigma^2 the
+    residual variance (rss over the n - k degrees of freedom): the covariance (k, k) of a least-squares fit."""
+    if scaled.shape[1] == 0:
+        return np.zeros((0, 0))
+    sigma2 = float(residual @ residual) / max(len(residual) - scaled.shape[1], 1)
+    # a general product of two arrays, as ever: NumPy takes a symmetric kernel for D^T D, which rounds otherwise
+    gram = scaled.T @ scaled.copy()
+    return sigma2 * np.linalg.pinv(gram) / np.outer(scale, scale)
 
 
 def stacked_design(cache: DesignCache, terms: list[Term], equation: int,
@@ -244,11 +249,33 @@ def stacked_design(cache: DesignCache, terms: list[Term], equation: int,
 
 def fit_terms(cache: DesignCache, terms: list[Term], equation: int, names: list[str],
               row_mask: np.ndarray | None = None) -> LinearFit:
-    """Fit the coefficients of ``terms`` (settings fixed) to the equation error of state ``equation``."""
+    """Fit the coefficients of ``terms`` (settings fixed) to the equation error of state ``equation``.
+
+    A fit of all rows is kept by the cache's ``fits`` memo (where it has one) and given again, with new coefficient
+    arrays, when the same terms at the same settings are fitted on the same maneuvers (the selection refits the
+    best setting it has just found)."""
+    memo = getattr(cache, "fits", None) if row_mask is None else None
+    key = (tuple((effect_key(t.effect), setting_key(t.setting)) for t in terms), equation, tuple(names))
+    kept = memo.get(key) if memo is not None else None
+    if kept is not None:
+        coefs, rss, n, residual = kept
+        frozen = [Term(t.effect, dict(t.setting)) for t in terms]
+        return LinearFit([c.copy() for c in coefs], rss, n, residual,
+                         covariance=lambda: _solve(cache, frozen, equation, names, None).cov)
+    fit = _solve(cache, terms, equation, names, row_mask)
+    if memo is not None:
+        fit.residual.setflags(write=False)
+        memo.put(key, (tuple(c.copy() for c in fit.coefs), fit.rss, fit.n, fit.residual))
+    return fit
+
+
+def _solve(cache: DesignCache, terms: list[Term], equation: int, names: list[str],
+           row_mask: np.ndarray | None) -> LinearFit:
+    """The least-squares fit of :func:`fit_terms` (columns scaled to unit norm for the solve)."""
     y, design, sizes = stacked_design(cache, terms, equation, names)
     if row_mask is not None:
         y, design = y[row_mask], design[row_mask]
-    scaled = scale = None
+    covariance = None
     if design.shape[1]:
         scale = np.sqrt(np.sum(design ** 2, axis=0))
         scale[scale == 0] = 1.0
@@ -256,12 +283,15 @@ def fit_terms(cache: DesignCache, terms: list[Term], equation: int, names: list[
         coef_scaled, *_ = np.linalg.lstsq(scaled, y, rcond=None)
         coef = coef_scaled / scale
         residual = y - design @ coef
+
+        def covariance() -> np.ndarray:
+            return coefficient_covariance(scaled, scale, residual)
     else:
         coef = np.zeros(0)
-        residual = y
+        residual = np.array(y, dtype=float)
     splits = np.cumsum(sizes)[:-1] if sizes else []
     return LinearFit(coefs=list(np.split(coef, splits)) if sizes else [], rss=float(residual @ residual),
-                     n=len(y), residual=residual, scaled_design=scaled, scale=scale)
+                     n=len(y), residual=residual, covariance=covariance)
 
 
 #: A candidate whose design columns the other terms' reproduce up to this share of their energy (1 - R^2) cannot be
