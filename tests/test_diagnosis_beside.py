@@ -24,6 +24,18 @@ def test_parts_run_in_other_processes_and_return_their_results():
     assert all(pid != os.getpid() for pid, _ in results.values())
 
 
+@needs_fork
+def test_workers_are_ended_when_the_block_ends_before_the_results():
+    import time
+
+    with Beside({"slow": lambda: time.sleep(60)}, workers=2) as beside:
+        processes = list(beside._pool._processes.values())
+        assert beside.in_workers and processes
+    for process in processes:
+        process.join(timeout=10)
+    assert not any(process.is_alive() for process in processes)
+
+
 def test_one_worker_runs_the_parts_in_the_caller_when_asked():
     ran = []
     beside = Beside({"a": lambda: ran.append("a") or os.getpid()}, workers=1)

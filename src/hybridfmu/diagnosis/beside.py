@@ -30,12 +30,14 @@ def can_fork() -> bool:
 class Beside:
     """Run ``parts`` (key -> function of no arguments returning a picklable result) in ``workers - 1`` forked
     processes, started now; :meth:`results` waits for them. With ``workers`` <= 1 (or no fork) nothing starts
-    and :meth:`results` runs the parts in order in the caller."""
+    and :meth:`results` runs the parts in order in the caller. Used as a context manager, the workers are stopped
+    when the block ends before the results were asked for (e.g. on an error in the caller)."""
 
     def __init__(self, parts: dict[str, Callable[[], Any]], workers: int) -> None:
         self.parts = dict(parts)
         self._futures: dict[str, Future] = {}
         self._pool: ProcessPoolExecutor | None = None
+        self._results: dict[str, Any] | None = None
         if int(workers) > 1 and self.parts and can_fork():
             _PARTS.clear()
             _PARTS.update(self.parts)
@@ -43,17 +45,37 @@ class Beside:
                                              mp_context=multiprocessing.get_context("fork"))
             self._futures = {key: self._pool.submit(_run_part, key) for key in self.parts}
 
+    def __enter__(self) -> "Beside":
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.stop()
+
     @property
     def in_workers(self) -> bool:
         """Whether the parts run in worker processes."""
-        return self._pool is not None
+        return bool(self._futures)
+
+    def stop(self) -> None:
+        """End the workers, parts still running among them; nothing once the results are in or without workers."""
+        if self._pool is None:
+            return
+        processes = list((getattr(self._pool, "_processes", None) or {}).values())
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            if process.is_alive():
+                process.terminate()
+        self._pool = None
+        _PARTS.clear()
 
     def results(self) -> dict[str, Any]:
         """Key -> result of every part (a part's exception is raised here)."""
-        if self._pool is None:
-            return {key: part() for key, part in self.parts.items()}
-        try:
-            return {key: future.result() for key, future in self._futures.items()}
-        finally:
-            self._pool.shutdown()
-            _PARTS.clear()
+        if self._results is None:
+            if self._futures:
+                try:
+                    self._results = {key: future.result() for key, future in self._futures.items()}
+                finally:
+                    self.stop()
+            else:
+                self._results = {key: part() for key, part in self.parts.items()}
+        return self._results

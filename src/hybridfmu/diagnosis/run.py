@@ -261,18 +261,18 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
             return _chosen_names(chosen, problem)
         return select
 
-    separate_selections = Beside({n: alone(n) for n in fit_names} if len(fit_names) > 1 else {}, workers)
-    started = time.perf_counter()
-    selection = select_equation(stacked, JOINT, candidates, fit_names, sel, label="all equations",
-                                calibrate=calibrate)
-    LOGGER.info("selection over %d equations: %d candidates, chosen %s (%.1f s)", len(problem.equations),
-                len(candidates), [t.effect.name for t in selection.terms], time.perf_counter() - started)
-    scores = drop_one_scores(stacked, selection, fit_names) if selection.terms else {}
-    draws = bootstrap_coefficients(stacked, selection.terms, JOINT, fit_names, sel.bootstrap_samples,
-                                   settings["seed"])
-    per_maneuver = {n: _fit_on(stacked, selection, [n], sel) for n in fit_names} \
-        if selection.terms and len(fit_names) > 1 else {}
-    separate: dict[str, dict[str, list[str]]] = separate_selections.results()
+    with Beside({n: alone(n) for n in fit_names} if len(fit_names) > 1 else {}, workers) as separate_selections:
+        started = time.perf_counter()
+        selection = select_equation(stacked, JOINT, candidates, fit_names, sel, label="all equations",
+                                    calibrate=calibrate)
+        LOGGER.info("selection over %d equations: %d candidates, chosen %s (%.1f s)", len(problem.equations),
+                    len(candidates), [t.effect.name for t in selection.terms], time.perf_counter() - started)
+        scores = drop_one_scores(stacked, selection, fit_names) if selection.terms else {}
+        draws = bootstrap_coefficients(stacked, selection.terms, JOINT, fit_names, sel.bootstrap_samples,
+                                       settings["seed"])
+        per_maneuver = {n: _fit_on(stacked, selection, [n], sel) for n in fit_names} \
+            if selection.terms and len(fit_names) > 1 else {}
+        separate: dict[str, dict[str, list[str]]] = separate_selections.results()
     chosen: list[dict[str, Any]] = []
     terms_of: dict[tuple[str, int], Term] = {}
     for j, term in enumerate(selection.terms):
