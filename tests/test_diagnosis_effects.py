@@ -20,7 +20,7 @@ from hybridfmu.diagnosis.selection import Term
 
 @pytest.fixture(scope="module")
 def library():
-    problem, model = msd_problem(equations=["x", "v"], periodic={"x": 1.0})
+    problem, model = msd_problem(equations=["x", "v"], periodic={"x": 1.0}, effects={"periodic_max_order": 12})
     measured = msd_maneuvers(None, duration_s=5.0)
     set_data_statistics(problem, [measured["train"].x], 0.01)
     prepared = prepare_maneuver(measured["train"], model, problem)

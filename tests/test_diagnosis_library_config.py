@@ -32,6 +32,7 @@ def test_the_default_kinds_include_the_input_shapes():
     assert isinstance(settings["coulomb_smoothing_relative"], list) and len(settings["coulomb_smoothing_relative"]) > 1
     assert settings["lag_derivative_window_s"] is None and settings["input_quantiles"]
     assert settings["periodic_harmonics"] == 2
+    assert settings["periodic_max_order"] is None and settings["periodic_orders"] == 3  # orders found in the data
 
 
 @pytest.mark.parametrize("field, value", [
@@ -39,7 +40,7 @@ def test_the_default_kinds_include_the_input_shapes():
     ("coulomb_smoothing_relative", ["a"]), ("stribeck_relative", [0.0]),
     ("input_quantiles", [0.0, 0.5]), ("input_quantiles", [1.2]), ("input_quantiles", 0.3),
     ("lag_derivative_window_s", 0.0), ("lag_derivative_window_s", "5"), ("actuator_lag_samples", [-1]),
-    ("periodic_harmonics", 0), ("periodic_max_order", 2.5),
+    ("periodic_harmonics", 0), ("periodic_max_order", 2.5), ("periodic_orders", 0), ("periodic_orders", True),
 ])
 def test_bad_effect_options_name_the_field(field, value):
     with pytest.raises(ConfigError, match=rf"config\.diagnosis\.effects\.{field}: expected"):

@@ -181,3 +181,77 @@ def test_a_stribeck_peak_is_never_negative_a_damping_is_not_mistaken_for_one():
     fit = fit_terms(cache, [term], 1, ["synthetic"])
     assert effect.admissible(fit.coefs[0], term.setting)
     assert any(not p["admissible"] for p in profile)  # the grid does hold negative peaks, which were passed over
+
+
+# ----------------------------------------------------------------------------- periodic orders found in the data
+
+def _searched_periodic(harmonics: int = 3) -> Periodic:
+    return Periodic(_problem(), 1, 0, 1.0, {"periodic_max_order": None, "periodic_harmonics": harmonics})
+
+
+def test_an_unsearched_periodic_effect_has_no_grid():
+    with pytest.raises(RuntimeError, match="periodic_max_order null"):
+        _searched_periodic().grid()
+
+
+def test_the_orders_found_in_the_data_are_the_term_and_its_harmonic_beside_a_load_trend():
+    """Order 12 with its harmonic 24, on top of a load that rises with the position (a smooth low-order trend):
+    the search gives the selection 12 and 24 among its orders, and the selection fits order 12 with 2 harmonics."""
+    from hybridfmu.diagnosis.periodic_orders import narrow_periodic_orders
+
+    x = _angle_states()
+    term_values = (0.5 * np.sin(2 * math.pi * 12 * x[:, 0] + 0.4) + 0.2 * np.cos(2 * math.pi * 24 * x[:, 0])
+                   + 0.8 * x[:, 0] / x[-1, 0])
+    cache = synthetic_cache(x, term_values, noise=0.01)
+    effect = _searched_periodic()
+    kept, searches, skipped = narrow_periodic_orders([effect], cache, ["synthetic"], 3, effect.problem)
+    assert kept == [effect] and not skipped
+    assert {12, 24} <= set(effect.orders) and len(effect.orders) == 3
+    record = searches["periodic(x) in dv/dt"]
+    assert record["orders"] == effect.orders and record["max_order_resolved"] > 24
+    assert record["explained_share"]["12"] > record["explained_share"]["24"] > 0.01
+    term, report = _report(effect, cache)
+    assert term.setting == {"order": 12.0, "harmonics": 2.0}
+    assert report["amplitude_12"] == pytest.approx(0.5, rel=0.05)
+
+
+def test_the_resolvable_order_is_where_the_selections_own_designs_lose_the_term():
+    """The scan's kernel averages equal the selection's designs of each order (DesignCache): the highest order
+    resolved is the last before the designs keep less than MIN_RELATIVE_ENERGY_RETAINED of the term's energy."""
+    from hybridfmu.diagnosis.periodic_orders import (MIN_RELATIVE_ENERGY_RETAINED, ORDER_LIMIT, averaged_phasors,
+                                                     resolvable_max_order)
+
+    cache = synthetic_cache(_angle_states(), np.zeros(40000), noise=0.01)
+    data = cache.maneuvers["synthetic"]
+    phasors = averaged_phasors([data], 0, 1.0, ORDER_LIMIT)
+    found = resolvable_max_order(phasors, data.kernel)
+    assert 24 < found < ORDER_LIMIT
+    retained = []
+    for k in range(1, found + 2):
+        design = cache.design(_periodic(1, 1), {"order": float(k), "harmonics": 1.0}, ["synthetic"])
+        np.testing.assert_allclose(design, np.stack([phasors[:, k - 1].imag, phasors[:, k - 1].real], axis=1),
+                                   atol=1e-9)
+        retained.append(float(np.mean(np.sum(design ** 2, axis=1))))
+    assert min(retained[:found]) >= MIN_RELATIVE_ENERGY_RETAINED > retained[found]
+
+
+def test_a_period_the_kernel_cannot_resolve_leaves_the_effect_out_with_the_reason():
+    from hybridfmu.diagnosis.periodic_orders import narrow_periodic_orders
+
+    x = _angle_states()
+    x[:, 0] *= 200.0  # hundreds of periods per kernel window
+    cache = synthetic_cache(x, np.zeros(len(x)), noise=0.01)
+    effect = _searched_periodic()
+    kept, searches, skipped = narrow_periodic_orders([effect], cache, ["synthetic"], 3, effect.problem)
+    assert kept == [] and searches["periodic(x) in dv/dt"]["max_order_resolved"] == 0
+    assert "keeps less than 10% of even order 1" in skipped["periodic(x) in dv/dt"]
+
+
+def test_the_strongest_peaks_are_local_maxima_highest_first():
+    from hybridfmu.diagnosis.periodic_orders import strongest_peaks
+
+    spectrum = np.array([0.5, 0.3, 0.2, 0.1, 0.4, 0.05, 0.35, 0.0])
+    assert strongest_peaks(spectrum, 2) == (1, 5)
+    assert strongest_peaks(spectrum, 5) == (1, 5, 7)
+    assert strongest_peaks(np.linspace(0.5, 0.1, 9), 3) == (1,)  # a smooth trend takes one place
+    assert strongest_peaks(np.zeros(4), 3) == ()

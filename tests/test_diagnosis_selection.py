@@ -30,6 +30,9 @@ CASES = {
     "coulomb": (_extra(lambda x, u: -0.4 * np.tanh(x[:, 1] / 0.005)), {}, "coulomb(v)", ("coulomb_level", 0.4)),
     "periodic": (_extra(lambda x, u: 0.6 * np.sin(2 * math.pi * 3 * x[:, 0] / 1.0)),
                  {"periodic": {"x": 1.0}, "effects": {"periodic_max_order": 5}}, "periodic(x)", ("order", 3)),
+    # the orders found in the data (periodic_max_order at its default, null)
+    "periodic_searched": (_extra(lambda x, u: 0.6 * np.sin(2 * math.pi * 3 * x[:, 0] / 1.0)),
+                          {"periodic": {"x": 1.0}}, "periodic(x)", ("order", 3)),
     "saturation": (_extra(lambda x, u: 3.0 * np.maximum(x[:, 0] - 0.3, 0.0)), {"parameters": ["m"]},
                    "saturation_above(x)", ("threshold", 0.3)),
 }

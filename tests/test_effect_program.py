@@ -24,7 +24,7 @@ STATE_KINDS = {"viscous", "quadratic", "polynomial", "coulomb", "scaled_coulomb"
 @pytest.fixture(scope="module")
 def library():
     problem, model = msd_problem(equations=["x", "v"], periodic={"x": 1.0},
-                                 effects={"polynomial_degrees": [2, 3]})
+                                 effects={"polynomial_degrees": [2, 3], "periodic_max_order": 12})
     measured = msd_maneuvers(None, duration_s=5.0)
     set_data_statistics(problem, [measured["train"].x], 0.01)
     prepared = prepare_maneuver(measured["train"], model, problem)

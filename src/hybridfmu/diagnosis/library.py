@@ -38,7 +38,8 @@ state's spread (``diagnosis.effects.coulomb_smoothing_relative``, ``stribeck_rel
 smoothing value fixes it). Periodic terms exist for the states of ``diagnosis.periodic``
 ({state: period}); their grid holds every order k in 1..``periodic_max_order`` with 1..``periodic_harmonics``
 harmonics (settings with different numbers of coefficients are compared by BIC, so a term of order
-12 alone is order 12 with one harmonic). State saturation thresholds are searched over quantiles of
+12 alone is order 12 with one harmonic); with ``periodic_max_order`` null (the default) the orders are the
+strongest peaks of the equation error's spectrum over the position (:mod:`hybridfmu.diagnosis.periodic_orders`). State saturation thresholds are searched over quantiles of
 the state (``saturation_quantiles``); input dead zones over quantiles of |u| and input saturation
 levels over upper/lower quantiles of u (``input_quantiles``, taken along the fitting maneuver the
 library is built on). The input lag's du/dt is the rate of the Savitzky-Golay smoothed logged input
@@ -328,7 +329,11 @@ class ScaledCoulomb(Effect):
 
 class Periodic(StateEffect):
     """A term periodic in a state: order k (periods per configured period P) with h harmonics (orders
-    k, 2k, .., hk), each a sine and a cosine; (k, h) searched over 1..max_order x 1..harmonics."""
+    k, 2k, .., hk), each a sine and a cosine; (k, h) searched over ``orders`` x 1..harmonics.
+
+    ``orders`` is 1..``periodic_max_order`` when that is configured; with it null the orders are found in the
+    data before the selection (:func:`hybridfmu.diagnosis.periodic_orders.narrow_periodic_orders`), and until
+    then ``orders`` is None and the effect has no grid."""
 
     def __init__(self, problem, equation, variable, period, options):
         var = problem.state_names[variable]
@@ -337,12 +342,15 @@ class Periodic(StateEffect):
                          "sum_m a_m sin(m k 2 pi x / P) + b_m cos(m k 2 pi x / P), m = 1..h",
                          problem.rate_unit(equation))
         self.period = float(period)
-        self.max_order = int(options["periodic_max_order"])
+        max_order = options.get("periodic_max_order")
+        self.orders: list[int] | None = list(range(1, int(max_order) + 1)) if max_order is not None else None
         self.harmonics = int(options["periodic_harmonics"])
 
     def grid(self):
-        return [{"order": float(k), "harmonics": float(h)} for k in range(1, self.max_order + 1)
-                for h in range(1, self.harmonics + 1)]
+        if self.orders is None:
+            raise RuntimeError(f"{self.name}: its orders are searched in the data (periodic_max_order null) and "
+                               "have not been (hybridfmu.diagnosis.periodic_orders.narrow_periodic_orders)")
+        return [{"order": float(k), "harmonics": float(h)} for k in self.orders for h in range(1, self.harmonics + 1)]
 
     def _count(self, setting) -> int:
         return int(setting.get("harmonics", self.harmonics))
@@ -1066,7 +1074,8 @@ def build_library(problem: Problem, inputs: EffectInputs, model: Any) -> tuple[d
             if _matches(effect.name, exclude) or _matches(f"{problem.state_names[eq]}:{effect.name}", exclude):
                 skipped[f"{effect.name} in d{problem.state_names[eq]}/dt"] = "excluded by config.diagnosis.exclude"
                 continue
-            if not effect.grid():
+            searched_later = isinstance(effect, Periodic) and effect.orders is None  # orders found in the data
+            if not searched_later and not effect.grid():
                 skipped[f"{effect.name} in d{problem.state_names[eq]}/dt"] = "empty grid of settings"
                 continue
             kept.append(effect)

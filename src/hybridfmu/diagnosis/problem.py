@@ -64,8 +64,11 @@ DEFAULT_EFFECT_OPTIONS: dict[str, Any] = {
     # scale after the grid; a single number fixes it)
     "coulomb_smoothing_relative": [0.001, 0.003, 0.01, 0.03, 0.1],
     "stribeck_relative": [0.005, 0.01, 0.02, 0.05, 0.1, 0.2],
-    "periodic_max_order": 12,         # orders 1..N per period searched, each with 1..periodic_harmonics harmonics
-    "periodic_harmonics": 1,
+    # orders 1..N per period searched, each with 1..periodic_harmonics harmonics; None: the orders are found in
+    # the data (the periodic_orders strongest peaks of the spectrum up to the order the kernel resolves)
+    "periodic_max_order": None,
+    "periodic_harmonics": 3,
+    "periodic_orders": 3,
     "saturation_quantiles": [0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95],
     # quantiles q of a state searched as its upper limit (1 - q as its lower one); refined after the grid
     "limit_quantiles": [0.8, 0.9, 0.95, 0.98, 0.99],
@@ -323,7 +326,7 @@ def check_effect_options(options: dict[str, Any]) -> None:
     if window is not None and (isinstance(window, bool) or not isinstance(window, (int, float)) or not window > 0):
         raise ConfigError(f"{where}.lag_derivative_window_s: expected a positive window in s or null (5 samples), "
                           f"got {window!r}")
-    for key in ("periodic_max_order", "periodic_harmonics"):
+    for key in ("periodic_max_order", "periodic_harmonics", "periodic_orders"):
         value = options.get(key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
             raise ConfigError(f"{where}.{key}: expected an integer of at least 1, got {value!r}")

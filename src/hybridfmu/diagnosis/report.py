@@ -172,6 +172,7 @@ def diagnosis_record(result: DiagnosisResult, config: dict[str, Any]) -> dict[st
             "chosen": which.chosen, "equations": which.equations, "steps": which.steps,
             "calibration": which.calibration,
             "skipped_candidates": which.skipped,
+            "periodic_orders": which.periodic_orders,
             "indistinguishable": which.groups,
         },
         "how_far": None if far is None else held_out_record(far),
@@ -242,6 +243,20 @@ def scaled_size(value: float, unit: str, scale: str | None) -> str:
         LOGGER.debug("no scaled size for %s %s x %s: %s", value, unit, scale, err)
         return "-"
     return f"{preferred.magnitude:.4g} {preferred.units:~P}"
+
+
+def periodic_order_lines(searches: dict[str, dict[str, Any]]) -> list[str]:
+    """Markdown lines on the periodic orders found in the data (``which.periodic_orders``); none when every
+    periodic effect's orders were configured."""
+    if not searches:
+        return []
+    lines = ["Periodic orders found in the equation errors of the fitting maneuvers (not configured):", ""]
+    for label, found in searches.items():
+        shares = ", ".join(f"{k} ({100 * found['explained_share'][str(k)]:.2g} % of the error's energy)"
+                           for k in found["orders"])
+        lines.append(f"- {label}: orders up to {found['max_order_resolved']} resolved by the fitting kernel; "
+                     f"searched: {shares or 'none'}")
+    return lines + [""]
 
 
 def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
@@ -365,6 +380,7 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
         lines.append("")
     if which["skipped_candidates"]:
         lines += ["Left out: " + "; ".join(f"{k} ({v})" for k, v in which["skipped_candidates"].items()), ""]
+    lines += periodic_order_lines(which.get("periodic_orders") or {})
     far = record.get("how_far")
     if far:
         signals = [prob["signals"][s] for s in prob["targets"]]

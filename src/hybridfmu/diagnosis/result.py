@@ -37,6 +37,8 @@ class EffectSelection:
         cache: the per-equation designs the selection worked on (for the figures).
         n_candidates: how many candidates were examined.
         groups: effects the data cannot tell apart (correlated estimates), each with its pairs.
+        periodic_orders: per periodic effect whose orders were searched in the data (``<effect> in d<state>/dt``):
+            the highest order resolved, the orders searched and their explained shares.
     """
 
     chosen: list[dict[str, Any]]
@@ -48,6 +50,7 @@ class EffectSelection:
     cache: DesignCache
     n_candidates: int
     groups: list[dict[str, Any]]
+    periodic_orders: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     @property
     def found_effects(self) -> list[str]:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -28,6 +29,7 @@ from hybridfmu.diagnosis.joint import JOINT, StackedCache, effect_equations, eff
 from hybridfmu.diagnosis.library import build_library
 from hybridfmu.diagnosis.inputs import CaseInputs, load_inputs
 from hybridfmu.diagnosis.open_loop import error_growth, how_far, how_far_not_run
+from hybridfmu.diagnosis.periodic_orders import narrow_periodic_orders
 from hybridfmu.diagnosis.prepare import (MeasuredManeuver, PreparedManeuver, fill_unmeasured, kernel_samples,
                                          prepare_maneuver)
 from hybridfmu.diagnosis.problem import Problem, set_data_statistics
@@ -228,19 +230,44 @@ def _chosen_names(selection: EquationSelection, problem: Problem) -> dict[str, l
     return out
 
 
+@dataclass
+class SelectionInputs:
+    """What the selection works on.
+
+    Attributes:
+        cache: the per-equation designs of every prepared maneuver.
+        stacked: all examined equations stacked.
+        candidates: the candidate effects (model-wide ones joined over their equations), periodic ones with the
+            orders found on the fitting maneuvers where they are not configured.
+        calibrate: the parameter errors calibrated from the start (empty unless ``selection.calibrate_parameters``).
+        skipped: the library's entries left out -> why.
+        periodic_orders: per periodic effect whose orders were searched in the data, what the search found
+            (:meth:`hybridfmu.diagnosis.periodic_orders.OrderSearch.record`).
+    """
+
+    cache: DesignCache
+    stacked: StackedCache
+    candidates: list[Any]
+    calibrate: list[Any]
+    skipped: dict[str, str]
+    periodic_orders: dict[str, dict[str, Any]]
+
+
 def selection_inputs(prepared: dict[str, PreparedManeuver], fit_names: list[str], problem: Problem, model: Any
-                     ) -> tuple[DesignCache, StackedCache, list[Any], list[Any], dict[str, str]]:
-    """What the selection works on: the per-equation designs, all examined equations stacked, the candidate
-    effects (model-wide ones joined over their equations), the parameter errors calibrated from the start
-    (empty unless ``selection.calibrate_parameters``) and the library's skipped entries with their reasons."""
+                     ) -> SelectionInputs:
+    """The library built on the fitting maneuvers, its designs, and the orders of periodic effects found in the
+    equation errors of the fitting maneuvers ``fit_names`` (never the test ones)."""
     sel = SelectionSettings.from_config(problem.settings.get("selection"))
     library, skipped = build_library(problem, prepared[fit_names[0]].inputs, model)
     cache = DesignCache([prepared[n].fit for n in prepared])
     stacked = StackedCache(cache, problem.equations)
     candidates = joint_candidates(library, problem.equations)
+    candidates, periodic, unresolved = narrow_periodic_orders(
+        candidates, cache, fit_names, int(problem.settings["effects"]["periodic_orders"]), problem)
+    skipped.update(unresolved)
     calibrate = [c for c in candidates if c.kind == "parameter"] if sel.calibrate_parameters else []
     candidates = [c for c in candidates if not any(c is b for b in calibrate)]
-    return cache, stacked, candidates, calibrate, skipped
+    return SelectionInputs(cache, stacked, candidates, calibrate, skipped, periodic)
 
 
 def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], problem: Problem,
@@ -252,7 +279,8 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
     (:mod:`hybridfmu.diagnosis.beside`; the same results)."""
     settings = problem.settings
     sel = SelectionSettings.from_config(settings.get("selection"))
-    cache, stacked, candidates, calibrate, skipped = selection_inputs(prepared, fit_names, problem, model)
+    inputs = selection_inputs(prepared, fit_names, problem, model)
+    cache, stacked, candidates, calibrate = inputs.cache, inputs.stacked, inputs.candidates, inputs.calibrate
 
     def alone(name: str) -> Callable[[], dict[str, list[str]]]:
         def select() -> dict[str, list[str]]:
@@ -336,8 +364,10 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
     groups = indistinguishable_groups([t.effect.name for t in selection.terms],
                                       [len(t.coef) for t in selection.terms], selection.fit.cov) \
         if selection.terms else []
-    return EffectSelection(chosen=chosen, equations=equations, steps=steps, calibration=calibration, skipped=skipped,
-                           terms=terms, cache=cache, n_candidates=len(candidates) + len(calibrate), groups=groups)
+    return EffectSelection(chosen=chosen, equations=equations, steps=steps, calibration=calibration,
+                           skipped=inputs.skipped, terms=terms, cache=cache,
+                           n_candidates=len(candidates) + len(calibrate), groups=groups,
+                           periodic_orders=inputs.periodic_orders)
 
 
 # ----------------------------------------------------------------------------- how far
