@@ -145,3 +145,51 @@ def test_a_hybrids_physical_layer_is_chosen_when_no_finalist_beats_it(tmp_path):
     assert chosen_by_text(choice) == ("open loop over the whole train and validation maneuvers (error 0.5 of the "
                                       "FMU's; the physical layer (ANN at zero), among 2 candidates: the finalists and "
                                       "the physical layer)")
+
+
+def _scored(trial_id, score, ratios, objective=0.1):
+    """A candidate entry as score_model writes it: ratios {maneuver: {state: ratio}}."""
+    return {"trial_id": trial_id, "score": score, "objective": objective, "objective_rank": 1,
+            "maneuvers": {name: {"ratio": None if None in r.values() else sum(r.values()) / len(r), "ratios": r}
+                          for name, r in ratios.items()}}
+
+
+def test_a_finalist_worse_than_the_physical_layer_on_one_maneuver_cannot_replace_it(tmp_path):
+    """b0c1 has the smaller score but is worse than the physical layer in the angle of the validation maneuver: the
+    choice takes b0c2, which is worse nowhere; without b0c2 it takes the physical layer. finalists.json says where."""
+    from hybridfmu.training.finalists import choose_among_candidates, worse_than
+
+    layer = {**_scored("physical_layer", 0.5, {"train": {"theta": 0.5, "omega": 0.6},
+                                                 "validation": {"theta": 0.4, "omega": 0.5}}), "objective": None}
+    better_overall = _scored("b0c1", 0.3, {"train": {"theta": 0.1, "omega": 0.2},
+                                           "validation": {"theta": 0.41, "omega": 0.3}})
+    worse_nowhere = _scored("b0c2", 0.45, {"train": {"theta": 0.5, "omega": 0.55},
+                                           "validation": {"theta": 0.4, "omega": 0.45}})
+    diverged = _scored("b1c0", None, {"train": {"theta": None, "omega": None},
+                                      "validation": {"theta": None, "omega": None}})
+    assert worse_than(better_overall, layer) == ["validation: theta"]
+    assert worse_than(worse_nowhere, layer) == [] and worse_than(layer, layer) == []
+    assert worse_than(diverged, layer) == ["train: theta", "train: omega", "validation: theta", "validation: omega"]
+
+    class Roles:
+        def weights_with(self, overrides):
+            return {"theta": 0.5, "omega": 0.5}
+
+    plan = tmp_path / "plan.json"
+    write_json_atomic(plan, {"objective": {"loss": "MAE"}})
+
+    def choose(entries):
+        paths = []
+        for entry in entries:
+            paths.append(tmp_path / f"{entry['trial_id']}.json")
+            write_json_atomic(paths[-1], {"candidate": entry["trial_id"], **entry})
+        return choose_among_candidates(candidate_paths=paths, maneuvers=["train", "validation"], top=3,
+                                       plan_path=plan, roles=Roles(), scores_path=tmp_path / "finalists.json")
+
+    record = choose([better_overall, worse_nowhere, diverged, layer])
+    assert record["chosen"] == "b0c2"
+    assert record["physical_layer"]["beaten_by"] == ["b0c2"]
+    assert record["physical_layer"]["worse_on"] == {"b0c1": ["validation: theta"],
+                                                    "b1c0": worse_than(diverged, layer)}
+    assert choose([better_overall, layer])["chosen"] == "physical_layer"
+    assert choose([better_overall])["chosen"] == "b0c1"  # a search without a physical layer: the smallest score

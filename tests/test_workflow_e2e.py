@@ -453,7 +453,11 @@ def test_the_hybrids_physical_layer_competes_in_its_final_choice(tiny_run, tmp_p
     assert layer["score"] is not None and scores["physical_layer"]["score"] == layer["score"]
     best = json.loads(best_path.read_text())
     assert best["trial_id"] == scores["chosen"]
-    if finalist["score"] is not None and finalist["score"] < layer["score"]:
+    from hybridfmu.training.finalists import worse_than
+
+    worse = worse_than(finalist, layer)
+    assert scores["physical_layer"]["worse_on"] == ({finalist["trial_id"]: worse} if worse else {})
+    if finalist["score"] is not None and finalist["score"] < layer["score"] and not worse:
         assert best["trial_id"] == finalist["trial_id"] and scores["physical_layer"]["beaten_by"] == [best["trial_id"]]
     else:  # the hybrid is its physical layer, and loads as a model like any trial
         assert best["trial_id"] == "physical_layer" and best["selection"]["objective_rank"] is None

@@ -494,10 +494,11 @@ def chosen_by_text(selection: dict[str, Any] | None) -> str:
             f"{_number(selection['score'], 3)} of the FMU's; {rank_text} among {among})")
 
 
-#: What the report says when a hybrid's search chose its physical layer (no trained configuration beat it).
+#: What the report says when a hybrid's search chose its physical layer (no trained configuration beat it without
+#: being worse on one of the whole maneuvers).
 PHYSICAL_LAYER_CHOSEN = ("No trained configuration of the hybrid's search beat its physical layer over the whole "
-                         "train and validation maneuvers: the hybrid is the FMU + effects with its ANN at zero (the "
-                         "ANN adds nothing here).")
+                         "train and validation maneuvers without being worse on one of them: the hybrid is the FMU + "
+                         "effects with its ANN at zero (the ANN adds nothing here).")
 
 
 def hybrid_estimates(path: str | Path | None) -> dict[str, dict[str, Any]] | None:

@@ -14,9 +14,12 @@ the smallest fraction of the FMU's is chosen:
 - a finalist that diverges or leaves the finite range scores infinity.
 
 A hybrid's search scores one more candidate the same way: its **physical layer** (the FMU plus the diagnosed
-effects under the untrained ANN, whose output is exactly zero; its delays at their start values). When no
-trained configuration beats it over the whole maneuvers, it is chosen: the hybrid is then its physical layer and
-the report says so. The chosen hybrid is never worse than its own physics on the maneuvers the choice sees.
+effects under the untrained ANN, whose output is exactly zero; its delays at their start values). A trained
+configuration may replace it only if it is no worse than the physical layer on **every** maneuver of the choice in
+**every** target state (its error ratio against the FMU at most the layer's), and then only with a smaller score.
+When none qualifies, the physical layer is chosen: the hybrid is then its own physics, and the report says so. The
+chosen hybrid is therefore never worse than its physical layer on any whole maneuver the choice sees, in any target
+(:func:`worse_than`).
 """
 
 from __future__ import annotations
@@ -125,6 +128,23 @@ def choose_finalist(scored: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
         return None
     return min(finite, key=lambda entry: (float(entry["score"]), math.inf if entry.get("objective") is None
                                           else float(entry["objective"])))
+
+
+def worse_than(entry: dict[str, Any], reference: dict[str, Any]) -> list[str]:
+    """Where a scored candidate is worse than ``reference`` (a hybrid's physical layer): ``"<maneuver>: <state>"`` for
+    every maneuver and target state whose error ratio against the FMU exceeds the reference's. A ratio that is None or
+    not finite (diverged) is worse than any finite one; where the reference diverged nothing is worse. Entries as
+    :func:`score_model` writes them (``maneuvers.<name>.ratios.<state>``)."""
+    def ratio(value: Any) -> float:
+        return math.inf if value is None or not math.isfinite(float(value)) else float(value)
+
+    worse = []
+    for name, item in reference.get("maneuvers", {}).items():
+        mine = ((entry.get("maneuvers") or {}).get(name) or {}).get("ratios") or {}
+        for state, value in (item.get("ratios") or {}).items():
+            if ratio(mine.get(state)) > ratio(value):
+                worse.append(f"{name}: {state}")
+    return worse
 
 
 def score_model(model: Any, maneuvers: dict[str, tuple[Any, np.ndarray]], roles: Any, calibration: Any,
@@ -321,17 +341,26 @@ def choose_among_candidates(*, candidate_paths: Sequence[str | Path], maneuvers:
         scored.append(entry)
         if entry["trial_id"] == PHYSICAL_LAYER_ID:
             layer_entry = entry
-    chosen = choose_finalist(scored)
+    worse_on = {} if layer_entry is None else \
+        {entry["trial_id"]: worse_than(entry, layer_entry) for entry in scored if entry is not layer_entry}
+    admissible = [entry for entry in scored if not worse_on.get(entry["trial_id"])]
+    chosen = choose_finalist(admissible)
     record = {"maneuvers": list(maneuvers), "top": top, "objective": objective.to_dict(),
               "finalists": scored, "chosen": None if chosen is None else chosen["trial_id"]}
     if layer_entry is not None:
         record["physical_layer"] = {"score": layer_entry["score"],
-                                    "beaten_by": [entry["trial_id"] for entry in scored if entry is not layer_entry
+                                    "beaten_by": [entry["trial_id"] for entry in admissible if entry is not layer_entry
                                                   and entry["score"] is not None and layer_entry["score"] is not None
-                                                  and float(entry["score"]) < float(layer_entry["score"])]}
+                                                  and float(entry["score"]) < float(layer_entry["score"])],
+                                    "worse_on": {trial: where for trial, where in worse_on.items() if where}}
+        for trial, where in worse_on.items():
+            if where:
+                LOG.info("finalist %s is worse than the physical layer on %s: it cannot be chosen", trial,
+                         ", ".join(where))
         if chosen is layer_entry:
-            LOG.warning("no trained configuration beats the physical layer over the whole maneuvers %s: the hybrid "
-                        "is its physical layer (the FMU + effects, ANN at zero)", list(maneuvers))
+            LOG.warning("no trained configuration is better than the physical layer over the whole maneuvers %s "
+                        "without being worse on one of them: the hybrid is its physical layer (the FMU + effects, "
+                        "ANN at zero)", list(maneuvers))
     write_json_atomic(scores_path, finite_or_null(record))
     if chosen is None:
         LOG.warning("every finalist diverged over the whole maneuvers; the search falls back to the objective")
@@ -358,15 +387,16 @@ def score_finalists(*, plan_path: str | Path, selection_paths: Sequence[str | Pa
         scores_path: output JSON; the candidates' own files go to ``finalists/<candidate>.json`` beside it.
         diagnosed_path: the diagnosed model under a hybrid's ANN (search "hybrid"), else None.
         physical_layer_path: for a hybrid's search, its physical layer's checkpoint
-            (:func:`write_physical_layer_checkpoint`): scored too and chosen when no finalist beats it; None: the
-            finalists alone.
+            (:func:`write_physical_layer_checkpoint`): scored too, and chosen unless a finalist beats it without
+            being worse on any maneuver; None: the finalists alone.
 
     Writes ``scores_path``: ``{"maneuvers", "top", "objective", "finalists": [{"trial_id", "bracket",
     "config", "rung", "objective", "objective_rank", "checkpoint", "maneuvers": {name: {"ratio",
     "ratios"}}, "score"}], "chosen"}`` (a diverged finalist's ratios and score are null; ``chosen``: a trial
     id, or None when every finalist diverged); with ``physical_layer_path`` the physical layer is the last finalist
     (trial id :data:`PHYSICAL_LAYER_ID`, with what a best.json needs of it) and ``physical_layer`` holds its
-    ``score`` and the finalists that beat it (``beaten_by``).
+    ``score``, the finalists that beat it (``beaten_by``: a smaller score and worse on no maneuver) and where the
+    others are worse than it (``worse_on``: trial id -> ``"<maneuver>: <state>"``; :func:`worse_than`).
     Returns it.
     """
     folder = Path(scores_path).parent / "finalists"

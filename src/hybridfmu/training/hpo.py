@@ -322,7 +322,7 @@ def finalist_choice(finalists_path: str | Path, ranked: list[dict[str, Any]]) ->
         return ranked[0], {"by": "objective", "maneuvers": scores.get("maneuvers"), "finalists": finalists}
     by_trial = {r["trial_id"]: r for r in ranked}
     layer = next((f for f in scores["finalists"] if f["trial_id"] == PHYSICAL_LAYER_ID), None)
-    if layer is not None:  # a hybrid's physical layer, chosen when no trained configuration beats it
+    if layer is not None:  # a hybrid's physical layer, chosen unless a finalist beats it on every maneuver (finalists.worse_than)
         by_trial[PHYSICAL_LAYER_ID] = layer
     if scores["chosen"] not in by_trial:
         raise ValueError(f"{finalists_path}: chosen trial {scores['chosen']!r} is not among the search's last-rung "
