@@ -30,6 +30,7 @@ from hybridfmu.diagnosis.effects import EffectInputs, input_derivative
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.selection import Term
 from hybridfmu.fmu.bridge import FmuModel
+from hybridfmu.fmu.simulate import simulate_open_loop
 from hybridfmu.fmu.effect_program import EffectProgram, EffectTerm
 from hybridfmu.runge_kutta import RK4, numpy_axpy
 
@@ -68,8 +69,6 @@ def rk4_simulate(model: Any, time_s: np.ndarray, u: np.ndarray, x0: np.ndarray,
 
 def simulator_for(model: Any) -> Callable:
     """``hybridfmu.fmu.simulate_open_loop`` for an FMU, :func:`rk4_simulate` for any other model."""
-    from hybridfmu.fmu import FmuModel, simulate_open_loop
-
     return simulate_open_loop if isinstance(model, FmuModel) else rk4_simulate
 
 

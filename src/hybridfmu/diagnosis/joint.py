@@ -146,8 +146,6 @@ class StackedCache:
         self.equations = list(equations)
         self.maneuvers = base.maneuvers
         self._designs = DesignMemo()
-        #: results of :func:`hybridfmu.diagnosis.selection.best_setting` by its arguments
-        self.best_settings: dict[tuple, tuple] = {}
         #: the latest fits of :func:`hybridfmu.diagnosis.selection.fit_terms`
         self.fits = LruMemo()
 

@@ -38,7 +38,7 @@ from hybridfmu.config import ConfigError
 from hybridfmu.diagnosis.derivatives import smooth_at
 from hybridfmu.diagnosis.effects import Effect, EffectInputs
 from hybridfmu.diagnosis.joint import Block, JointEffect, effect_equations, effect_key
-from hybridfmu.diagnosis.memo import DesignMemo, LruMemo, setting_key
+from hybridfmu.diagnosis.memo import LruMemo, setting_key
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -114,9 +114,6 @@ class DesignCache:
     def __init__(self, maneuvers: list[ManeuverFitData]) -> None:
         self.maneuvers = {m.name: m for m in maneuvers}
         self._cache: dict[tuple, np.ndarray] = {}
-        self._stacked = DesignMemo()
-        #: results of :func:`best_setting` by its arguments (a pure function of them and the data)
-        self.best_settings: dict[tuple, tuple] = {}
         #: the latest fits of :func:`fit_terms`
         self.fits = LruMemo()
 
@@ -139,8 +136,7 @@ class DesignCache:
         """Stacked (n, n_coef) kernel-averaged regressors over the maneuvers ``names`` (read-only)."""
         if len(names) == 1:
             return self._one(effect, setting, names[0])
-        return self._stacked.get((effect.name, effect.equation, setting_key(setting), tuple(names)),
-                                 lambda: np.concatenate([self._one(effect, setting, name) for name in names], axis=0))
+        return np.concatenate([self._one(effect, setting, name) for name in names], axis=0)
 
     def target(self, equation: int, names: list[str]) -> np.ndarray:
         """(n,) kernel-averaged equation error of state ``equation`` at the centres of ``names``."""
@@ -255,17 +251,18 @@ def fit_terms(cache: DesignCache, terms: list[Term], equation: int, names: list[
     arrays, when the same terms at the same settings are fitted on the same maneuvers (the selection refits the
     best setting it has just found)."""
     memo = getattr(cache, "fits", None) if row_mask is None else None
+    if memo is None:
+        return _solve(cache, terms, equation, names, row_mask)
     key = (tuple((effect_key(t.effect), setting_key(t.setting)) for t in terms), equation, tuple(names))
-    kept = memo.get(key) if memo is not None else None
+    kept = memo.get(key)
     if kept is not None:
         coefs, rss, n, residual = kept
         frozen = [Term(t.effect, dict(t.setting)) for t in terms]
         return LinearFit([c.copy() for c in coefs], rss, n, residual,
                          covariance=lambda: _solve(cache, frozen, equation, names, None).cov)
     fit = _solve(cache, terms, equation, names, row_mask)
-    if memo is not None:
-        fit.residual.setflags(write=False)
-        memo.put(key, (tuple(c.copy() for c in fit.coefs), fit.rss, fit.n, fit.residual))
+    fit.residual.setflags(write=False)
+    memo.put(key, (tuple(c.copy() for c in fit.coefs), fit.rss, fit.n, fit.residual))
     return fit
 
 
@@ -471,23 +468,6 @@ def _structure(effect: Effect, setting: dict[str, float]) -> tuple:
 
 
 def best_setting(cache: DesignCache, active: list[Term], effect: Effect, equation: int, names: list[str],
-                 iterations: int, refine: bool = True) -> tuple[Term, float, list[dict[str, Any]]]:
-    """:func:`find_best_setting`, computed once per (the active terms' effects and settings, effect, equation,
-    maneuvers, iterations, refine) and cache: the forward steps, the exchanges and the polish ask for the same
-    candidate beside the same terms many times. Returns a new term and profile at every call."""
-    key = (tuple((effect_key(t.effect), setting_key(t.setting)) for t in active), effect_key(effect), equation,
-           tuple(names), int(iterations), bool(refine))
-    memo = getattr(cache, "best_settings", None)
-    if memo is None:
-        return find_best_setting(cache, active, effect, equation, names, iterations, refine)
-    if key not in memo:
-        memo[key] = find_best_setting(cache, active, effect, equation, names, iterations, refine)
-    term, rss, profile = memo[key]
-    return (Term(term.effect, dict(term.setting), term.coef.copy(), dict(term.setting_se)), rss,
-            [{**row, "setting": dict(row["setting"])} for row in profile])
-
-
-def find_best_setting(cache: DesignCache, active: list[Term], effect: Effect, equation: int, names: list[str],
                       iterations: int, refine: bool = True) -> tuple[Term, float, list[dict[str, Any]]]:
     """Best nonlinear setting of ``effect`` added to ``active``: (term, rss, profile over the grid).
 
