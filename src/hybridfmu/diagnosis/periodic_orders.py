@@ -59,7 +59,8 @@ class OrderSearch:
 
 
 def _window_phases(data: ManeuverFitData, variable: int, period: float) -> np.ndarray:
-    """(K, W) phase 2 pi x / P of state ``variable`` in the kernel window of each of the K fitting centres."""
+    """(n_centres, W) phase 2 pi x / P of state ``variable`` in the kernel window (W samples) of each fitting
+    centre of ``data``."""
     width = len(data.kernel)
     rows = np.asarray(data.centres, dtype=int)[:, None] + np.arange(width)[None, :] - width // 2
     return 2.0 * math.pi * np.asarray(data.inputs.x[rows, variable], dtype=float) / period
@@ -69,7 +70,7 @@ def averaged_phasors(maneuvers: list[ManeuverFitData], variable: int, period: fl
                      ) -> np.ndarray:
     """Kernel averages of exp(i k 2 pi x / P) at the fitting centres of ``maneuvers``, orders k = 1..``max_order``.
 
-    Returns (sum of K, max_order) complex: the real part is the averaged cosine regressor, the imaginary part the
+    Returns (n_centres summed over the maneuvers, max_order) complex: the real part is the averaged cosine regressor, the imaginary part the
     averaged sine, as :class:`hybridfmu.diagnosis.library.Periodic` fits them (orders are built by repeated
     multiplication; they differ from direct evaluation by rounding only).
     """
@@ -87,10 +88,11 @@ def averaged_phasors(maneuvers: list[ManeuverFitData], variable: int, period: fl
 
 
 def retained_energy(phasors: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """(K,) share of each order's energy the kernel averages keep, mean over the centres: 1 where x stands
+    """(n_orders,) share of each order's energy the kernel averages keep, mean over the centres: 1 where x stands
     still in every window, near 0 where the order's period passes many times within one.
 
-    ``phasors``: (n, K) from :func:`averaged_phasors`; ``kernel``: (W,) the weights they were averaged with.
+    ``phasors``: (n_centres, n_orders) from :func:`averaged_phasors`; ``kernel``: (W,) the weights they were
+    averaged with.
     """
     return np.mean(np.abs(phasors) ** 2, axis=0) / float(np.sum(kernel)) ** 2 if len(phasors) else \
         np.zeros(phasors.shape[1])
@@ -99,7 +101,8 @@ def retained_energy(phasors: np.ndarray, kernel: np.ndarray) -> np.ndarray:
 def resolvable_max_order(phasors: np.ndarray, kernel: np.ndarray) -> int:
     """The largest order k such that the kernel averages keep at least ``MIN_RELATIVE_ENERGY_RETAINED`` of the
     energy of every order 1..k (the scan upward stops at the first order below); 0 when order 1 already falls
-    below (the data do not resolve the period at all). ``phasors``: (n, K) up to the highest order scanned."""
+    below (the data do not resolve the period at all). ``phasors``: (n_centres, n_orders) up to the highest order
+    scanned."""
     below = np.flatnonzero(retained_energy(phasors, kernel) < MIN_RELATIVE_ENERGY_RETAINED)
     return int(below[0]) if len(below) else phasors.shape[1]
 
@@ -107,7 +110,8 @@ def resolvable_max_order(phasors: np.ndarray, kernel: np.ndarray) -> int:
 def order_spectrum(phasors: np.ndarray, target: np.ndarray) -> np.ndarray:
     """Share of the energy of ``target`` (n,) that a sine and a cosine of each order explain on their own.
 
-    ``phasors``: (n, K) complex kernel-averaged exp(i k 2 pi x / P) (:func:`averaged_phasors`) -> (K,) in 0..1.
+    ``phasors``: (n, n_orders) complex kernel-averaged exp(i k 2 pi x / P) (:func:`averaged_phasors`) ->
+    (n_orders,) in 0..1.
     """
     energy = float(target @ target)
     shares = np.zeros(phasors.shape[1])
@@ -126,7 +130,7 @@ def order_spectrum(phasors: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def strongest_peaks(spectrum: np.ndarray, count: int) -> tuple[int, ...]:
-    """The orders (1-based) of the ``count`` highest local maxima of ``spectrum`` (K,), highest first.
+    """The orders (1-based) of the ``count`` highest local maxima of ``spectrum`` (n_orders,), highest first.
 
     A local maximum is at least as high as both neighbours (the ends compare with their one neighbour), so a
     smooth trend over the low orders (a load that rises with the position) takes one place, not all of them.
