@@ -45,7 +45,7 @@ def diagnosed():
     """A diagnosed model of the mass-spring-damper with an additive term of every shape the library fits by row
     (Coulomb with a Stribeck peak, friction scaled by |F|, periodic, viscous), a parameter error, an input gain
     and a time offset."""
-    problem, model = msd_problem(equations=["x", "v"], periodic={"x": 1.0})
+    problem, model = msd_problem(equations=["x", "v"], periodic={"x": 1.0}, effects={"periodic_max_order": 12})
     measured = msd_maneuvers(None, duration_s=5.0)
     set_data_statistics(problem, [measured["train"].x], H)
     prepared = prepare_maneuver(measured["train"], model, problem)
