@@ -36,6 +36,23 @@ def test_workers_are_ended_when_the_block_ends_before_the_results():
     assert not any(process.is_alive() for process in processes)
 
 
+@needs_fork
+def test_a_worker_that_ignores_sigterm_is_killed_when_the_block_ends():
+    """Forked workers inherit the caller's signal handlers: one that survives SIGTERM (a handler doing nothing, as a
+    library may install) is killed, so no worker outlives its block."""
+    import signal
+    import time
+
+    previous = signal.signal(signal.SIGTERM, lambda *_: None)
+    try:
+        with Beside({"slow": lambda: time.sleep(60)}, workers=2) as beside:
+            processes = list(beside._pool._processes.values())
+            time.sleep(0.5)  # the worker is in the part, with the inherited handler
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert processes and not any(process.is_alive() for process in processes)
+
+
 def test_one_worker_runs_the_parts_in_the_caller_when_asked():
     ran = []
     beside = Beside({"a": lambda: ran.append("a") or os.getpid()}, workers=1)

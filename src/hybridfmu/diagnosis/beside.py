@@ -14,6 +14,9 @@ import multiprocessing
 from concurrent.futures import Future, ProcessPoolExecutor
 from typing import Any, Callable
 
+#: Seconds a stopped worker is given to end after SIGTERM (and after SIGKILL) before the caller goes on.
+STOP_GRACE_S = 5.0
+
 #: The parts of the running :class:`Beside`, read by the forked workers (set before they are forked).
 _PARTS: dict[str, Callable[[], Any]] = {}
 
@@ -65,6 +68,11 @@ class Beside:
         for process in processes:
             if process.is_alive():
                 process.terminate()
+        for process in processes:  # a worker that inherited a handler of SIGTERM may outlive it: kill it
+            process.join(timeout=STOP_GRACE_S)
+            if process.is_alive():
+                process.kill()
+                process.join(timeout=STOP_GRACE_S)
         self._pool = None
         _PARTS.clear()
 
