@@ -39,7 +39,8 @@ smoothing value fixes it). Periodic terms exist for the states of ``diagnosis.pe
 ({state: period}); their grid holds every order k in 1..``periodic_max_order`` with 1..``periodic_harmonics``
 harmonics (settings with different numbers of coefficients are compared by BIC, so a term of order
 12 alone is order 12 with one harmonic); with ``periodic_max_order`` null (the default) the orders are the
-strongest peaks of the equation error's spectrum over the position (:mod:`hybridfmu.diagnosis.periodic_orders`). State saturation thresholds are searched over quantiles of
+strongest peaks of the equation error's spectrum over the position (:mod:`hybridfmu.diagnosis.periodic_orders`).
+State saturation thresholds are searched over quantiles of
 the state (``saturation_quantiles``); input dead zones over quantiles of |u| and input saturation
 levels over upper/lower quantiles of u (``input_quantiles``, taken along the fitting maneuver the
 library is built on). The input lag's du/dt is the rate of the Savitzky-Golay smoothed logged input

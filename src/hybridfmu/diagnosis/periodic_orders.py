@@ -70,8 +70,8 @@ def averaged_phasors(maneuvers: list[ManeuverFitData], variable: int, period: fl
                      ) -> np.ndarray:
     """Kernel averages of exp(i k 2 pi x / P) at the fitting centres of ``maneuvers``, orders k = 1..``max_order``.
 
-    Returns (n_centres summed over the maneuvers, max_order) complex: the real part is the averaged cosine regressor, the imaginary part the
-    averaged sine, as :class:`hybridfmu.diagnosis.library.Periodic` fits them (orders are built by repeated
+    Returns (n_centres summed over the maneuvers, max_order) complex: the real part is the averaged cosine
+    regressor, the imaginary part the averaged sine, as :class:`hybridfmu.diagnosis.library.Periodic` fits them (orders are built by repeated
     multiplication; they differ from direct evaluation by rounding only).
     """
     columns = []
@@ -145,14 +145,13 @@ def strongest_peaks(spectrum: np.ndarray, count: int) -> tuple[int, ...]:
     return tuple(peaks[:count])
 
 
-def search_orders(cache: DesignCache, names: list[str], equation: int, variable: int, period: float,
+def search_orders(cache: DesignCache, names: list[str], equation: int, phasors: np.ndarray,
                   count: int) -> OrderSearch:
-    """The order search for the periodic effect of state ``variable`` (period ``period``) in ``equation``, on the
-    fitting maneuvers ``names`` of ``cache``: the resolvable order, then the ``count`` strongest peaks of the
-    equation error's spectrum up to it."""
-    maneuvers = [cache.maneuvers[n] for n in names]
-    phasors = averaged_phasors(maneuvers, variable, period, ORDER_LIMIT)
-    max_order = resolvable_max_order(phasors, maneuvers[0].kernel)
+    """The order search for a periodic effect in ``equation`` on the fitting maneuvers ``names`` of ``cache``: the
+    resolvable order, then the ``count`` strongest peaks of the equation error's spectrum up to it. ``phasors``:
+    (n_centres, ORDER_LIMIT) of the effect's state over ``names`` (:func:`averaged_phasors`; the same for every
+    equation)."""
+    max_order = resolvable_max_order(phasors, cache.maneuvers[names[0]].kernel)
     if max_order == 0:
         return OrderSearch(0, (), np.zeros(0))
     spectrum = order_spectrum(phasors[:, :max_order], cache.target(equation, names))
@@ -169,12 +168,16 @@ def narrow_periodic_orders(candidates: list[Any], cache: DesignCache, names: lis
     kept: list[Any] = []
     searches: dict[str, dict[str, Any]] = {}
     skipped: dict[str, str] = {}
+    phasors: dict[tuple[int, float], np.ndarray] = {}  # per (state, period): shared by its equations
     for effect in candidates:
         if effect.kind != "periodic" or getattr(effect, "orders", ()) is not None:
             kept.append(effect)
             continue
         label = f"{effect.name} in d{problem.state_names[effect.equation]}/dt"
-        found = search_orders(cache, names, effect.equation, effect.variable, effect.period, count)
+        key = (effect.variable, effect.period)
+        if key not in phasors:
+            phasors[key] = averaged_phasors([cache.maneuvers[n] for n in names], *key, ORDER_LIMIT)
+        found = search_orders(cache, names, effect.equation, phasors[key], count)
         searches[label] = found.record()
         if not found.orders:
             skipped[label] = (f"the fitting kernel keeps less than {MIN_RELATIVE_ENERGY_RETAINED:.0%} of even "
