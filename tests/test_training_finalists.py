@@ -120,15 +120,19 @@ def test_the_test_maneuver_never_chooses_and_each_budget_is_checked():
 
 
 def test_a_hybrids_physical_layer_is_chosen_when_no_finalist_beats_it(tmp_path):
-    """The physical layer has no objective: it loses a tied score to a trained configuration, wins a lower one, and
-    finalist_choice hands select_best its entry (checkpoint, delays, gates) like a trial's result."""
+    """The physical layer has no objective: it wins a tied score (a trained configuration replaces it only with a
+    smaller one) and a lower one, and finalist_choice hands select_best its entry (checkpoint, delays, gates) like a
+    trial's result."""
     layer = {"trial_id": "physical_layer", "score": 0.5, "objective": None, "objective_rank": None,
              "checkpoint": "physical_layer.pt", "hyperparameters": {"width": 8}, "delay_s": {"duties": 3e-5},
              "gates": {"omega": {"g_F": 1.0, "g_A": 0.2}}, "fmu": {"path": "m.fmu"}, "validation": None,
              "resource_s": 0.0, "status": "ok", "bracket": None, "config": None, "rung": None}
     trained = {"trial_id": "b0c1", "score": 0.5, "objective": 0.2, "objective_rank": 1}
-    assert choose_finalist([layer, trained])["trial_id"] == "b0c1"  # a tie goes to the trained configuration
+    assert choose_finalist([trained, layer])["trial_id"] == "physical_layer"  # a tie: nothing learned
     assert choose_finalist([{**trained, "score": 0.6}, layer])["trial_id"] == "physical_layer"
+    assert choose_finalist([{**trained, "score": 0.4}, layer])["trial_id"] == "b0c1"
+    other = {"trial_id": "b1c0", "score": 0.4, "objective": 0.1, "objective_rank": 2}
+    assert choose_finalist([{**trained, "score": 0.4}, other, layer])["trial_id"] == "b1c0"  # then the objective
 
     results = [{"trial_id": "b0c1", "bracket": 0, "rung": 0, "config": 1, "status": "ok", "objective": 0.2,
                 "checkpoint": "c1.pt"}]

@@ -120,14 +120,16 @@ def finite_or_null(value: Any) -> Any:
 
 
 def choose_finalist(scored: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
-    """The finalist with the smallest finite ``score`` (ties: the better objective; a trained configuration before
-    the physical layer, which has none); None when every finalist diverged. A score of None (read back from JSON)
-    counts as diverged."""
+    """The finalist with the smallest finite ``score``; None when every finalist diverged. A score of None (read back
+    from JSON) counts as diverged. Ties: a hybrid's physical layer first (a trained configuration replaces it only
+    with a smaller score: one that scores the same on every maneuver has not learned anything these maneuvers show,
+    typically its best checkpoint is its untrained state, and the hybrid is then reported as its physical layer), then
+    the better objective."""
     finite = [entry for entry in scored if entry["score"] is not None and math.isfinite(float(entry["score"]))]
     if not finite:
         return None
-    return min(finite, key=lambda entry: (float(entry["score"]), math.inf if entry.get("objective") is None
-                                          else float(entry["objective"])))
+    return min(finite, key=lambda entry: (float(entry["score"]), entry.get("trial_id") != PHYSICAL_LAYER_ID,
+                                          math.inf if entry.get("objective") is None else float(entry["objective"])))
 
 
 def worse_than(entry: dict[str, Any], reference: dict[str, Any]) -> list[str]:
