@@ -5,8 +5,9 @@ already close to the measurement; a learning rate that suits the neural FMU (who
 that start away. For each ``--lr LOW:HIGH`` this script reruns the first rung of the hybrid's search brackets
 (``--bracket``, default 1 and 2) on a finished run's inputs (``--results``, e.g. ``results/ipb``: its FMU, data,
 segments, calibration, diagnosis, prepared search data and the hybrid's delay start are copied into a fresh clone
-of ``--commit``, default HEAD), with the case config's hybrid search space except the learning rate, which is drawn
-log-uniformly from that range (the same draws of every other hyperparameter: the plan's seed is the config's).
+of ``--commit``, default HEAD), with that run's case config (``--configfile``, default ``config/config.yaml`` where
+this runs) and its hybrid search space except the learning rate, which is drawn log-uniformly from that range (the
+same draws of every other hyperparameter: the plan's seed is the config's master seed).
 Only the validation segments judge (each trial's open-loop objective over them, as the search ranks it); nothing
 reads a test maneuver.
 
@@ -99,10 +100,11 @@ def trials(checkout: Path, results: Path, brackets: list[int]) -> list[dict]:
 
 def run_range(commit: str, results: Path, configfile: Path, low: float, high: float, brackets: list[int],
               jobs: int, folder: Path) -> list[dict]:
-    """Rung 0 of the brackets with lr in [low, high] in a fresh clone; returns :func:`trials`."""
+    """Rung 0 of the brackets with lr in [low, high] in a fresh clone, with the finished run's case config
+    ``configfile`` (absolute) and the learning-rate override; returns :func:`trials`."""
     checkout = clone(commit, folder / f"lr_{low:g}_{high:g}")
     copy_inputs(results, checkout)
-    extra = override(checkout / configfile, low, high, checkout)
+    extra = override(configfile, low, high, checkout)
     targets = [str(results / "hybrid" / f"b{b}" / "r0" / "selection.json") for b in brackets]
     command = [sys.executable, "-m", "snakemake", f"-j{jobs}", "--rerun-triggers", "mtime", "--configfile",
                str(configfile), str(extra), "--", *targets]
@@ -130,12 +132,12 @@ def summarise(found: list[dict]) -> dict:
             "final_ratio_worst": max(final), "best_ratio_median": statistics.median(best)}
 
 
-def markdown(summaries: dict[str, dict], results: str, brackets: list[int]) -> str:
-    """The summary table as Markdown."""
+def markdown(summaries: dict[str, dict], results: str, brackets: list[int], seed: object) -> str:
+    """The summary table as Markdown (``seed``: the case config's master seed, which drew the plan)."""
     lines = [f"The hybrid's search, rung 0 of bracket(s) {', '.join(map(str, brackets))} rerun on the inputs of "
-             f"`{results}` at each learning-rate range (the rest of the search space as configured; "
-             "`benchmarks/hybrid_search_space.py`): each trial's validation objective after its training, as a "
-             "ratio to its physical layer's (the untrained hybrid; below 1: training helped).", "",
+             f"`{results}` (master seed {seed}) at each learning-rate range (the rest of the search space as "
+             "configured; `benchmarks/hybrid_search_space.py`): each trial's validation objective after its "
+             "training, as a ratio to its physical layer's (the untrained hybrid; below 1: training helped).", "",
              "| learning rate | trials | better than the physical layer at the end | median ratio at the end | "
              "worst ratio at the end |", "|---|---|---|---|---|"]
     for label, s in summaries.items():
@@ -152,20 +154,25 @@ def main() -> None:
     parser.add_argument("--bracket", action="append", type=int, help="bracket whose rung 0 runs (default 1 and 2)")
     parser.add_argument("--jobs", type=int, default=2, help="jobs at a time (snakemake -jN)")
     parser.add_argument("--commit", default="HEAD")
-    parser.add_argument("--configfile", type=Path, default=Path("config/config.yaml"))
+    parser.add_argument("--configfile", type=Path, default=Path("config/config.yaml"),
+                        help="the finished run's case config (default: config/config.yaml where this runs)")
     parser.add_argument("--markdown", type=Path, default=None, help="write the summary table to this file")
     args = parser.parse_args()
     if args.results.is_absolute() or not args.results.is_dir():
         raise SystemExit(f"--results {args.results}: expected an existing folder like results/ipb, relative to the "
                          "folder this runs in")
     brackets = args.bracket or [1, 2]
+    configfile = args.configfile.resolve()
+    if not configfile.is_file():
+        raise SystemExit(f"--configfile {args.configfile}: no such file; expected the finished run's case config")
+    seed = (yaml.safe_load(configfile.read_text()) or {}).get("seed")
     commit = resolve(args.commit)
     found, summaries = {}, {}
     with tempfile.TemporaryDirectory(prefix="hybridfmu-hybrid-lr-") as tmp:
         for low, high in args.lr:
             label = f"{low:g} to {high:g}"
             print(f"lr {label}: rung 0 of bracket(s) {brackets} ...", file=sys.stderr, flush=True)
-            found[label] = run_range(commit, args.results, args.configfile, low, high, brackets, args.jobs, Path(tmp))
+            found[label] = run_range(commit, args.results, configfile, low, high, brackets, args.jobs, Path(tmp))
             summaries[label] = summarise(found[label])
             for t in found[label]:
                 path = " -> ".join(f"{objective:.4g}" for _, objective in t["history"])
@@ -176,8 +183,9 @@ def main() -> None:
               f"{s['final_ratio_worst']:>16.3g}")
     if args.markdown:
         args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        args.markdown.write_text(markdown(summaries, str(args.results), brackets))
-    print(json.dumps({"results": str(args.results), "brackets": brackets, "summaries": summaries, "trials": found}))
+        args.markdown.write_text(markdown(summaries, str(args.results), brackets, seed))
+    print(json.dumps({"results": str(args.results), "seed": seed, "brackets": brackets, "summaries": summaries,
+                      "trials": found}))
 
 
 if __name__ == "__main__":
