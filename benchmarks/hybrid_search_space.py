@@ -31,11 +31,11 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import yaml
 
+from stage_wall import touch_tree
 from workflow_wall import clone, resolve
 
 #: What the hybrid's first rung reads of a finished run's case results.
@@ -55,7 +55,6 @@ def learning_rate_range(text: str) -> tuple[float, float]:
 
 def copy_inputs(results: Path, checkout: Path) -> None:
     """Copy the hybrid's inputs of ``results`` into the checkout's results, newer than its sources."""
-    now = time.time()
     for name in HYBRID_INPUTS:
         source, target = results / name, checkout / results / name
         if not source.exists():
@@ -65,9 +64,7 @@ def copy_inputs(results: Path, checkout: Path) -> None:
             shutil.copytree(source, target)
         else:
             shutil.copy2(source, target)
-    for path in (checkout / results).rglob("*"):
-        if path.is_file():
-            os.utime(path, (now, now))
+    touch_tree(checkout / results)
 
 
 def override(config_path: Path, low: float, high: float, folder: Path) -> Path:
@@ -176,7 +173,8 @@ def main() -> None:
             summaries[label] = summarise(found[label])
             for t in found[label]:
                 path = " -> ".join(f"{objective:.4g}" for _, objective in t["history"])
-                print(f"  {t['trial']}: lr {t['lr']:.3g}: {path} (best {t['best']:.4g})", file=sys.stderr)
+                best = "none" if t["best"] is None else f"{float(t['best']):.4g}"
+                print(f"  {t['trial']}: lr {t['lr']:.3g}: {path} (best {best}, {t['status']})", file=sys.stderr)
     print(f"{'learning rate':<22} {'trials':>6} {'better':>6} {'median end/layer':>17} {'worst end/layer':>16}")
     for label, s in summaries.items():
         print(f"{label:<22} {s['trials']:>6} {s['better_at_the_end']:>6} {s['final_ratio_median']:>17.3g} "

@@ -71,8 +71,8 @@ def averaged_phasors(maneuvers: list[ManeuverFitData], variable: int, period: fl
     """Kernel averages of exp(i k 2 pi x / P) at the fitting centres of ``maneuvers``, orders k = 1..``max_order``.
 
     Returns (n_centres summed over the maneuvers, max_order) complex: the real part is the averaged cosine
-    regressor, the imaginary part the averaged sine, as :class:`hybridfmu.diagnosis.library.Periodic` fits them (orders are built by repeated
-    multiplication; they differ from direct evaluation by rounding only).
+    regressor, the imaginary part the averaged sine, as :class:`hybridfmu.diagnosis.library.Periodic` fits them
+    (orders are built by repeated multiplication; they differ from direct evaluation by rounding only).
     """
     columns = []
     for data in maneuvers:
