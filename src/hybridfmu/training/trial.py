@@ -85,9 +85,10 @@ def hybrid_physics(model_config: dict[str, Any], fmu_path: str | Path, fmu_param
     """The physical layer of a hybrid (``model.physics_terms`` other than ``none``), else None.
 
     The physical layer is the FMU plus every chosen diagnosed effect, the diagnosed time offsets of inputs
-    included: with its ANN at zero and its delays at zero it is the model "FMU + diagnosed effects" itself. A
-    trainable input delay learns what time offset remains on top of it (started where ``input_delay.init_s``
-    says: rule ``hybrid_time_offset`` estimates it on this physical layer).
+    included, so a hybrid with its ANN at zero and its delays fixed at zero is the model "FMU + diagnosed effects"
+    (and is simulated as that model: :func:`hybridfmu.training.inference.diagnosed_simulator`). A trainable input
+    delay learns what time offset remains on top of it (started where ``input_delay.init_s`` says: rule
+    ``hybrid_time_offset`` estimates it on this physical layer).
 
     Raises:
         ValueError: a hybrid without the diagnosed model's path.
