@@ -14,7 +14,8 @@ the smallest fraction of the FMU's is chosen:
 - a finalist that diverges or leaves the finite range scores infinity.
 
 A hybrid's search scores one more candidate the same way: its **physical layer** (the FMU plus the diagnosed
-effects under the untrained ANN, whose output is exactly zero; its delays at their start values). A trained
+effects under the untrained ANN, whose output is exactly zero, with its delays fixed at zero: the model "FMU +
+diagnosed effects" itself, simulated as that model, :func:`without_delays`). A trained
 configuration may replace it only if it is no worse than the physical layer on **every** maneuver of the choice in
 **every** target state (its error ratio against the FMU at most the layer's), and then only with a smaller score.
 When none qualifies, the physical layer is chosen: the hybrid is then its own physics, and the report says so. The
