@@ -6,9 +6,9 @@ value for every group, or ``group=value`` pairs) and trains only the delays with
 ``model.input_delay.step_s`` on random windows of the prepared training data, with the case's loss weights.
 With a model that lacks some physics the delays drift to absorb it: the figures show how far and where to.
 ``--physics`` runs the same on the hybrid's physical layer (the FMU plus the effects of the diagnosed model,
-``results/<case>/diagnosis/diagnosed_model.pkl``, its time offsets left to the delays): whether the drift goes
-once the model carries the diagnosed physics; with ``--coefficients`` the effects' additive coefficients train
-beside the delays (at the case's ``model.physics_coefficient_step``).
+``results/<case>/diagnosis/diagnosed_model.pkl``, its time offsets included, the delays learning what remains):
+whether the drift goes once the model carries the diagnosed physics; with ``--coefficients`` the effects' additive
+coefficients train beside the delays (at the case's ``model.physics_coefficient_step``).
 
 Needs a finished search's prepared data (``results/<case>/hpo/prepared``, rule ``hpo_prepare``). Prints one
 line per ``--every`` steps (delays in µs, the step's loss) and a JSON object with the trajectory.

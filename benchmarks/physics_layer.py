@@ -28,7 +28,7 @@ import numpy as np
 
 from hybridfmu.config import check_config_file
 from hybridfmu.diagnosis.corrected_model import CorrectedModel
-from hybridfmu.model.physics import DELAY_KINDS, physics_model
+from hybridfmu.model.physics import physics_model
 from hybridfmu.training.data import ManeuverArrays
 from hybridfmu.training.measured import load_calibration
 
@@ -57,8 +57,7 @@ def main() -> None:
     results = Path(config.get("results_dir", "results")) / config["case"]
     fmu_path = config["fmu"].get("path") or results / "fmu" / f"{config['fmu']['model_name']}.fmu"
     calibration = load_calibration(results / "calibration" / "calibration.json")
-    physics = physics_model(fmu_path, calibration.parameters, results / "diagnosis" / "diagnosed_model.pkl",
-                            None, DELAY_KINDS)
+    physics = physics_model(fmu_path, calibration.parameters, results / "diagnosis" / "diagnosed_model.pkl")
     train = ManeuverArrays.load(results / "hpo" / "prepared" / "train.npz")
     rng = np.random.default_rng(args.seed)
     rows = rng.integers(0, train.u.shape[0], args.batch)

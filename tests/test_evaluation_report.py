@@ -139,6 +139,17 @@ def test_delay_table_shows_the_estimates_error_and_the_band_the_delay_learned_wi
     plain = delay_lines({"duties": 2.7e-5}, None, None, None, {"duties": 2.845e-5})
     assert plain[:3] == ["| input group | learned Δt | time-offset estimate |", "|---|---|---|",
                          "| duties | 27.00 µs | 28.45 µs |"]
+    # a hybrid whose physical layer already shifts its inputs learns only the rest: no comparison with the truth
+    from hybridfmu.evaluation.report import diagnosed_offsets_text
+
+    on_top = diagnosed_offsets_text(["parameter(R)", "time_offset(d_a,d_b)"])
+    assert on_top == "the physical layer's diagnosed time_offset(d_a,d_b)"
+    assert diagnosed_offsets_text(["parameter(R)", "deadtime(d_a)"]) is None
+    residual = delay_lines({"duties": 1.6e-5}, {"duties": 3e-5}, "truth.json", None, None, None, on_top)
+    assert residual[0] == "| input group | learned Δt | time-offset estimate |"
+    assert "| duties | 16.00 µs | - |" in residual
+    assert not any("learned − true" in line or "-14.00 µs" in line for line in residual)
+    assert residual[-1].startswith("These delays act on top of the physical layer's diagnosed time_offset(d_a,d_b)")
     from hybridfmu.evaluation.report import group_estimate_text
 
     assert group_estimate_text("duties", {**estimates["duties"], "windows": 100, "window_samples": 4}) == (

@@ -3,7 +3,7 @@
 import pytest
 import yaml
 
-from hybridfmu.evaluation.robustness import seed_config, summarize, summary_markdown, write_summary
+from hybridfmu.evaluation.robustness import seed_config, seed_job_counts, summarize, summary_markdown, write_summary
 from hybridfmu.io import write_json_atomic
 from pathlib import Path
 
@@ -47,6 +47,14 @@ def test_figures_are_pooled_over_every_seed_and_maneuver(tmp_path):
     text = summary_markdown("demo", summary, {2: 1800.0})
     assert "| hybrid (FMU + effects + ANN) | ×80 [×25 – ×200] |" in text
     assert "seed 1 b (angle)" in text and "seed 2 30 min" in text
+    # with the jobs each run ran: a resumed run shows how little it ran
+    logs = [tmp_path / "run2.log", tmp_path / "run3.log", tmp_path / "missing.log"]
+    logs[0].write_text("Finished job 4.\n8 of 9 steps (89%) done\nFinished job 0.\n9 of 9 steps (100%) done\n")
+    logs[1].write_text("Finished job 1.\nFinished job 0.\n")  # cut short before the step lines
+    assert seed_job_counts(logs, [2, 3, 4]) == {2: 9, 3: 2}
+    text_jobs = summary_markdown("demo", summary, {2: 570.0, 3: 3000.0}, {2: 9, 3: 187})
+    assert "seed 2 10 min for 9 jobs, seed 3 50 min for 187 jobs." in text_jobs
+    assert "counts only the jobs it ran" in text_jobs
     paths = {}
     for seed, metrics in seeds.items():
         paths[seed] = tmp_path / f"{seed}.json"

@@ -19,11 +19,13 @@ from hybridfmu.diagnosis.problem import set_data_statistics
 from hybridfmu.diagnosis.selection import Term
 from hybridfmu.fmu import FmuRhs
 from hybridfmu.model import NeuralFmu, NeuralFmuSpec
-from hybridfmu.model.physics import DELAY_KINDS, PhysicsModel, physics_effects
+from hybridfmu.model.physics import PhysicsModel, physics_effects
 from hybridfmu.model.settings import uses_physics
 from hybridfmu.training.solver import rollout
 
 H = 0.01
+#: the kinds some tests' physical layers leave out (the diagnosed time offsets of inputs)
+DELAY_KINDS = ("time_offset",)
 
 
 class BridgedSpring(MassSpringDamper):
@@ -467,3 +469,67 @@ def test_the_shared_rollout_of_the_physical_layer_scores_like_each_trials_own_va
     (tmp_path / "bad.pt").write_bytes(b"not a torch file")
     with pytest.raises(ValueError, match=r"bad\.pt: not a physical-layer rollout"):
         read_physical_layer_rollout(tmp_path / "bad.pt", shared, arrays, sources)
+
+
+def _physical_layer_hybrid(diagnosed, delay_min_s=0.0, delay_max_s=0.0):
+    """A hybrid around every diagnosed effect (the time offset included), ANN at zero, coefficients trainable."""
+    physics = PhysicsModel(BridgedSpring(), BridgedSpring(), diagnosed)
+    spec = NeuralFmuSpec(state_names=["x", "v"], input_names=["F"], corrected_states=["v"], ann_states=["x", "v"],
+                         ann_inputs=["F"], ann_derivatives=["x", "v"], sample_period_s=H, width=6, depth=2,
+                         gate_opening=0.3, delay_min_s=delay_min_s, delay_max_s=delay_max_s, delay_init_s=0.0,
+                         physics_effects=physics.effects, physics_coefficient_step=0.01)
+    stats = dict(x_mean=[0.0, 0.0], x_std=[0.5, 2.0], u_mean=[0.0], u_std=[3.0], xdot_mean=[0.0, 0.0],
+                 xdot_std=[2.0, 5.0])
+    return NeuralFmu(FmuRhs(physics), spec, stats)
+
+
+def test_a_hybrid_that_is_its_physical_layer_is_the_fmu_plus_effects_to_the_bit(diagnosed):
+    """The hybrid's physical-layer candidate (ANN at zero, delays fixed at zero, coefficients as diagnosed) gives
+    the diagnosed model's own trajectories, open loop and windowed; any trained part makes it a hybrid again."""
+    from hybridfmu.training.inference import (is_its_physical_layer, simulate_neural_fmu,
+                                              simulate_neural_fmu_windows)
+    from hybridfmu.training.multiple_shooting import windowed_trajectory
+
+    rng = np.random.default_rng(11)
+    n = 400
+    time_s = np.arange(n) * H
+    u = np.repeat(rng.normal(0.0, 3.0, n // 20), 20)[:, None]
+    x0 = np.array([0.1, -0.2])
+    model = _physical_layer_hybrid(diagnosed)
+    assert is_its_physical_layer(model)
+
+    def simulate(t, v, x):
+        return diagnosed.simulate(BridgedSpring(), BridgedSpring(), t, v, x)
+
+    expected = simulate(time_s, u, x0)
+    assert np.all(np.isfinite(expected))
+    np.testing.assert_array_equal(simulate_neural_fmu(model, time_s, u, x0), expected)
+    x_start = np.column_stack([np.linspace(0.0, 0.5, n), np.linspace(-1.0, 1.0, n)])
+    np.testing.assert_array_equal(simulate_neural_fmu_windows(model, time_s, u, x_start, 50),
+                                  windowed_trajectory(simulate, time_s, u, x_start, 50))
+    # the hybrid's own rollout differs (inputs interpolated between samples at the solver's stages): the
+    # candidate is simulated as the FMU + effects, not approximated by it
+    trainable = _physical_layer_hybrid(diagnosed, -2 * H, 2 * H)
+    assert not is_its_physical_layer(trainable)
+    assert np.abs(simulate_neural_fmu(trainable, time_s, u, x0) - expected).max() > 1e-6
+    with torch.no_grad():
+        model.ann.output.bias.fill_(1e-3)
+    assert not is_its_physical_layer(model)
+    model = _physical_layer_hybrid(diagnosed)
+    physics = model.fmu.rhs.model
+    physics.set_coefficients(physics.coefficients * 1.01)
+    assert not is_its_physical_layer(model)
+
+
+def test_the_physical_layer_candidate_has_its_delays_fixed_at_zero():
+    """``without_delays``: the plan loses the delays' start and bounds, the model section fixes them at zero."""
+    from hybridfmu.training.finalists import without_delays
+
+    plan = {"search_id": "s", "initial_delays_s": {"duties": 3e-5}, "delay_bounds_s": {"duties": [2e-5, 4e-5]}}
+    assert without_delays(plan) == {"search_id": "s"}
+    section = {"corrected_states": ["omega"], "input_delay": {"groups": {"duties": ["d_a"]}, "min_s": -3e-4,
+                                                              "max_s": 3e-4, "init_s": "time_offset",
+                                                              "within_standard_errors": 3.0}}
+    fixed = without_delays(section)
+    assert fixed["input_delay"] == {"groups": {"duties": ["d_a"]}, "min_s": 0.0, "max_s": 0.0, "init_s": 0.0}
+    assert section["input_delay"]["init_s"] == "time_offset"  # the caller's section is not changed

@@ -50,6 +50,7 @@ if "test" in EVAL_ROLES:
             case=CASE,
             own_seed=OWN_SEED,
             other_seeds=OTHER_SEEDS,
+            run_logs=[f"{ROBUSTNESS}/seed{seed}/run.log" for seed in OTHER_SEEDS],  # jobs each seed's run ran
             reference=EVAL_CONFIG.get("reference", {}),  # the neural FMU's medians beside e.g. the paper's factors
         log:
             f"{RESULTS}/logs/robustness_summary/robustness_summary.log",

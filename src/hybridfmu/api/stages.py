@@ -21,7 +21,7 @@ function is imported on first use: a rule's job loads only its own stage's modul
 | simulate_best, evaluate | ``simulate_best``, ``run_evaluation`` |
 | simulate_closed_loop | ``closed_loop_model``, ``closed_loop_settings``, ``write_closed_loop`` |
 | compare_neural_fmu, plot, report, summary | ``compare_neural_fmu``, ``draw_all``, ``write_report``, ``write_case_summary`` |
-| robustness_seed, robustness_summary | ``run_seed``, ``seed_wall_times``, ``write_summary`` |
+| robustness_seed, robustness_summary | ``run_seed``, ``seed_wall_times``, ``seed_job_counts``, ``write_summary`` |
 | (helpers the rules share) | ``case_roles``, ``read_json``, ``retry_settings``, ``tracking_uri``, ``bound_http_requests``, ``job_guard`` |
 """
 
@@ -65,6 +65,7 @@ STAGES: dict[str, str] = {
     "write_case_summary": "hybridfmu.evaluation.summary",
     "run_seed": "hybridfmu.evaluation.robustness",
     "seed_wall_times": "hybridfmu.evaluation.robustness",
+    "seed_job_counts": "hybridfmu.evaluation.robustness",
     "write_summary": "hybridfmu.evaluation.robustness",
     "case_roles": "hybridfmu.data.roles",
     "read_json": "hybridfmu.io",

@@ -212,8 +212,8 @@ def verdicts(metrics_by_role: dict[str, dict], reference: dict[str, Any] | None 
 
 def delay_lines(dt_s: dict[str, float] | None, true_dt_s: dict[str, float | None] | None,
                 truth_source: str | None, reference: dict[str, Any] | None = None,
-                estimates: dict[str, Any] | None = None, bounds_s: dict[str, list[float]] | None = None
-                ) -> list[str]:
+                estimates: dict[str, Any] | None = None, bounds_s: dict[str, list[float]] | None = None,
+                on_top_of: str | None = None) -> list[str]:
     """A table of the learned input delays per group, beside the time-offset stage's estimate and, when the
     case has a ground truth, the true offset of the group's logged inputs.
 
@@ -223,11 +223,19 @@ def delay_lines(dt_s: dict[str, float] | None, true_dt_s: dict[str, float | None
             ``standard_error_s`` shown as ± where there is one) or the delay in s.
         bounds_s: {group: [low, high] (s)} of the groups that learned within narrower bounds than the
             config's range (a column of its own when there are any).
+        on_top_of: what already shifts the inputs before the learned delays act (a hybrid's physical layer
+            with its diagnosed time offset). The learned delays are then only the rest, so they are not set
+            against the true offsets; a sentence says so.
     """
     if not dt_s:
         return ["The model has no learned input delay."]
     if not isinstance(dt_s, dict):
         dt_s = {"inputs": float(dt_s)}
+    if on_top_of is not None:
+        table = delay_lines(dt_s, None, None, None, estimates, bounds_s)[:-1]  # without the truth's sentence
+        return table + [f"These delays act on top of {on_top_of}: they are what remains of the inputs' time "
+                        "offset, so they are not set against the true offsets"
+                        + (f" of {truth_source}" if truth_source else "") + "."]
     header = "| input group | learned Δt | time-offset estimate |"
     rule = "|---|---|---|"
     if bounds_s:
@@ -259,6 +267,13 @@ def delay_lines(dt_s: dict[str, float] | None, true_dt_s: dict[str, float | None
         lines.append(f"{reference.get('name', 'reference')}: Δt ≈ {format_delay(reference['input_delay_s'])} "
                      "(one delay for all inputs).")
     return lines
+
+
+def diagnosed_offsets_text(effects: list[str] | None) -> str | None:
+    """'the physical layer's diagnosed time_offset(d_a,d_b)' when a hybrid's physical layer (its effect names)
+    already shifts inputs in time, else None (its learned delays are then the whole offset)."""
+    offsets = [name for name in effects or [] if name.startswith("time_offset(")]
+    return f"the physical layer's diagnosed {', '.join(offsets)}" if offsets else None
 
 
 def estimate_text(estimate: Any) -> str:
@@ -351,7 +366,7 @@ def render_report(case: str, metrics_by_role: dict[str, dict], hyperparameters: 
             out += [f"**{PHYSICAL_LAYER_CHOSEN}**", ""]
         out += delay_lines(hybrid.get("dt_s"), true_dt_s, truth_source, None,
                            hybrid_delay_estimates if hybrid_delay_estimates is not None else delay_estimates,
-                           hybrid.get("delay_bounds_s"))
+                           hybrid.get("delay_bounds_s"), diagnosed_offsets_text(hybrid.get("effects")))
         out += [f"- gates: {_gates_text(hybrid.get('gates'))}", ""]
         out += coefficient_lines(hybrid.get("coefficients"))
     out += ["## Best hyperparameters", ""]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import re
 import subprocess
 import sys
 import time
@@ -158,7 +159,8 @@ def reference_comparison(summary: Mapping[str, Any], reference: Mapping[str, Any
     return rows
 
 
-def summary_markdown(case: str, summary: Mapping[str, Any], wall_s: Mapping[int, float] | None = None) -> str:
+def summary_markdown(case: str, summary: Mapping[str, Any], wall_s: Mapping[int, float] | None = None,
+                     jobs: Mapping[int, int] | None = None) -> str:
     """The summary as the documentation quotes it: one row per model, median [min – max] over every (seed, maneuver)."""
     from hybridfmu.evaluation.report import MODEL_TITLES, spread_text
 
@@ -201,23 +203,29 @@ def summary_markdown(case: str, summary: Mapping[str, Any], wall_s: Mapping[int,
               ("; ".join(f"seed {w['seed']} {w['maneuver']} ({w['signal']})" for w in worse) if worse else
                "no (seed, maneuver).")]
     if wall_s:
-        lines += ["", "Wall time of each seed's whole run on this machine: " +
-                  ", ".join(f"seed {seed} {seconds / 60:.0f} min" for seed, seconds in sorted(wall_s.items())) + "."]
+        jobs = jobs or {}
+        lines += ["", "Wall time of each seed's run on this machine: " + ", ".join(
+            f"seed {seed} {seconds / 60:.0f} min" + (f" for {jobs[seed]} jobs" if seed in jobs else "")
+            for seed, seconds in sorted(wall_s.items())) + "." + (
+            " A run that resumed an interrupted one counts only the jobs it ran, and only their time." if jobs
+            else "")]
     return "\n".join(lines) + "\n"
 
 
 def write_summary(case: str, metrics_paths: Mapping[int, str | Path], summary_path: str | Path,
                   markdown_path: str | Path, wall_s: Mapping[int, float] | None = None,
-                  reference: Mapping[str, Any] | None = None) -> dict[str, Any]:
+                  reference: Mapping[str, Any] | None = None, jobs: Mapping[int, int] | None = None
+                  ) -> dict[str, Any]:
     """Rule ``robustness_summary``: :func:`summarize` of the seeds' test metrics (seed -> ``test.json``), with the
     neural FMU beside ``reference`` (config ``evaluation.reference``, :func:`reference_comparison`), written as
-    JSON and as the documentation's Markdown."""
+    JSON and as the documentation's Markdown (with each seed's wall time and, given ``jobs``, the number of jobs
+    its run ran)."""
     summary = summarize({int(seed): read_json(path) for seed, path in metrics_paths.items()})
     if reference and reference.get("factors"):
         summary["reference_name"] = reference.get("name") or "the reference"
         summary["reference"] = reference_comparison(summary, reference)
     write_json_atomic(summary_path, summary)
-    write_text_atomic(markdown_path, summary_markdown(case, summary, wall_s))
+    write_text_atomic(markdown_path, summary_markdown(case, summary, wall_s, jobs))
     return summary
 
 
@@ -228,4 +236,18 @@ def seed_wall_times(benchmark_paths: Sequence[str | Path], seeds: Sequence[int])
         lines = Path(path).read_text().splitlines()
         if len(lines) >= 2:
             out[int(seed)] = float(lines[1].split("\t")[0])
+    return out
+
+
+def seed_job_counts(run_log_paths: Sequence[str | Path], seeds: Sequence[int]) -> dict[int, int]:
+    """Jobs each seed's nested run ran, from its Snakemake output (``run.log``: the last "N of M steps" line's M,
+    else the count of finished jobs); seeds without a log are left out. A run that resumed an interrupted one ran
+    only the jobs that were missing."""
+    out = {}
+    for seed, path in zip(seeds, run_log_paths):
+        if not Path(path).is_file():
+            continue
+        text = Path(path).read_text(errors="replace")
+        steps = re.findall(r"^\d+ of (\d+) steps", text, flags=re.MULTILINE)
+        out[int(seed)] = int(steps[-1]) if steps else text.count("Finished job")
     return out

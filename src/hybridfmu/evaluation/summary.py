@@ -124,7 +124,8 @@ def write_case_summary(out_path: str | Path, case: str, test_metrics_path: str |
     ``time_offset_path`` and ``roles`` the learned input delays follow (beside the time-offset stage's
     estimates, the hybrid's beside those on its physical layer (``hybrid_time_offset_path``) when it has them,
     and the ground truth of ``truth_paths`` when there is one)."""
-    from hybridfmu.evaluation.report import delay_lines, hybrid_estimates, learned_delay_facts
+    from hybridfmu.evaluation.report import (delay_lines, diagnosed_offsets_text, hybrid_estimates,
+                                              learned_delay_facts)
 
     diagnosis = read_json(diagnosis_path) if diagnosis_path else None
     test_metrics = read_json(test_metrics_path)
@@ -140,7 +141,8 @@ def write_case_summary(out_path: str | Path, case: str, test_metrics_path: str |
             own = hybrid_estimates(hybrid_time_offset_path)
             text += "\nLearned input delays of the hybrid:\n\n" + "\n".join(
                 delay_lines(hybrid["dt_s"], true_dt_s, Path(source).name if source else None, None,
-                            own if own is not None else estimates, hybrid.get("delay_bounds_s"))) + "\n"
+                            own if own is not None else estimates, hybrid.get("delay_bounds_s"),
+                            diagnosed_offsets_text(hybrid.get("effects")))) + "\n"
     with atomic_path(out_path) as tmp:
         Path(tmp).write_text(text)
     return Path(out_path)

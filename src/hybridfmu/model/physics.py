@@ -215,15 +215,11 @@ class PhysicsModel:
         return self.derivatives_jacobians_and_coefficient_jacobian
 
 
-#: Effect kinds a hybrid with a learned input delay leaves to the delay (the diagnosed time offsets of inputs).
-DELAY_KINDS = ("time_offset",)
-
-
 def physics_model(fmu_path: str | Path, fmu_parameters: dict[str, float] | None, diagnosed_path: str | Path,
                   effects: list[str] | None = None, without_kinds: tuple[str, ...] = ()) -> PhysicsModel:
     """The physical layer of a hybrid: the FMU at ``fmu_path`` with ``fmu_parameters`` (the calibrated ones)
     plus the diagnosed model at ``diagnosed_path``, restricted to ``effects`` (None: all of them), less the
-    effects of the kinds ``without_kinds`` (e.g. :data:`DELAY_KINDS`)."""
+    effects of the kinds ``without_kinds`` (e.g. ``("time_offset",)``)."""
     from hybridfmu.fmu import load_fmu
 
     diagnosed = load_diagnosed(diagnosed_path).selected(effects, without_kinds)

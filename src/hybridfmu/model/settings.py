@@ -27,11 +27,3 @@ def input_delay_settings(delay_config: dict[str, Any] | None, sample_period_s: f
         delay["scale_s"] = step_s
     return delay
 
-
-def learns_delays(delay_config: dict[str, Any] | None) -> bool:
-    """Whether ``model.input_delay`` lets the delays move: bounds left to the data always do, configured ones when
-    ``max_s > min_s``."""
-    delay = delay_config or {}
-    if delay.get("min_s") is None or delay.get("max_s") is None:
-        return True
-    return float(delay["max_s"]) > float(delay["min_s"])

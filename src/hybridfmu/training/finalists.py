@@ -14,7 +14,8 @@ the smallest fraction of the FMU's is chosen:
 - a finalist that diverges or leaves the finite range scores infinity.
 
 A hybrid's search scores one more candidate the same way: its **physical layer** (the FMU plus the diagnosed
-effects under the untrained ANN, whose output is exactly zero; its delays at their start values). A trained
+effects under the untrained ANN, whose output is exactly zero, with its delays fixed at zero: the model "FMU +
+diagnosed effects" itself, simulated as that model, :func:`without_delays`). A trained
 configuration may replace it only if it is no worse than the physical layer on **every** maneuver of the choice in
 **every** target state (its error ratio against the FMU at most the layer's), and then only with a smaller score.
 When none qualifies, the physical layer is chosen: the hybrid is then its own physics, and the report says so. The
@@ -188,6 +189,17 @@ def score_model(model: Any, maneuvers: dict[str, tuple[Any, np.ndarray]], roles:
     return out
 
 
+def without_delays(section: dict[str, Any]) -> dict[str, Any]:
+    """A copy of a search plan or a ``model`` section whose input delays are fixed at zero: the plan without its
+    delays' start and bounds (``initial_delays_s``, ``delay_bounds_s``), the section's ``input_delay`` with
+    ``min_s = max_s = init_s = 0`` and no ``within_standard_errors``."""
+    copy = {key: value for key, value in section.items() if key not in ("initial_delays_s", "delay_bounds_s")}
+    if "input_delay" in copy:
+        delay = {key: value for key, value in (copy["input_delay"] or {}).items() if key != "within_standard_errors"}
+        copy["input_delay"] = {**delay, "min_s": 0.0, "max_s": 0.0, "init_s": 0.0}
+    return copy
+
+
 def write_physical_layer_checkpoint(*, plan_path: str | Path, train_arrays_path: str | Path,
                                     validation_arrays_path: str | Path, statistics_path: str | Path,
                                     fmu_path: str | Path, calibration_path: str | Path | None,
@@ -196,8 +208,10 @@ def write_physical_layer_checkpoint(*, plan_path: str | Path, train_arrays_path:
     """Rule ``physical_layer_checkpoint``: a hybrid search's physical layer as a candidate of the final choice.
 
     The untrained hybrid of the search's first configuration (its ANN's output exactly zero, FMU gates at 1,
-    delays and effect coefficients at their start), saved as a trial checkpoint (``bracket``, ``rung`` and
-    ``config`` None) that :func:`score_finalists` scores like the trained finalists.
+    effect coefficients at their start) with its input delays fixed at zero: the FMU plus the diagnosed effects
+    (their time offsets included) and nothing else, the model "FMU + diagnosed effects" itself. Saved as a trial
+    checkpoint (``bracket``, ``rung`` and ``config`` None) that :func:`score_finalists` scores like the trained
+    finalists, so a trained hybrid is chosen only where it beats that model on the whole maneuvers.
 
     Raises:
         ValueError: the untrained model is not its physical layer (``model.ann_output_init`` is not zero).
@@ -212,8 +226,9 @@ def write_physical_layer_checkpoint(*, plan_path: str | Path, train_arrays_path:
 
     plan = read_json(plan_path)
     entry = first_configuration(plan)
-    _, _, statistics, model = trial_model(plan, entry, model_config, train_arrays_path, validation_arrays_path,
-                                          statistics_path, fmu_path, calibration_path, diagnosed_path)
+    _, _, statistics, model = trial_model(without_delays(plan), entry, without_delays(model_config),
+                                          train_arrays_path, validation_arrays_path, statistics_path, fmu_path,
+                                          calibration_path, diagnosed_path)
     if not untrained_is_physical_layer(model):
         raise ValueError("config.model.ann_output_init: the untrained hybrid is not its physical layer (its ANN's "
                          "output is not zero), so the physical layer cannot be a candidate of the final choice; set "

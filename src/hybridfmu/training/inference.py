@@ -12,7 +12,7 @@ from hybridfmu.io import read_json
 from hybridfmu.model.neural_fmu import NeuralFmu
 from hybridfmu.model.spec import NeuralFmuSpec
 from hybridfmu.training.data import check_uniform_grid
-from hybridfmu.training.multiple_shooting import batched_window_rows
+from hybridfmu.training.multiple_shooting import batched_window_rows, windowed_trajectory
 from hybridfmu.training.solver import rollout
 from hybridfmu.training.windows import delay_padding
 
@@ -91,6 +91,9 @@ def simulate_neural_fmu(model: NeuralFmu, time_s: Any, u: Any, x0: Any) -> np.nd
         raise ValueError(f"simulate_neural_fmu: u has shape {u.shape}, expected {(time_s.size, len(spec.input_names))}")
     if x0.shape != (len(spec.state_names),):
         raise ValueError(f"simulate_neural_fmu: x0 has shape {x0.shape}, expected ({len(spec.state_names)},)")
+    diagnosed = diagnosed_simulator(model)
+    if diagnosed is not None:  # a hybrid that is its physical layer: the FMU + effects' own simulation
+        return diagnosed(time_s, u, x0)
     physics = physical_layer(model)
     if physics is not None:  # a hybrid sees the inputs through the diagnosed input changes
         u = physics.inputs(u, spec.sample_period_s)
@@ -125,6 +128,9 @@ def simulate_neural_fmu_windows(model: NeuralFmu, time_s: Any, u: Any, x_start: 
     if u.shape != (time_s.size, len(spec.input_names)) or x_start.shape != (time_s.size, len(spec.state_names)):
         raise ValueError(f"simulate_neural_fmu_windows: u {u.shape} and x_start {x_start.shape} must have "
                          f"{time_s.size} rows of {len(spec.input_names)} inputs / {len(spec.state_names)} states")
+    diagnosed = diagnosed_simulator(model)
+    if diagnosed is not None:  # a hybrid that is its physical layer: windowed as the FMU + effects
+        return windowed_trajectory(diagnosed, time_s, u, x_start, steps)
     physics = physical_layer(model)
     if physics is not None:
         u = physics.inputs(u, spec.sample_period_s)
@@ -178,6 +184,38 @@ def without_ann(model: NeuralFmu) -> NeuralFmu:
         model.gates.g_A.zero_()
         model.gates.g_F.fill_(1.0)
     return model
+
+
+def is_its_physical_layer(model: NeuralFmu) -> bool:
+    """True when ``model`` is a hybrid that is exactly its physical layer, the FMU plus its diagnosed effects: ANN
+    output at zero and FMU gates at 1, input delays fixed at zero, effect coefficients at the diagnosed values (the
+    candidate of :func:`hybridfmu.training.finalists.write_physical_layer_checkpoint`)."""
+    from hybridfmu.training.physical_layer_rollout import untrained_is_physical_layer
+
+    physics = physical_layer(model)
+    if physics is None or not untrained_is_physical_layer(model):
+        return False
+    spec = model.spec
+    if not (float(spec.delay_min_s) == float(spec.delay_max_s) == 0.0):
+        return False
+    diagnosed = [array for _, array in physics.diagnosed.corrected(physics.helper).row_coefficients]
+    return bool(np.array_equal(physics.coefficients, np.concatenate(diagnosed) if diagnosed else np.zeros(0)))
+
+
+def diagnosed_simulator(model: NeuralFmu):
+    """For a hybrid that is its physical layer (:func:`is_its_physical_layer`): ``(time_s (T,), u (T, n_u), x0
+    (n_x,)) -> states (T, n_x)``, the diagnosed model's own open-loop simulation
+    (:meth:`hybridfmu.diagnosis.export.DiagnosedModel.simulate`, the logged inputs held between samples as the FMU
+    + effects is evaluated), so that model and this hybrid give one trajectory; else None. ``x0`` is the physical
+    layer's start (already through ``diagnosed.initial_state``)."""
+    if not is_its_physical_layer(model):
+        return None
+    physics = physical_layer(model)
+
+    def simulate(time_s: np.ndarray, u: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        return np.asarray(physics.diagnosed.simulate(physics.fmu, physics.helper, time_s, u, x0), dtype=float)
+
+    return simulate
 
 
 def physical_layer(model: NeuralFmu):

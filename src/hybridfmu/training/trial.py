@@ -21,7 +21,6 @@ import torch
 
 from hybridfmu.io import atomic_path, file_sha256, read_json, write_json_atomic
 from hybridfmu.model.delay import describe_delays
-from hybridfmu.model.settings import learns_delays
 from hybridfmu.progress import Progress
 from hybridfmu.training.build import build_neural_fmu, model_spec
 from hybridfmu.training.checkpoint import CHECKPOINT_FORMAT, load_checkpoint
@@ -85,13 +84,16 @@ def hybrid_physics(model_config: dict[str, Any], fmu_path: str | Path, fmu_param
                    diagnosed_path: str | Path | None):
     """The physical layer of a hybrid (``model.physics_terms`` other than ``none``), else None.
 
-    A hybrid whose input delay is trainable (``input_delay.max_s`` > ``min_s``) leaves the diagnosed time offsets
-    of inputs out of its physical layer: its own delay carries them (started where ``input_delay.init_s`` says).
+    The physical layer is the FMU plus every chosen diagnosed effect, the diagnosed time offsets of inputs
+    included, so a hybrid with its ANN at zero and its delays fixed at zero is the model "FMU + diagnosed effects"
+    (and is simulated as that model: :func:`hybridfmu.training.inference.diagnosed_simulator`). A trainable input
+    delay learns what time offset remains on top of it (started where ``input_delay.init_s`` says: rule
+    ``hybrid_time_offset`` estimates it on this physical layer).
 
     Raises:
         ValueError: a hybrid without the diagnosed model's path.
     """
-    from hybridfmu.model.physics import DELAY_KINDS, physics_effects, physics_model
+    from hybridfmu.model.physics import physics_effects, physics_model
     from hybridfmu.model.settings import uses_physics
 
     if not uses_physics(model_config):
@@ -99,9 +101,7 @@ def hybrid_physics(model_config: dict[str, Any], fmu_path: str | Path, fmu_param
     if diagnosed_path is None:
         raise ValueError(f"config.model.physics_terms is {model_config['physics_terms']!r}: a hybrid needs the "
                          "diagnosed model (diagnosis/diagnosed_model.pkl, rule diagnose)")
-    learned_delay = learns_delays(model_config.get("input_delay"))
-    physics = physics_model(fmu_path, fmu_parameters, diagnosed_path, physics_effects(model_config["physics_terms"]),
-                            DELAY_KINDS if learned_delay else ())
+    physics = physics_model(fmu_path, fmu_parameters, diagnosed_path, physics_effects(model_config["physics_terms"]))
     LOG.info("physical layer: %s (parameters %s)", ", ".join(physics.effects) or "no effects", physics.parameters)
     for note in physics.notes:
         LOG.warning("physical layer: %s", note)
