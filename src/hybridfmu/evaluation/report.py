@@ -231,17 +231,13 @@ def delay_lines(dt_s: dict[str, float] | None, true_dt_s: dict[str, float | None
         return ["The model has no learned input delay."]
     if not isinstance(dt_s, dict):
         dt_s = {"inputs": float(dt_s)}
-    if on_top_of is not None:
-        table = delay_lines(dt_s, None, None, None, estimates, bounds_s)[:-1]  # without the truth's sentence
-        return table + [f"These delays act on top of {on_top_of}: they are what remains of the inputs' time "
-                        "offset, so they are not set against the true offsets"
-                        + (f" of {truth_source}" if truth_source else "") + "."]
+    compared = true_dt_s if on_top_of is None else None  # the rest of an offset is not compared with the truth
     header = "| input group | learned Δt | time-offset estimate |"
     rule = "|---|---|---|"
     if bounds_s:
         header += " learned within |"
         rule += "---|"
-    if true_dt_s is not None:
+    if compared is not None:
         header += " true offset | learned − true |"
         rule += "---|---|"
     lines = [header, rule]
@@ -251,14 +247,18 @@ def delay_lines(dt_s: dict[str, float] | None, true_dt_s: dict[str, float | None
             band = bounds_s.get(group)
             row += (" the config's range |" if band is None
                     else f" {format_delay(band[0])} … {format_delay(band[1])} |")
-        if true_dt_s is not None:
-            truth = true_dt_s.get(group)
+        if compared is not None:
+            truth = compared.get(group)
             error = "" if truth is None else format_delay(value - truth)
             row += (" its inputs are offset differently | - |" if truth is None
                     else f" {format_delay(truth)} | {'' if error.startswith('-') else '+'}{error} |")
         lines.append(row)
     lines.append("")
-    if true_dt_s is not None:
+    if on_top_of is not None:
+        lines.append(f"These delays act on top of {on_top_of}: they are what remains of the inputs' time offset, "
+                     "so they are not set against the true offsets" + (f" of {truth_source}" if truth_source else "")
+                     + ".")
+    elif compared is not None:
         lines.append(f"True offsets from {truth_source} (convention u_true(t) = u_logged(t + Δt)).")
     else:
         lines.append("The true time offsets are unknown, as for any measured case; only an emulated bench writes "
