@@ -6,9 +6,11 @@ Loads the hybrid the case's search chose (``results/<case>/hybrid/best.json``; a
 layer is simulated as the FMU + effects and is not timed here) and simulates the first ``--seconds`` of a
 maneuver (``--maneuver``, default validation) open loop from its measured initial state with each engine
 (``--repeats`` runs each, the median). Prints simulated seconds per wall second, the ratio, and the largest
-difference between the two trajectories relative to each state's range.
+difference between the two trajectories relative to each state's range; ``--markdown FILE`` writes them as a
+table for the docs.
 
     python benchmarks/hybrid_rollout.py [--config config/config.yaml] [--maneuver validation] [--seconds 2]
+        [--repeats 3] [--markdown FILE]
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import numpy as np
 
 from hybridfmu.api.stages import case_roles
 from hybridfmu.config import check_config_file
+from hybridfmu.io import write_text_atomic
 from hybridfmu.training.inference import (diagnosed_simulator, load_trained_neural_fmu, physical_layer,
                                           simulate_neural_fmu)
 from hybridfmu.training.measured import initial_state, load_calibration, read_measured
@@ -36,6 +39,7 @@ def main() -> None:
     parser.add_argument("--maneuver", default="validation")
     parser.add_argument("--seconds", type=float, default=2.0, help="simulated time per run (s)")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--markdown", type=Path, default=None, help="write the figures as Markdown to this file")
     args = parser.parse_args()
 
     config = check_config_file(args.config)
@@ -68,6 +72,15 @@ def main() -> None:
     scale = np.maximum(np.ptp(states["numpy"], axis=0), 1e-300)
     deviation = float(np.max(np.abs(states["c"] - states["numpy"]) / scale))
     print(f"C over NumPy: x{rates['c'] / rates['numpy']:.1f}; largest difference {deviation:.2e} of a state's range")
+    if args.markdown:
+        write_text_atomic(args.markdown, "\n".join([
+            f"Case `{config['case']}`, its hybrid open loop over the first {simulated_s:.3g} s of `{args.maneuver}` "
+            f"from the measured state, median of {args.repeats} run(s) per engine, one process "
+            "(`benchmarks/hybrid_rollout.py`):", "",
+            "| engine | simulated s per wall s | against the NumPy engine |", "|---|---|---|",
+            f"| C loop, the effects installed in it | {rates['c']:.3g} | ×{rates['c'] / rates['numpy']:.3g} |",
+            f"| NumPy, the effects in Python per solver stage | {rates['numpy']:.3g} | ×1 |", "",
+            f"Largest difference of the two trajectories: {deviation:.2g} of a state's range."]) + "\n")
     print(json.dumps({"config": args.config, "maneuver": args.maneuver, "simulated_s": simulated_s,
                       "simulated_s_per_wall_s": rates, "c_over_numpy": rates["c"] / rates["numpy"],
                       "max_relative_difference": deviation}))
