@@ -7,14 +7,17 @@ import math
 import numpy as np
 import pytest
 
-from hybridfmu.diagnosis.identification import Z_90, combined_se, identification, is_location
+from hybridfmu.diagnosis.identification import Z_90, combined_se, identification, is_location, spread_widening
 from hybridfmu.diagnosis.report import not_identified
 
 
 def test_the_combined_se_is_the_largest_of_regression_bootstrap_and_maneuver_spread():
     row = {"name": "coulomb_level", "value": 1.0, "se": 0.01, "se_bootstrap": 0.02}
     assert combined_se(row, None) == 0.02
-    assert combined_se(row, {"train": 1.0, "validation": 1.2}) == pytest.approx(0.2 / math.sqrt(2))
+    # two maneuvers' spread: its standard deviation (1 degree of freedom) widened to Student's t, 6.31 / 1.645
+    assert spread_widening(2) == pytest.approx(6.3137515 / Z_90)
+    assert combined_se(row, {"train": 1.0, "validation": 1.2}) == pytest.approx(0.2 / math.sqrt(2) * 6.3137515 / Z_90)
+    assert spread_widening(5) == pytest.approx(2.1318468 / Z_90) and spread_widening(10 ** 6) == pytest.approx(1.0, abs=1e-5)
     assert combined_se({"name": "x", "value": 1.0, "se": None}, {"train": 3.0}) is None
 
 
@@ -37,7 +40,7 @@ def test_a_maneuver_spread_makes_a_tight_regression_interval_honest():
     """The pendulum's case: a Coulomb level with a regression SE 50x too small, but two maneuvers that disagree."""
     row = {"name": "coulomb_level", "value": 0.383, "se": 0.0024, "se_bootstrap": 0.003}
     out = identification(row, {"train": 0.30, "validation": 0.46})
-    assert out["se_combined"] == pytest.approx(0.16 / math.sqrt(2))
+    assert out["se_combined"] == pytest.approx(0.16 / math.sqrt(2) * spread_widening(2))
     assert out["interval_90"][0] < 0.25 < out["interval_90"][1]
 
 

@@ -194,3 +194,55 @@ def test_a_program_for_another_model_is_refused_by_the_fmu(ipbmotor_fmu):
         with pytest.raises(ValueError, match="effect program for 2 states and 1 inputs, the FMU has 4 and 5"):
             simulate_open_loop(fmu, np.arange(0.0, 0.01, 1e-3), np.zeros((10, 5)),
                                np.asarray(fmu.initial_states, dtype=float), correction=program)
+
+
+def test_a_hybrids_rollout_runs_its_effects_in_the_c_loop_as_the_numpy_engine_does(ipbmotor_fmu):
+    """A hybrid around the demo motor plus every kind of additive term: its gradient-free rollout runs in the C
+    loop with the effects installed there (the physical layer offers ``neural_rollout``), gives the NumPy engine's
+    states to rounding, follows coefficients changed after the layer was made, and leaves no program behind."""
+    import torch
+
+    from hybridfmu.diagnosis.export import DiagnosedModel
+    from hybridfmu.fmu import FmuRhs
+    from hybridfmu.model import NeuralFmu, NeuralFmuSpec
+    from hybridfmu.model.physics import PhysicsModel
+    from hybridfmu.training.solver import rollout
+
+    terms = motor_terms()
+    diagnosed = DiagnosedModel(terms, {}, MotorProblem(), [t.effect.name for t in terms])
+    time_s = np.arange(0.0, 0.05, 1e-4)
+    u = np.empty((len(time_s), 5))
+    u[:, :3] = 0.5 + 0.3 * np.sin(2 * np.pi * 40 * time_s[:, None] + np.array([0.0, 2.1, 4.2]))
+    u[:, 3], u[:, 4] = 24.0, 0.05
+    with load_fmu(ipbmotor_fmu) as fmu, load_fmu(ipbmotor_fmu) as helper:
+        physics = PhysicsModel(fmu, helper, diagnosed)
+        assert callable(physics.neural_rollout)
+        spec = NeuralFmuSpec(state_names=MotorProblem.state_names, input_names=MotorProblem.input_names,
+                             corrected_states=["omega"], ann_states=MotorProblem.state_names,
+                             ann_inputs=MotorProblem.input_names, ann_derivatives=MotorProblem.state_names,
+                             sample_period_s=1e-4, width=6, depth=2, gate_opening=0.3, ann_output_init="random",
+                             physics_effects=physics.effects)
+        stats = dict(x_mean=[0.0] * 4, x_std=[10.0, 10.0, 3.0, 100.0], u_mean=[0.5, 0.5, 0.5, 24.0, 0.0],
+                     u_std=[0.2, 0.2, 0.2, 1.0, 0.05], xdot_mean=[0.0] * 4, xdot_std=[1e4, 1e4, 100.0, 1e3])
+        torch.manual_seed(1)
+        hybrid = NeuralFmu(FmuRhs(physics), spec, stats).double().eval()
+        u_seq = torch.from_numpy(u)[None].repeat(2, 1, 1)
+        x0 = torch.from_numpy(np.stack([fmu.initial_states, fmu.initial_states + [0.0, 0.0, 0.1, 5.0]]))
+
+        def both():
+            with torch.no_grad():
+                in_c = rollout(hybrid, u_seq, 0, x0, len(time_s) - 1, gradients="adjoint_c").numpy()
+                numpy = rollout(hybrid, u_seq, 0, x0, len(time_s) - 1, gradients="adjoint_numpy").numpy()
+            return in_c, numpy
+
+        in_c, numpy = both()
+        scale = np.abs(numpy).max(axis=(0, 1))  # (n_x,) each state's range
+        assert np.all(np.isfinite(in_c)) and np.all(scale > 0)
+        assert np.max(np.abs(in_c - numpy) / scale) < 1e-9
+        physics.set_coefficients(1.5 * physics.coefficients)  # as training moves them
+        moved_c, moved_numpy = both()
+        assert np.max(np.abs(moved_c - moved_numpy) / scale) < 1e-9
+        assert np.max(np.abs(moved_c - in_c)) > 1e-6  # the C loop saw the new coefficients
+        plain = simulate_open_loop(fmu, time_s, u, np.asarray(fmu.initial_states, dtype=float)).states
+    with load_fmu(ipbmotor_fmu) as fresh:
+        np.testing.assert_array_equal(plain, simulate_open_loop(fresh, time_s, u, fresh.initial_states).states)

@@ -256,6 +256,15 @@ class CorrectedModel:
             return None
         return EffectProgram(terms, self.n_x, self.n_u, python=self)
 
+    def current_effect_program(self) -> EffectProgram | None:
+        """:meth:`effect_program` with the row terms' coefficients as they are now (a hybrid trains them in
+        place, :attr:`row_terms`), or None when some term has no C form or there is no term."""
+        rows = [member.stage_term(coefficients, setting) for _, member, coefficients, setting in self.row_terms]
+        terms = rows + self.batch_stage_terms
+        if len(rows) != len(self.row_stage_terms) or not terms or any(term is None for term in terms):
+            return None
+        return EffectProgram(terms, self.n_x, self.n_u, python=self)
+
     def correction(self) -> Callable | None:
         """The additive terms to simulate with: the :meth:`effect_program` (evaluated by an FMU's C step loop,
         called as this model elsewhere) when every term has a C form, else this model; None without terms."""

@@ -5,8 +5,10 @@ when the maneuvers disagree. A parameter's combined standard error is therefore 
 
 - the regression's (``se``), from the residual variance and the design;
 - the bootstrap's over segments (``se_bootstrap``), where it was drawn;
-- the spread between the fitting maneuvers, each fitted alone: the sample standard deviation of the per-maneuver
-  values (``stability.per_maneuver``; for two maneuvers |a - b| / sqrt 2).
+- the spread between the fitting maneuvers, each fitted alone: the sample standard deviation s of the n
+  per-maneuver values (``stability.per_maneuver``; for two maneuvers |a - b| / sqrt 2), widened to what a 90 %
+  interval from so few values must be: s t_(0.95, n - 1) / 1.645 (Student's t with n - 1 degrees of freedom;
+  x3.84 for two maneuvers, x1.31 for five), since s from two or three values can be far below the true spread.
 
 Its 90 % interval is value +- 1.645 combined SEs. A size (a coefficient, a friction level, an amplitude, a
 relative parameter error, a time offset) is identified when that interval neither covers zero nor spans more than
@@ -37,13 +39,22 @@ def is_location(name: str) -> bool:
     return any(name == p or (p.endswith("_") and name.startswith(p)) for p in LOCATION_PARAMETERS)
 
 
+def spread_widening(n_values: int) -> float:
+    """t_(0.95, n - 1) / z_0.95: how much wider a 90 % interval from the standard deviation of ``n_values`` values
+    must be than the normal one (3.84 for two values, 1.0 in the limit)."""
+    from scipy.stats import t
+
+    return float(t.ppf(0.95, n_values - 1) / Z_90)
+
+
 def combined_se(row: dict[str, Any], per_maneuver: dict[str, float] | None) -> float | None:
     """The largest of the regression's SE, the bootstrap's SE and the per-maneuver values' standard deviation
-    (module docstring), or None when the parameter has none of them."""
+    widened for their number (:func:`spread_widening`, module docstring), or None when the parameter has none of
+    them."""
     candidates = [row.get("se"), row.get("se_bootstrap")]
     values = [float(v) for v in (per_maneuver or {}).values() if v is not None and math.isfinite(float(v))]
     if len(values) > 1:
-        candidates.append(float(np.std(values, ddof=1)))
+        candidates.append(float(np.std(values, ddof=1)) * spread_widening(len(values)))
     finite = [float(c) for c in candidates if c is not None and math.isfinite(float(c))]
     return max(finite) if finite else None
 

@@ -2,8 +2,9 @@
 
 The forward selection, its exchanges and the refits on each maneuver fit the same effects at the same
 settings many times over; a stacked design (``hybridfmu.diagnosis.joint.StackedCache.design``) depends on
-nothing else, so it is built once, and a fit the selection has just made is not solved again. Keys round
-settings to 12 decimals (:func:`setting_key`).
+nothing else, so it is built once, and a fit the selection has just made is not solved again. Keys hold the
+settings' exact values (:func:`setting_key`): two settings that differ in the last bit are two entries, so a
+result never depends on which of them was asked for first.
 """
 
 from __future__ import annotations
@@ -21,8 +22,9 @@ DEFAULT_LRU_ENTRIES = 256
 
 
 def setting_key(setting: dict[str, float]) -> tuple:
-    """A hashable form of a nonlinear setting: its items sorted by name, values rounded to 12 decimals."""
-    return tuple(sorted((k, round(float(v), 12)) for k, v in setting.items()))
+    """A hashable form of a nonlinear setting: its items sorted by name with their exact float values (no
+    rounding: a memo must never hand a design or fit made at one setting to a caller that asked for another)."""
+    return tuple(sorted((k, float(v)) for k, v in setting.items()))
 
 
 class DesignMemo:

@@ -591,6 +591,19 @@ static int hf_neural_rhs(hf_model *m, const double *x, const double *u, const do
     if (st) return st;
     if (jac_source && jac_source->method) f = xf + nx;
     HF_CHECK(m, m->get_derivatives(m->component, f, nx), HF_FN_GET_DERIVATIVES, row);
+    if (m->effect_code) { /* a hybrid's physical layer: f = the FMU's derivatives + the diagnosed effects */
+        if (jac_source && jac_source->method) HF_FAIL(m, HF_FN_EFFECTS, row, HF_EFFECT_ERR_PROGRAM);
+        st = hf_effects_add(m->effect_code, m->effect_n_code, m->effect_reals, nx, nu, x, u, f, m->effect_out,
+                            m->effect_work, hf_effect_eval, m);
+        if (st == HF_EFFECT_ERR_PROGRAM) HF_FAIL(m, HF_FN_EFFECTS, row, st);
+        if (st) {
+            m->failed_row = row;
+            return st;
+        }
+        if (m->effect_sets_inputs && nu)
+            HF_CHECK(m, m->set_real(m->component, m->vr_u, nu, u), HF_FN_SET_REAL, row);
+        for (i = 0; i < nx; ++i) f[i] += m->effect_out[i];
+    }
     if ((st = hf_check_finite(m, f, 0.0, row))) return st;
     hf_neural_stage(nx, x, f, z, n_act, widths, params, act, y);
     if (!jac_source || !jac_source->method) return 0;
@@ -695,7 +708,9 @@ static int hf_neural_loop(hf_model *m, size_t n_steps, size_t batch, double h, i
    hf_neural_stage. End stop (i_pos >= 0): after a step, a position at or beyond [lower, upper] is clamped and
    its rate set to 0. states (n_steps + 1, batch, nx): row 0 = x0, then each step while every state stays
    finite; *steps_done = the steps written (n_steps unless a state became non-finite). row_steps (batch,) or
-   NULL: each row's own number of steps (at most n_steps), after which its state is held.
+   NULL: each row's own number of steps (at most n_steps), after which its state is held. With an effect program
+   installed (a hybrid's physical layer), f is the FMU's derivatives plus the program's terms (effects.c); a
+   recording rollout (hf_neural_forward_record) refuses one (its Jacobians would miss the terms).
    work: 6 * nx + batch * nx + H_0 + ... + H_L doubles. */
 int hf_neural_rollout(hf_model *m, size_t n_steps, size_t batch, double h, int rk4, const double *x0,
                       const double *u_grid, const double *u_half, const double *z_grid, const double *z_half,

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from hybridfmu.diagnosis.export import DiagnosedModel, load_diagnosed
+from hybridfmu.fmu.effect_program import EffectProgram
 
 #: Values of ``model.physics_terms`` that are no list of effect names.
 PHYSICS_TERMS_CHOICES = ("none", "from_diagnosis")
@@ -203,6 +204,34 @@ class PhysicsModel:
             return f + additive(x, u)
 
         return kernel
+
+    @property
+    def neural_rollout(self):
+        """A neural FMU's gradient-free rollout around this layer with the whole loop in C, or None.
+
+        The FMU's own C rollout (``FmuModel.neural_rollout``) with the additive terms installed as an effect
+        program (``effects.c``, the coefficients as they are at the call), so the effects add to the FMU's
+        derivatives inside the C loop. None where the FMU has no C rollout or some term has no C form (the NumPy
+        engine then evaluates the terms per stage). Same arguments and result as ``FmuModel.neural_rollout``.
+        """
+        fmu_rollout = getattr(self.fmu, "neural_rollout", None)
+        if not callable(fmu_rollout) or not hasattr(self.fmu, "_shim_model"):
+            return None
+        if not self.corrected.has_correction:
+            return fmu_rollout
+        if self.corrected.current_effect_program() is None:
+            return None
+
+        def rollout(*args, **kwargs):
+            program = self.corrected.current_effect_program()
+            buffers = program.install(self.fmu._shim_model)
+            try:
+                return fmu_rollout(*args, **kwargs)
+            finally:
+                EffectProgram.remove(self.fmu._shim_model)
+                del buffers
+
+        return rollout
 
     def derivatives_and_jacobians_kernel(self, n: int):
         """``(x (n, n_x), u (n, n_u)) -> (xdot, dfdx, dfdu)`` (the bridge's kernel interface, for the NumPy

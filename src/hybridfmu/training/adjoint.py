@@ -108,18 +108,21 @@ class SolverEngine:
         mask[:, i_rate] = (~outside).to(x.dtype)
         return x, mask
 
-    def run(self, wts: _Weights, x0, u_grid, u_half, z_grid, z_half, records: list | None, row_steps=None):
+    def run(self, wts: _Weights, x0, u_grid, u_half, z_grid, z_half, records: list | None, row_steps=None,
+            engine: str = "auto"):
         """Integrate; returns states (n+1, B, n_x). ``records`` (a list) receives per step
         (stage records, clamp mask) for the reverse sweep; None runs without them (and, for an FMU, in
-        C or NumPy; rows from the first non-finite state on are NaN). ``row_steps`` (B,), gradient-free only:
-        the steps each row needs; the loop in C holds a row's state after them, the others integrate on.
+        C or NumPy, as ``engine`` allows: "auto" the fastest, "c", "numpy" or "torch" that one where the
+        right-hand side offers it; rows from the first non-finite state on are NaN). ``row_steps`` (B,),
+        gradient-free only: the steps each row needs; the loop in C holds a row's state after them, the others
+        integrate on.
 
         Raises:
             FloatingPointError: a state became non-finite while recording (training).
         """
-        if records is None and self.c_rollout is not None:
+        if records is None and self.c_rollout is not None and engine in ("auto", "c"):
             return self._run_c(wts, x0, u_grid, u_half, z_grid, z_half, row_steps)
-        if records is None and self.numpy_rhs is not None:
+        if records is None and self.numpy_rhs is not None and engine in ("auto", "numpy"):
             return self._run_numpy(wts, x0, u_grid, u_half, z_grid, z_half)
         n_steps = u_grid.shape[0] - 1
         plan, nodes = self.tableau.plan(self.h), self.tableau.c
@@ -390,7 +393,7 @@ def rollout_adjoint(stage: FusedDerivative, h: float, method: str, clamp, x0, u_
     if not torch.is_grad_enabled() or not (train_coefficients or any(t.requires_grad for t in tensors)):
         wts = _Weights(stage.w_xd_t, stage.w_out, stage.b_out, stage.g_fmu, list(stage.hidden))
         with torch.no_grad():
-            return solver.run(wts, x0, u_grid, u_half, z_grid, z_half, None, row_steps)
+            return solver.run(wts, x0, u_grid, u_half, z_grid, z_half, None, row_steps, engine)
     float64 = all(t.dtype == torch.float64 for t in tensors)
     if train_coefficients:
         kernel = coefficient_kernel(stage.rhs, x0.shape[0]) if float64 else None

@@ -67,7 +67,7 @@ def load_checkpoint_model(checkpoint_path: str | Path, fmu_path: str | Path,
     return model
 
 
-def simulate_neural_fmu(model: NeuralFmu, time_s: Any, u: Any, x0: Any) -> np.ndarray:
+def simulate_neural_fmu(model: NeuralFmu, time_s: Any, u: Any, x0: Any, engine: str = "adjoint") -> np.ndarray:
     """Open-loop simulation from ``x0`` over the whole grid.
 
     Args:
@@ -75,6 +75,8 @@ def simulate_neural_fmu(model: NeuralFmu, time_s: Any, u: Any, x0: Any) -> np.nd
         time_s: (T,) uniform sample times (s) with the model's sample period.
         u: (T, n_u) inputs in FMU order.
         x0: (n_x,) initial state at ``time_s[0]``.
+        engine: the rollout's engine (``gradients`` of :func:`hybridfmu.training.solver.rollout`; the default:
+            the fastest the model allows, in C for an FMU behind the bridge). The same states to rounding.
 
     Returns:
         states (T, n_x), float64 (non-finite rows if the simulation diverged).
@@ -101,7 +103,7 @@ def simulate_neural_fmu(model: NeuralFmu, time_s: Any, u: Any, x0: Any) -> np.nd
     index = np.clip(np.arange(-pad, time_s.size + pad), 0, time_s.size - 1)
     u_seq = torch.from_numpy(np.ascontiguousarray(u[index]))[None]
     with torch.no_grad():
-        states = rollout(model, u_seq, pad, torch.from_numpy(x0)[None], time_s.size - 1)
+        states = rollout(model, u_seq, pad, torch.from_numpy(x0)[None], time_s.size - 1, gradients=engine)
     return states[0].numpy()
 
 
