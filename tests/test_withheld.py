@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from hybridfmu import __version__
 from hybridfmu.config import read_config_file, validate_case_config
 from hybridfmu_bench.withheld import suite as withheld
 from hybridfmu_bench.withheld.report import SUMMARY_COLUMNS, summarise
@@ -77,7 +78,9 @@ def test_small_withheld_check(tiny_config, ipbmotor_fmu, tmp_path):
         table = list(csv.DictReader(handle))
     assert [r["case"] for r in table] == names and set(SUMMARY_COLUMNS) <= set(table[0])
     assert (tmp_path / "confusion.png").stat().st_size > 1000 and (tmp_path / "detection.png").stat().st_size > 1000
-    assert "| coulomb_friction | 1 | 1/1 |" in (tmp_path / "summary.md").read_text()
+    summary = (tmp_path / "summary.md").read_text()
+    assert "| coulomb_friction | 1 | 1/1 |" in summary
+    assert "Every case was diagnosed by the code at " in summary  # the diagnosis records its code
     check_report(files[0][0])
 
 
@@ -101,6 +104,7 @@ def check_report(diagnosis_json: Path) -> None:
             assert len(set(table)) == 1, (line, table)
             table = []
     assert record["model_parameters"] == {}  # the FMU's nominal values, not the bench's
+    assert record["code"]["version"] == __version__ and "commit" in record["code"]
     record.pop("case")  # the case id names the withheld effect; nothing else of the record may
     text = json.dumps(record)
     assert not [word for word in ("coulomb_friction", "bench", "truth") if word in text]

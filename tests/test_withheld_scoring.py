@@ -8,8 +8,8 @@ import math
 
 import pytest
 
-from hybridfmu_bench.withheld.report import (aggregate, above_limits, confusion_matrix, detection_limit,
-                                                 detection_limits, split_seeds, summarise)
+from hybridfmu_bench.withheld.report import (aggregate, above_limits, code_sentence, code_versions, confusion_matrix,
+                                                 detection_limit, detection_limits, split_seeds, summarise)
 from hybridfmu_bench.withheld.scoring import effect_size, rejected_candidates, score_case
 from hybridfmu.evaluation.measured_blocks import replace_block
 from hybridfmu.io import write_json_atomic
@@ -355,3 +355,36 @@ def test_effect_size_of_a_calibrated_parameter_comes_from_its_calibration_record
     assert effect_size(rec, ["viscous(omega)", "parameter(b)"]) == pytest.approx(0.2)
     rec["which"]["calibration"][0]["relative_improvement"] = 1.03  # the other equations' gain counted too
     assert effect_size(rec, ["parameter(J)"]) == 1.0
+
+
+def test_the_summaries_name_the_code_of_the_diagnoses_and_warn_when_a_resumed_run_mixes_two(tmp_path):
+    """Every case's diagnosis records its code; one version is named, two (a run resumed across a code change) are
+    a warning in the summary and in the README's short account."""
+    old, new = {"version": "0.1.0", "commit": "a" * 40, "modified": False}, {"version": "0.1.0", "commit": "b" * 40}
+    assert code_versions({"x": {"code": new}, "y": {"code": old}, "z": {"code": new}}) == {"b" * 10: 2, "a" * 10: 1}
+    assert code_sentence({"b" * 10: 3}) == f"Every case was diagnosed by the code at {'b' * 10}."
+    assert "do not record" in code_sentence(code_versions({"x": {}}))
+    cases = {"s0__single_coulomb_friction__size1": new, "s0__none": new, "s1__single_coulomb_friction__size1": old}
+    paths = {"d": [], "t": [], "w": []}
+    for name, code in cases.items():
+        effects = {} if name.endswith("none") else {"coulomb_friction": dict(COULOMB)}
+        items = [chosen("coulomb(omega)", "omega", coulomb_level=0.04 / J)] if effects else []
+        drawn = {**draw(name, {e: 1.0 for e in effects}, "none" if not effects else "single"),
+                 "seed": int(name.split("__")[0][1:])}
+        for key, data in (("d", {**record(items, {"omega": {"coulomb(omega)": 0.3}}), "code": code}),
+                          ("t", truth(effects)), ("w", drawn)):
+            paths[key].append(tmp_path / f"{name}.{key}.json")
+            write_json_atomic(paths[key][-1], data)
+
+    def summaries(names):
+        index = [list(cases).index(n) for n in names]
+        summarise(names, *([paths[k][i] for i in index] for k in "dtw"), tmp_path / "summary.csv",
+                  tmp_path / "confusion.png", tmp_path / "detection.png", tmp_path / "summary.md", EXPECTED,
+                  headline_path=tmp_path / "headline.md")
+        return (tmp_path / "summary.md").read_text(), (tmp_path / "headline.md").read_text()
+
+    for text in summaries(list(cases)[:2]):
+        assert f"Every case was diagnosed by the code at {'b' * 10}." in text and "WARNING" not in text
+    for text in summaries(list(cases)):
+        assert "WARNING: the cases were diagnosed by 2 versions of the code" in text
+        assert f"{'b' * 10}: 2 cases, {'a' * 10}: 1 case)" in text

@@ -13,6 +13,7 @@ from hybridfmu.diagnosis import figures
 from hybridfmu.diagnosis.export import DIAGNOSED_MODEL, save_diagnosed
 from hybridfmu.io import write_json_atomic, write_text_atomic
 from hybridfmu.numerics import one_math_thread
+from hybridfmu.tracking.provenance import code_version
 
 if TYPE_CHECKING:
     from hybridfmu.diagnosis.result import DiagnosisResult, HeldOutCheck
@@ -142,6 +143,7 @@ def diagnosis_record(result: DiagnosisResult, config: dict[str, Any]) -> dict[st
     settings = result.settings
     record = {
         "case": config.get("case"),
+        "code": code_version(),  # which code made this record (a summary over many records names it)
         "maneuvers": {name: m["role"] for name, m in config["maneuvers"].items()},
         "fit_maneuvers": result.fit_names, "test_maneuvers": result.test_names,
         "calibration": result.calibration, "model_parameters": result.model_parameters,

@@ -18,7 +18,6 @@ import logging
 import os
 import random
 import re
-import subprocess
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterator, TypeVar
@@ -109,15 +108,6 @@ def _file_lock(path: Path) -> Iterator[None]:
             yield
         finally:
             fcntl.flock(handle, fcntl.LOCK_UN)
-
-
-def git_commit(directory: str | Path | None = None) -> str | None:
-    """The current git commit of ``directory`` (default: the working directory), or None."""
-    try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=directory, capture_output=True, text=True, timeout=10)
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return out.stdout.strip() or None if out.returncode == 0 else None
 
 
 _MLFLOW_KEY_INVALID = re.compile(r"[^A-Za-z0-9_\-. :/]")

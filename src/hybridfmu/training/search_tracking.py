@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from hybridfmu.io import read_json, write_json_atomic
-from hybridfmu.tracking.mlflow_store import Tracker, git_commit, redacted_uri
+from hybridfmu.tracking.mlflow_store import Tracker, redacted_uri
+from hybridfmu.tracking.provenance import git_commit
 
 LOG = logging.getLogger(__name__)
 

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from hybridfmu.diagnosis.report import table_cell
+from hybridfmu.tracking.provenance import describe
 from hybridfmu_bench.withheld.scoring import effect_size, rejected_candidates, score_case, selection_thresholds
 from hybridfmu.io import atomic_path, read_json, write_text_atomic
 
@@ -429,6 +430,30 @@ def _measure_rows(by_split: dict[str, dict[str, Any] | None], only: tuple[str, .
     return header + [text for key, text in rows if only is None or key in only] + [""]
 
 
+def code_versions(records: dict[str, dict[str, Any]]) -> dict[str, int]:
+    """Which code diagnosed the cases: short version name (:func:`hybridfmu.tracking.provenance.describe` of a
+    record's ``code``) -> number of cases, most cases first."""
+    counts: dict[str, int] = {}
+    for record in records.values():
+        name = describe(record.get("code"))
+        counts[name] = counts.get(name, 0) + 1
+    return dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+
+
+def code_sentence(versions: dict[str, int]) -> str:
+    """What :func:`code_versions` says, as a sentence for the summaries: one version named, or a warning that a run
+    resumed across a code change mixes the cases of several."""
+    if len(versions) == 1:
+        name = next(iter(versions))
+        if name == describe(None):
+            return "The diagnoses do not record the code that made them."
+        return f"Every case was diagnosed by the code at {name}."
+    listed = ", ".join(f"{name}: {n} case{'s' if n != 1 else ''}" for name, n in versions.items())
+    return (f"**WARNING: the cases were diagnosed by {len(versions)} versions of the code** ({listed}); a run resumed "
+            "across a code change mixes them, so these figures belong to no one version (`snakemake -j2 withheld "
+            "--forcerun withheld_diagnose` diagnoses every case again).")
+
+
 def headline_markdown(by_split: dict[str, dict[str, Any] | None], settings: dict[str, Any]) -> str:
     """The README's short account of the check: which seeds calibrate and which evaluate, and the measures of
     :data:`HEADLINE_MEASURES` per split (every number from the run; the full account is ``summary.md``)."""
@@ -444,6 +469,8 @@ def headline_markdown(by_split: dict[str, dict[str, Any] | None], settings: dict
     else:
         intro = (f"Diagnosis checked on {n_cases} emulated cases with effects withheld from the FMU; every seed sets "
                  "the detection limits it is judged by (in sample).")
+    if settings.get("code"):
+        intro += " " + code_sentence(settings["code"])
     return "\n".join([intro, "", *_measure_rows(by_split, HEADLINE_MEASURES)])
 
 
@@ -454,7 +481,8 @@ def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any
     """The Markdown block of the check (no heading; every number from the run). ``limits``: set on the calibration
     seeds' cases; ``by_split``: :func:`aggregate` of the ``calibration`` and the ``evaluation`` seeds' cases (None
     without evaluation seeds); ``settings``: the suite's ``seeds``, ``calibration_seeds``, ``size_range``,
-    ``sizes_per_effect``, ``offset_scale_range`` (from the draw records); ``background``: :func:`background_sizes`."""
+    ``sizes_per_effect``, ``offset_scale_range`` (from the draw records), ``code`` (:func:`code_versions`);
+    ``background``: :func:`background_sizes`."""
     background = background or {}
     seeds = ", ".join(str(s) for s in settings.get("seeds", []))
     calibration_seeds = settings.get("calibration_seeds") or settings.get("seeds", [])
@@ -471,6 +499,8 @@ def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any
     else:
         split = ("Every seed calibrates (withheld.calibration_seeds holds them all; no evaluation seed): the "
                  "detection limits are set on the same cases they judge, so every figure below is in sample.")
+    if settings.get("code"):
+        split += " " + code_sentence(settings["code"])
     lines = [
         f"Withheld-effect check: {len(rows)} cases (seeds {seeds}: {kinds['single']} single, "
         f"{kinds['pair']} pair, {kinds['none']} none), whose bench has effects the FMU lacks (size scale "
@@ -665,7 +695,7 @@ def summarise(names: list[str], diagnosis_paths: list[str | Path], truth_paths: 
     settings = {"seeds": seeds, "calibration_seeds": [s for s in seeds if split[s] == "calibration"],
                 "size_range": first.get("size_range"),
                 "sizes_per_effect": max((d.get("strata") or 0 for d in draws.values()), default=0) or "–",
-                "offset_scale_range": first.get("offset_scale_range"),
+                "offset_scale_range": first.get("offset_scale_range"), "code": code_versions(records),
                 "files": [Path(p).name for p in (csv_path, detection_path, confusion_path)]}
     write_csv(rows, csv_path)
     confusion_figure(rows, confusion_path)
