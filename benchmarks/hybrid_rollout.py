@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from hybridfmu.api.stages import case_roles
-from hybridfmu.config import check_config_file
+from hybridfmu.config import case_fmu_path, case_results_dir, check_config_file
 from hybridfmu.io import write_text_atomic
 from hybridfmu.training.inference import (diagnosed_simulator, load_trained_neural_fmu, physical_layer,
                                           simulate_neural_fmu)
@@ -43,8 +43,7 @@ def main() -> None:
     args = parser.parse_args()
 
     config = check_config_file(args.config)
-    results = Path(config.get("results_dir", "results")) / config["case"]
-    fmu_path = config["fmu"].get("path") or results / "fmu" / f"{config['fmu']['model_name']}.fmu"
+    results, fmu_path = case_results_dir(config), case_fmu_path(config)
     calibration = load_calibration(results / "calibration" / "calibration.json")
     hybrid = load_trained_neural_fmu(results / "hybrid" / "best.json", fmu_path, dict(calibration.parameters),
                                      results / "diagnosis" / "diagnosed_model.pkl")

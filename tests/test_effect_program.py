@@ -162,11 +162,12 @@ def test_windows_with_the_effects_in_c_equal_the_windows_side_by_side(ipbmotor_f
     np.testing.assert_array_equal(in_c[1], whole[200:401])  # a window from the whole run's state continues it
 
 
-def test_a_term_without_a_c_form_keeps_the_callback(library):
+def test_a_term_without_a_c_form_keeps_the_callback(library, monkeypatch):
     problem, _, effects = library
-    corrected = CorrectedModel([Term(next(e for e in effects[1] if e.kind == "viscous"), {}, np.array([0.3]))], problem)
+    viscous = next(e for e in effects[1] if e.kind == "viscous")
+    corrected = CorrectedModel([Term(viscous, {}, np.array([0.3]))], problem)
     assert isinstance(corrected.correction(), EffectProgram)
-    corrected.row_stage_terms[0] = None  # as a plugin effect that offers only a Python row function
+    monkeypatch.setattr(viscous, "stage_term", lambda coef, setting: None)  # as a plugin effect that offers only a Python row function
     assert corrected.correction() is corrected
     x, u = random_points(10)
     program = EffectProgram([EffectTerm("viscous", (1,), (1,), (0.3,))], 2, 1, python=corrected)

@@ -129,9 +129,8 @@ class CorrectedModel:
         #: (equation, or a joint effect's equations, batch function returning (N,) or (N, k)) of the terms the
         #: model evaluates (:meth:`additive_batch`)
         self.batches: list[tuple[int | list[int], Callable]] = []
-        #: the terms of ``rows`` and of ``batches`` (in their orders) as the C step loop evaluates them (None
-        #: for one without a C form), for :meth:`effect_program`
-        self.row_stage_terms: list[EffectTerm | None] = []
+        #: the terms of ``batches`` (in their order) as the C step loop evaluates them (None for one without a C
+        #: form), for :meth:`effect_program` (which makes those of ``rows`` from ``row_terms`` when called)
         self.batch_stage_terms: list[EffectTerm | None] = []
         self.parameters: dict[str, float] = {}
         #: input column -> [(effect kind, change)] in rank order (see ``Effect.input_change``)
@@ -175,7 +174,6 @@ class CorrectedModel:
                 row = member.row_function(coef, setting)
                 if row is not None:
                     self.rows.append((member.equation, row))
-                    self.row_stage_terms.append(member.stage_term(coef, setting))
                     self.row_terms.append((member.equation, member, coefficients, dict(setting)))
                     if not any(array is coefficients for _, array in self.row_coefficients):
                         self.row_coefficients.append((effect.name, coefficients))
@@ -250,18 +248,12 @@ class CorrectedModel:
 
     def effect_program(self) -> EffectProgram | None:
         """The additive terms as an :class:`~hybridfmu.fmu.effect_program.EffectProgram` (rows, then batches,
-        the order :meth:`__call__` sums them in; same values), or None when some term has no C form."""
-        terms = self.row_stage_terms + self.batch_stage_terms
-        if not terms or any(term is None for term in terms):
-            return None
-        return EffectProgram(terms, self.n_x, self.n_u, python=self)
-
-    def current_effect_program(self) -> EffectProgram | None:
-        """:meth:`effect_program` with the row terms' coefficients as they are now (a hybrid trains them in
-        place, :attr:`row_terms`), or None when some term has no C form or there is no term."""
+        the order :meth:`__call__` sums them in; same values), the row terms with their coefficients as they are
+        at the call (a hybrid trains them in place, :attr:`row_terms`); None when some term has no C form or
+        there is no term."""
         rows = [member.stage_term(coefficients, setting) for _, member, coefficients, setting in self.row_terms]
         terms = rows + self.batch_stage_terms
-        if len(rows) != len(self.row_stage_terms) or not terms or any(term is None for term in terms):
+        if not terms or any(term is None for term in terms):
             return None
         return EffectProgram(terms, self.n_x, self.n_u, python=self)
 

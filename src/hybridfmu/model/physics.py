@@ -219,11 +219,11 @@ class PhysicsModel:
             return None
         if not self.corrected.has_correction:
             return fmu_rollout
-        if self.corrected.current_effect_program() is None:
+        if self.corrected.effect_program() is None:
             return None
 
         def rollout(*args, **kwargs):
-            program = self.corrected.current_effect_program()
+            program = self.corrected.effect_program()
             buffers = program.install(self.fmu._shim_model)
             try:
                 return fmu_rollout(*args, **kwargs)
