@@ -131,6 +131,34 @@ def test_parameters_are_converted_to_the_bench_units(effect, parameters, item, f
     assert row["exact"] is True and row["where_correct"] is True
 
 
+def test_an_estimate_with_its_rival_beside_is_scored_beside_the_named_one():
+    """The viscous damping named as parameter(b) at +405 % (its extra damping 4x the true one) and at +151 % with the
+    load's time offset beside it: both errors are scored, the aggregate and the per-effect table give both."""
+    from hybridfmu_bench.withheld.report import _per_effect_errors
+
+    item = chosen("parameter(b)", "omega", relative_error=4.05, corrected_value=1.01e-4)
+    item["rivals"] = [{"effect": "time_offset(tau_load)", "bic_drop": 795.0, "rejected_because": "small",
+                       "values": {"relative_error": 1.51, "corrected_value": 5.02e-5}}]
+    true = {"coefficient_nm_s": 2.2e-5}
+    row = score_case(record([item]), truth({"viscous_friction": true}), draw("v", {"viscous_friction": 1.0}), EXPECTED)
+    alone, beside = 1.01e-4 * 4.05 / 5.05, 5.02e-5 * 1.51 / 2.51
+    assert row["fitted_size_parameters"]["viscous_friction"]["value"] == pytest.approx(alone)
+    assert row["fitted_size_parameters"]["viscous_friction"]["with_rival"] == pytest.approx(beside)
+    assert row["parameter_error_pct"] == [pytest.approx(abs(alone - 2.2e-5) / 2.2e-5 * 100)]
+    assert row["parameter_error_with_rival_pct"] == [pytest.approx(abs(beside - 2.2e-5) / 2.2e-5 * 100)]
+    plain = score_case(record([chosen("viscous(omega)", "omega", coefficient=0.11)]),
+                       truth({"viscous_friction": true}), draw("w", {"viscous_friction": 1.0}), EXPECTED)
+    assert plain["parameter_error_with_rival_pct"] == [None]
+    row["effect_size"] = plain["effect_size"] = [0.5]
+    measures = aggregate([row, plain], {"viscous_friction": {"reached": True, "limit": 0.1}})
+    assert measures["n_with_rival"] == 1
+    assert measures["median_parameter_error_with_rival_pct"] == pytest.approx(
+        (row["parameter_error_with_rival_pct"][0] + plain["parameter_error_pct"][0]) / 2)
+    table = _per_effect_errors([row, plain])["viscous_friction"]
+    assert table["n"] == 2 and table["n_with_rival"] == 1
+    assert table["median"] == pytest.approx((row["parameter_error_pct"][0] + plain["parameter_error_pct"][0]) / 2)
+
+
 def test_a_cogging_order_mismatch_and_a_sign_error_are_reported():
     cogging = {"harmonics": [{"order_per_rev": 36, "amplitude_nm": 0.012, "phase_rad": 0.0}]}
     row = score_case(record([chosen("periodic(theta)", "omega", order=12, amplitude_12=50.0, amplitude_24=3.0)]),
@@ -310,6 +338,9 @@ def test_limits_come_from_the_calibration_seeds_and_the_evaluation_seeds_are_onl
     text = (tmp_path / "summary.md").read_text()
     assert "Seeds 0 calibrate" in text and "Seeds 1 evaluate" in text and "out of sample" in text
     assert "| measure | calibration seeds | evaluation seeds | target | verdict |" in text
+    # the per-effect parameter errors judge the evaluation seeds' cases above the limits: seed 1's 0.06 N m, exact
+    per_effect = [line for line in text.splitlines() if line.startswith("| coulomb_friction | 1 | ")]
+    assert len(per_effect) == 1 and per_effect[0].endswith(" | 0 |")   # one estimate, no rival
     # the README's short account: the same rows of the same measures, both splits, said which one is out of sample
     headline = (tmp_path / "headline.md").read_text()
     assert "6 emulated cases" in headline and "seeds 1 are scored with them (out of sample" in headline

@@ -1,14 +1,19 @@
 """Whether the data identify a fitted effect parameter: an uncertainty that covers what the model gets wrong.
 
-The regression's standard error measures the noise only; it stays tight when the effect's shape is wrong or
-when the maneuvers disagree. A parameter's combined standard error is therefore the largest of three:
+The regression's standard error measures the noise only; it stays tight when the effect's shape is wrong, when
+the maneuvers disagree, or when a term left out would take over part of the effect's work. A parameter's combined
+standard error is therefore the largest of four:
 
 - the regression's (``se``), from the residual variance and the design;
 - the bootstrap's over segments (``se_bootstrap``), where it was drawn;
 - the spread between the fitting maneuvers, each fitted alone: the sample standard deviation s of the n
   per-maneuver values (``stability.per_maneuver``; for two maneuvers |a - b| / sqrt 2), widened to what a 90 %
   interval from so few values must be: s t_(0.95, n - 1) / 1.645 (Student's t with n - 1 degrees of freedom;
-  x3.84 for two maneuvers, x1.31 for five), since s from two or three values can be far below the true spread.
+  x3.84 for two maneuvers, x1.31 for five), since s from two or three values can be far below the true spread;
+- the shift to its values with a rival fitted beside the chosen effects (a candidate the data support that the
+  selection left out for its small practical size, :class:`hybridfmu.diagnosis.selection.Rival`): the largest
+  |shift| / 1.645 (on the log scale for a log-scaled setting), so the 90 % interval reaches the value the data
+  would give with the rival in the model, since they do not decide between the two.
 
 Its 90 % interval is value +- 1.645 combined SEs. A size (a coefficient, a friction level, an amplitude, a
 relative parameter error, a time offset) is identified when that interval neither covers zero nor spans more than
@@ -47,26 +52,44 @@ def spread_widening(n_values: int) -> float:
     return float(t.ppf(0.95, n_values - 1) / Z_90)
 
 
-def combined_se(row: dict[str, Any], per_maneuver: dict[str, float] | None) -> float | None:
-    """The largest of the regression's SE, the bootstrap's SE and the per-maneuver values' standard deviation
-    widened for their number (:func:`spread_widening`, module docstring), or None when the parameter has none of
-    them."""
+def rival_se(value: float, alternatives: list[float] | None, log_scale: bool = False) -> float | None:
+    """The SE whose 90 % interval around ``value`` just reaches the farthest of the ``alternatives`` (its values with
+    a rival fitted beside, module docstring): max |a - value| / 1.645, or on the log scale
+    value max |ln(a / value)| / 1.645 (alternatives <= 0 ignored there); None without a finite alternative."""
+    finite = [float(a) for a in alternatives or [] if a is not None and math.isfinite(float(a))]
+    if log_scale:
+        finite = [a for a in finite if a > 0.0]
+        if not finite or not value > 0.0:
+            return None
+        return value * max(abs(math.log(a / value)) for a in finite) / Z_90
+    return max(abs(a - value) for a in finite) / Z_90 if finite else None
+
+
+def combined_se(row: dict[str, Any], per_maneuver: dict[str, float] | None,
+                alternatives: list[float] | None = None, log_scale: bool = False) -> float | None:
+    """The largest of the regression's SE, the bootstrap's SE, the per-maneuver values' standard deviation widened
+    for their number (:func:`spread_widening`) and the rivals' shift (:func:`rival_se` of ``alternatives``; module
+    docstring), or None when the parameter has none of them."""
     candidates = [row.get("se"), row.get("se_bootstrap")]
     values = [float(v) for v in (per_maneuver or {}).values() if v is not None and math.isfinite(float(v))]
     if len(values) > 1:
         candidates.append(float(np.std(values, ddof=1)) * spread_widening(len(values)))
+    value = row.get("value")
+    if alternatives and value is not None and math.isfinite(float(value)):
+        candidates.append(rival_se(float(value), alternatives, log_scale))
     finite = [float(c) for c in candidates if c is not None and math.isfinite(float(c))]
     return max(finite) if finite else None
 
 
 def identification(row: dict[str, Any], per_maneuver: dict[str, float] | None,
-                   log_scale: bool = False) -> dict[str, Any]:
+                   log_scale: bool = False, alternatives: list[float] | None = None) -> dict[str, Any]:
     """The fields a physical parameter ``row`` (``name``, ``value``, ``se``, ``se_bootstrap``) gains:
     ``se_combined``, ``interval_90`` ([low, high] or None) and ``identified`` (True, False, or None where not
     judged) with ``not_identified_because`` (words, or None). ``log_scale``: a positive scale searched on a log
-    scale (its interval is taken on that scale; a value <= 0, the setting switched off, is not judged)."""
+    scale (its interval is taken on that scale; a value <= 0, the setting switched off, is not judged).
+    ``alternatives``: its values with each rival fitted beside the chosen effects (:func:`combined_se`)."""
     value = row.get("value")
-    se = combined_se(row, per_maneuver)
+    se = combined_se(row, per_maneuver, alternatives, log_scale)
     out: dict[str, Any] = {"se_combined": se, "interval_90": None, "identified": None, "not_identified_because": None}
     if se is None or value is None or not math.isfinite(float(value)):
         return out

@@ -82,6 +82,21 @@ def not_identified(chosen: list[dict[str, Any]]) -> list[str]:
     return [f"{c['effect']}: {p['name']}" for c in chosen for p in c["parameters"] if p.get("identified") is False]
 
 
+def rival_text(item: dict[str, Any]) -> str | None:
+    """``parameter(b): relative_error 4.05, with time_offset(tau_load) beside it 1.51`` for a chosen effect whose
+    estimate rests on leaving out a rival (:class:`hybridfmu.diagnosis.selection.Rival`), or None."""
+    rivals = item.get("rivals") or []
+    if not rivals:
+        return None
+    values = {p["name"]: p["value"] for p in item["parameters"]}
+    parts = []
+    for rival in rivals:
+        moved = ", ".join(f"{name} {format_number(value, 3)}" for name, value in rival["values"].items())
+        parts.append(f"with {rival['effect']} beside it {moved}")
+    own = ", ".join(f"{name} {format_number(values.get(name), 3)}" for name in rivals[0]["values"])
+    return f"{item['effect']}: {own}; " + "; ".join(parts)
+
+
 def verdict(result: DiagnosisResult) -> str:
     """One paragraph: which equation carries the gap, what was found, how far it shrank."""
     problem = result.problem
@@ -109,6 +124,11 @@ def verdict(result: DiagnosisResult) -> str:
             parts.append(f"{group_text(group)} cannot be told apart by these data (their estimates correlate "
                          f"at {max(abs(p['correlation']) for p in group['pairs']):.2f}): only their joint effect is "
                          "determined.")
+        resting = [text for text in map(rival_text, chosen) if text]
+        if resting:
+            parts.append("Estimates resting on a term left out (the data support it beside the named effects, "
+                         "below the thresholds of naming; the 90 % intervals reach both values): "
+                         + " | ".join(resting) + ".")
         vague = not_identified(chosen)
         if vague:
             parts.append("Not identified with these data (the 90 % interval of the combined uncertainty covers zero or "
@@ -344,6 +364,12 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                          f"| {p['unit'] or '-'} | {spread} | {interval} | {judged} |"
                          + (f" {scaled_size(p['value'], p['unit'], scale)} |" if scale else ""))
         lines.append("")
+        for rival in c.get("rivals") or []:
+            moved = ", ".join(f"{name} {format_number(value, 4)}" for name, value in rival["values"].items())
+            lines += [f"Fitted with `{rival['effect']}` beside it: {moved}. The data support that term too (BIC "
+                      f"{format_number(rival['bic_drop'], 4)} lower with it), but it was not named ("
+                      f"{rival['rejected_because'] or 'it entered no step'}); the data do not decide between the "
+                      "two estimates, and the 90 % intervals above reach both.", ""]
     lines += ["### Candidates and selection steps", "",
               "All examined equations are fitted together, each in units of its noise floor: a change of an input "
               "or a model parameter takes one value in every equation it acts on; a local term acts on its own. "

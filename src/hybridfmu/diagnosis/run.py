@@ -37,9 +37,9 @@ from hybridfmu.diagnosis.refit import RefitSpec
 from hybridfmu.diagnosis.result import DiagnosisResult, EffectSelection
 from hybridfmu.diagnosis.regions import (RegionSamples, band_family, ranked_statements, region_table, reversal_mask,
                                          time_bins)
-from hybridfmu.diagnosis.selection import (DesignCache, EquationSelection, SelectionSettings, Term, best_setting,
-                                           bootstrap_coefficients, drop_one_scores, fit_terms, select_equation,
-                                           terms_in_equation)
+from hybridfmu.diagnosis.selection import (DesignCache, EquationSelection, Rival, SelectionSettings, Term,
+                                           best_setting, bootstrap_coefficients, drop_one_scores, fit_terms,
+                                           select_equation, terms_in_equation)
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -154,6 +154,38 @@ def _set_region_edges(problem: Problem, prepared: list[PreparedManeuver]) -> Non
 
 def _physical(term: Term, cov: np.ndarray) -> list[dict[str, Any]]:
     return term.effect.physical(term.coef, cov, term.setting, term.setting_se)
+
+
+def _log_scaled(term: Term, name: str) -> bool:
+    """Whether the physical parameter ``name`` of ``term`` is a positive scale searched on a log scale."""
+    return bool(term.effect.log_scale) and name in term.effect.continuous_parameters()
+
+
+def _rival_shifts(term: Term, j: int, rivals: list[Rival], params: list[dict[str, Any]],
+                  stability: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    """The rivals (:class:`hybridfmu.diagnosis.selection.Rival`) that move a physical parameter of the chosen
+    ``term`` (the ``j``-th of the selection) out of the 90 % interval it has without them (regression, bootstrap and
+    maneuver spread, ``params`` rows with ``se_bootstrap`` set): per rival its ``effect``, ``bic_drop``,
+    ``rejected_because`` and ``values`` (name -> the parameter's value with the rival fitted beside; only the
+    parameters it moves)."""
+    zero = np.zeros((len(term.coef), len(term.coef)))
+    out = []
+    for rival in rivals:
+        joint = {r["name"]: r["value"] for r in term.effect.physical(rival.coefs[j], zero, term.setting, {})}
+        moved = {}
+        for row in params:
+            value, other = row.get("value"), joint.get(row["name"])
+            if value is None or other is None or not math.isfinite(float(other)):
+                continue
+            alone = identification(row, (stability.get(row["name"]) or {}).get("per_maneuver"),
+                                   log_scale=_log_scaled(term, row["name"]))
+            interval = alone["interval_90"]
+            if interval is not None and not min(interval) <= float(other) <= max(interval):
+                moved[row["name"]] = float(other)
+        if moved:
+            out.append({"effect": rival.effect, "bic_drop": rival.bic_drop,
+                        "rejected_because": rival.rejected_because, "values": moved})
+    return out
 
 
 def _bootstrap_se(term: Term, draws: np.ndarray) -> dict[str, float]:
@@ -292,7 +324,7 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
     with Beside({n: alone(n) for n in fit_names} if len(fit_names) > 1 else {}, workers) as separate_selections:
         started = time.perf_counter()
         selection = select_equation(stacked, JOINT, candidates, fit_names, sel, label="all equations",
-                                    calibrate=calibrate)
+                                    calibrate=calibrate, rivals=True)
         LOGGER.info("selection over %d equations: %d candidates, chosen %s (%.1f s)", len(problem.equations),
                     len(candidates), [t.effect.name for t in selection.terms], time.perf_counter() - started)
         scores = drop_one_scores(stacked, selection, fit_names) if selection.terms else {}
@@ -322,9 +354,12 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
                 stability[row["name"]] = {"per_maneuver": values,
                                           "relative_spread": float(np.ptp(arr) / denom) if denom > 0 else 0.0}
             row["se_bootstrap"] = boot.get(row["name"])
+        rivals = _rival_shifts(term, j, selection.rivals, params, stability)
+        for row in params:
             row.update(identification(row, (stability.get(row["name"]) or {}).get("per_maneuver"),
-                                      log_scale=term.effect.log_scale
-                                      and row["name"] in term.effect.continuous_parameters()))
+                                      log_scale=_log_scaled(term, row["name"]),
+                                      alternatives=[r["values"][row["name"]] for r in rivals
+                                                    if row["name"] in r["values"]]))
         terms_of[effect_key(term.effect)] = term
         chosen.append({
             "effect": term.effect.name, "kind": term.effect.kind, "equation": problem.state_names[primary],
@@ -332,7 +367,8 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
             "equation_unit": problem.rate_unit(primary), "description": term.effect.description,
             "formula": term.effect.formula, "setting": dict(term.setting),
             "coefficients": dict(zip(term.effect.coefficient_names(term.setting), map(float, term.coef))),
-            "parameters": params, "stability": stability, "score": float(scores.get(effect_key(term.effect), 0.0)),
+            "parameters": params, "stability": stability, "rivals": rivals,
+            "score": float(scores.get(effect_key(term.effect), 0.0)),
             "_key": effect_key(term.effect),
         })
     steps = [_step_record(st, problem) for st in selection.steps]

@@ -523,9 +523,33 @@ class SelectionStep:
     kind: str = "forward"  # or "exchange": ``chosen`` replaced a term (``reason`` names it)
 
 
+#: Most rivals (:class:`Rival`) kept per selection, the lowest BIC first.
+MAX_RIVALS = 3
+
+
+@dataclass
+class Rival:
+    """A candidate left out of the final selection that the data still support beside it: fitted together with the
+    chosen terms it lowers the BIC by at least ``min_bic_drop``, yet it failed a threshold of practical size
+    (``rejected_because``; None where it would pass now). Where it takes over part of a chosen term's work, leaving it
+    out biases that term's estimate, so the estimate rests on a choice the data do not make.
+
+    Attributes:
+        effect: its name; setting: its settings in the joint fit; bic_drop: how far it lowers the BIC.
+        coefs: the chosen terms' coefficients in the joint fit (one array per term, in the order of
+            ``EquationSelection.terms``).
+    """
+
+    effect: str
+    setting: dict[str, float]
+    bic_drop: float
+    rejected_because: str | None
+    coefs: list[np.ndarray]
+
+
 @dataclass
 class EquationSelection:
-    """Result of the selection in one state equation."""
+    """Result of the selection in one state equation (``rivals``: :class:`Rival`, where asked for)."""
 
     equation: int
     terms: list[Term]
@@ -535,6 +559,7 @@ class EquationSelection:
     noise_variance: float
     steps: list[SelectionStep]
     calibration: list[dict[str, Any]] = field(default_factory=list)
+    rivals: list[Rival] = field(default_factory=list)
 
 
 def _fit_state(cache, terms: list[Term], equation: int, names: list[str], blocks: list[Block],
@@ -578,6 +603,33 @@ def _candidate_row(cache, active: list[Term], term: Term, equation: int, names: 
             "bic": score, "bic_drop": bic_cur - score, "relative_parameter_error": error,
             "within_tolerance": error is not None and abs(error) < settings.parameter_tolerance,
             "term": term, "rss_blocks": block_rss(fit.residual, blocks)}
+
+
+def _candidate_rows(cache, active: list[Term], pool: list[Effect], equation: int, names: list[str],
+                    blocks: list[Block], rss_cur_blocks: list[float], rss_none_blocks: list[float], bic_cur: float,
+                    grid_sizes: dict[tuple, int], settings: SelectionSettings, counts: dict[int, int]
+                    ) -> list[dict[str, Any]]:
+    """Every effect of ``pool`` not in ``active``, fitted beside it (:func:`_candidate_row`; the
+    ``refine_candidates`` best by BIC with their continuous settings refined), sorted by BIC, each with the
+    ``rejected_because`` of :func:`_rejection` (None: it may enter)."""
+    chosen_keys = {effect_key(t.effect) for t in active}
+    remaining = [e for e in pool if effect_key(e) not in chosen_keys]
+
+    def row_of(effect: Effect, refine: bool) -> dict[str, Any]:
+        term, _, _ = best_setting(cache, active, effect, equation, names, settings.refine_iterations, refine)
+        return _candidate_row(cache, active, term, equation, names, blocks, rss_cur_blocks, rss_none_blocks,
+                              bic_cur, grid_sizes, settings)
+
+    rows = sorted((row_of(e, False) for e in remaining), key=lambda r: r["bic"])
+    top = max(int(settings.refine_candidates), 1)
+    for j, row in enumerate(rows[:top]):
+        if row["term"].effect.continuous_parameters():
+            rows[j] = row_of(row["term"].effect, True)
+    rows.sort(key=lambda r: r["bic"])
+    for r in rows:
+        r["rejected_because"] = "parameter error within the tolerance" if r["within_tolerance"] else \
+            _rejection(r, settings, counts)
+    return rows
 
 
 def _rejection(row: dict[str, Any], settings: SelectionSettings, counts: dict[int, int]) -> str | None:
@@ -738,8 +790,8 @@ def _calibration_record(row: dict[str, Any], outcome: str) -> dict[str, Any]:
 
 
 def select_equation(cache: DesignCache, equation: int, effects: list[Effect], names: list[str],
-                    settings: SelectionSettings, label: str = "", calibrate: list[Effect] | None = None
-                    ) -> EquationSelection:
+                    settings: SelectionSettings, label: str = "", calibrate: list[Effect] | None = None,
+                    rivals: bool = False) -> EquationSelection:
     """Stepwise forward selection among ``effects`` (those the cache accepts for ``equation``) on the maneuvers
     ``names``.
 
@@ -754,6 +806,9 @@ def select_equation(cache: DesignCache, equation: int, effects: list[Effect], na
     candidate, a calibration in equation-error form, so a combination of parameter errors is not named as one
     surrogate effect; after the forward steps each is kept only if it would pass the thresholds entering last
     (:func:`_eliminate`; the outcome per effect in ``EquationSelection.calibration``).
+
+    ``rivals``: also find the candidates the data support beside the final choice (:class:`Rival`, one more pass
+    over the candidates).
     """
     effects = [e for e in effects if cache.accepts(e, equation)]
     base = [Term(e, dict(e.grid()[0])) for e in (calibrate or []) if cache.accepts(e, equation)]
@@ -781,27 +836,11 @@ def select_equation(cache: DesignCache, equation: int, effects: list[Effect], na
         """Forward steps from the active set until no candidate may enter."""
         nonlocal active, rss_cur_blocks, bic_cur, counts
         while len(active) < limit and n > 0:
-            chosen_keys = {effect_key(t.effect) for t in active}
-            remaining = [e for e in pool if effect_key(e) not in chosen_keys]
-            if not remaining:
+            rows_info = _candidate_rows(cache, active, pool, equation, names, blocks, rss_cur_blocks,
+                                        rss_none_blocks, bic_cur, grid_sizes, settings, counts)
+            if not rows_info:
                 break
-
-            def row_of(effect: Effect, refine: bool) -> dict[str, Any]:
-                term, _, _ = best_setting(cache, active, effect, equation, names, settings.refine_iterations,
-                                          refine)
-                return _candidate_row(cache, active, term, equation, names, blocks, rss_cur_blocks,
-                                      rss_none_blocks, bic_cur, grid_sizes, settings)
-
-            rows_info = sorted((row_of(e, False) for e in remaining), key=lambda r: r["bic"])
-            top = max(int(settings.refine_candidates), 1)
-            for j, row in enumerate(rows_info[:top]):
-                if row["term"].effect.continuous_parameters():
-                    rows_info[j] = row_of(row["term"].effect, True)
-            rows_info.sort(key=lambda r: r["bic"])
             eligible = [r for r in rows_info if not r["within_tolerance"]]
-            for r in rows_info:
-                r["rejected_because"] = "parameter error within the tolerance" if r["within_tolerance"] else \
-                    _rejection(r, settings, counts)
             record = [{k: v for k, v in r.items() if k not in ("term", "rss_blocks")} for r in rows_info]
             if not eligible:
                 steps.append(SelectionStep(candidates=record, chosen=None,
@@ -854,9 +893,38 @@ def select_equation(cache: DesignCache, equation: int, effects: list[Effect], na
     fit = fit_terms(cache, active, equation, names)
     for term, coef in zip(active, fit.coefs):
         term.coef = coef
+    found = []
+    if rivals and active and n > 0:
+        rss_cur_blocks, bic_cur, counts = restate(active)
+        found = _rivals(cache, active, pool, equation, names, blocks, rss_cur_blocks, rss_none_blocks, bic_cur,
+                        grid_sizes, settings, counts)
+        for rival in found:
+            LOGGER.info("selection %s: %s left out, though it lowers the BIC by %.1f beside the chosen terms (%s)",
+                        label or equation, rival.effect, rival.bic_drop, rival.rejected_because or "it would pass")
     return EquationSelection(equation=equation, terms=active, fit=fit, rss_none=rss_none, n=n,
                              noise_variance=noise_var, steps=steps,
-                             calibration=[calibration[effect_key(e)] for e in parameters if effect_key(e) in calibration])
+                             calibration=[calibration[effect_key(e)] for e in parameters if effect_key(e) in calibration],
+                             rivals=found)
+
+
+def _rivals(cache, active: list[Term], pool: list[Effect], equation: int, names: list[str], blocks: list[Block],
+            rss_cur_blocks: list[float], rss_none_blocks: list[float], bic_cur: float, grid_sizes: dict[tuple, int],
+            settings: SelectionSettings, counts: dict[int, int]) -> list[Rival]:
+    """The :data:`MAX_RIVALS` candidates with the lowest BIC beside the final ``active`` terms among those that lower
+    it by at least ``min_bic_drop`` (parameter errors within the tolerance aside), each with the active terms'
+    coefficients in the joint fit."""
+    found = []
+    for row in _candidate_rows(cache, active, pool, equation, names, blocks, rss_cur_blocks, rss_none_blocks,
+                               bic_cur, grid_sizes, settings, counts):
+        if row["within_tolerance"] or row["bic_drop"] < settings.min_bic_drop:
+            continue
+        joint = fit_terms(cache, active + [row["term"]], equation, names)
+        found.append(Rival(effect=row["effect"], setting=dict(row["term"].setting), bic_drop=float(row["bic_drop"]),
+                           rejected_because=row["rejected_because"],
+                           coefs=[np.array(c, dtype=float) for c in joint.coefs[:len(active)]]))
+        if len(found) >= MAX_RIVALS:
+            break
+    return found
 
 
 def _polish(cache, active: list[Term], equation: int, names, settings) -> list[Term]:

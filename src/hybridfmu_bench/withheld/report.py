@@ -54,7 +54,9 @@ __all__ = ["SUMMARY_COLUMNS", "DEFAULT_TARGETS", "summarise", "detection_limit",
 #: effects, true offsets left out); named_effects (the diagnosis' names, rank order); extra_effects (named, not
 #: withheld, not a true offset); exact (found set == withheld set); where_correct (every withheld effect named in
 #: an equation it acts on); named_in (per effect: the equations it was named in); parameter_error_pct (per
-#: effect: |fitted - true| / |true| x 100 of its size parameter, or missed / mismatch / n/a); true_size_parameters
+#: effect: |fitted - true| / |true| x 100 of its size parameter, or missed / mismatch / n/a);
+#: parameter_error_with_rival_pct (per effect: the same with the named effect's first rival beside it, empty where no
+#: rival moves it); true_size_parameters
 #: and fitted_size_parameters (JSON: the compared values in the bench's units); true_params and fitted_params
 #: (JSON: all bench parameters, all fitted physical parameters); background_found (conditions of
 #: withheld.background the diagnosis named: present in every case, not extras); offsets_true (JSON: parameter -> relative offset
@@ -68,7 +70,8 @@ __all__ = ["SUMMARY_COLUMNS", "DEFAULT_TARGETS", "summarise", "detection_limit",
 #: role); above_limit (every withheld effect at or above its detection limit set on the calibration seeds).
 SUMMARY_COLUMNS = ["case", "seed", "split", "above_limit", "kind", "stratum", "true_effects", "size_scale",
                    "effect_size", "detected", "found_effects", "named_effects", "extra_effects", "exact",
-                   "where_correct", "named_in", "parameter_error_pct", "true_size_parameters",
+                   "where_correct", "named_in", "parameter_error_pct", "parameter_error_with_rival_pct",
+                   "true_size_parameters",
                    "fitted_size_parameters", "true_params", "fitted_params", "background_found", "offsets_true",
                    "offsets_found", "offsets_missed", "offset_errors_pct", "gap_before", "gap_after", "gap_shrink",
                    "window_gap_before", "window_gap_after", "shrink_factor", "effect_shrink", "window_effect_shrink",
@@ -179,6 +182,11 @@ def aggregate(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]],
     above = [r for r in rows if above_limits(r, limits)]
     errors = [e for r in above for e in r["parameter_error_pct"] if isinstance(e, float)]
     mismatches = sum(e == "mismatch" for r in above for e in r["parameter_error_pct"])
+    # the same estimates, each with its first rival beside it where one moves it
+    pairs = [(e, w) for r in above for e, w in zip(r["parameter_error_pct"],
+                                                    r.get("parameter_error_with_rival_pct") or [None] * len(r["parameter_error_pct"]))
+             if isinstance(e, float)]
+    errors_rival = [w if isinstance(w, float) else e for e, w in pairs]
     shrinks = [r["shrink_factor"] for r in above if r["shrink_factor"] is not None]
     whole = [r["gap_shrink"] for r in above if r["gap_shrink"] is not None]
     nones = [r for r in rows if r["kind"] == "none"]
@@ -195,6 +203,8 @@ def aggregate(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]],
         "exact_set_accuracy_all": sum(bool(r["exact"]) for r in with_effects) / len(with_effects)
         if with_effects else None, "n_exact_all": sum(bool(r["exact"]) for r in with_effects),
         "median_parameter_error_pct": median_error, "n_parameter_errors": len(errors), "n_mismatches": mismatches,
+        "median_parameter_error_with_rival_pct": _median(errors_rival),
+        "n_with_rival": sum(isinstance(w, float) for _, w in pairs),
         "median_windowed_shrink": median_shrink, "n_shrinks": len(shrinks),
         "fraction_windowed_shrink_at_target": sum(s >= targets["windowed_shrink"] for s in shrinks) / len(shrinks)
         if shrinks else None,
@@ -214,6 +224,24 @@ def aggregate(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]],
         "none_names_nothing": None if not nones else all(r["exact"] for r in nones),
     }
     return result
+
+
+def _per_effect_errors(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per bench effect over ``rows``: the parameter errors (%) of its estimates, ``n``, ``median``, ``min``, ``max``,
+    ``median_with_rival`` (each with its first rival beside it where one moves it) and ``n_with_rival``."""
+    out: dict[str, dict[str, Any]] = {}
+    for r in rows:
+        rival = r.get("parameter_error_with_rival_pct") or [None] * len(r["true_effects"])
+        for effect, error, with_rival in zip(r["true_effects"], r["parameter_error_pct"], rival):
+            if not isinstance(error, float):
+                continue
+            entry = out.setdefault(effect, {"errors": [], "with_rival": [], "n_with_rival": 0})
+            entry["errors"].append(error)
+            entry["with_rival"].append(with_rival if isinstance(with_rival, float) else error)
+            entry["n_with_rival"] += isinstance(with_rival, float)
+    return {effect: {"n": len(e["errors"]), "median": _median(e["errors"]), "min": min(e["errors"]),
+                     "max": max(e["errors"]), "median_with_rival": _median(e["with_rival"]),
+                     "n_with_rival": e["n_with_rival"]} for effect, e in sorted(out.items())}
 
 
 def false_alarms(records: dict[str, dict[str, Any]], rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -409,6 +437,9 @@ def _measure_rows(by_split: dict[str, dict[str, Any] | None], only: tuple[str, .
                                           f"{mismatches(m)})",
                                 f"≤ {_num(t['median_parameter_error_pct'])} %",
                                 _verdict(v["median_parameter_error_pct"]))),
+        ("parameter_error_rival", row("the same, each estimate with its first rival beside it where one moves it",
+                                      lambda m: f"{_num(m.get('median_parameter_error_with_rival_pct'))} % "
+                                                f"({m.get('n_with_rival', 0)} of {m['n_parameter_errors']} moved)")),
         ("windowed_shrink", row("median windowed shrink of the open-loop gap, cases above the limits",
                                 lambda m: f"×{_num(m['median_windowed_shrink'])} (n = {m['n_shrinks']})", f"≥ ×{w}",
                                 _verdict(v["windowed_shrink"]))),
@@ -543,6 +574,19 @@ def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any
                   "| bench effect | covered | share |", "|---|---|---|"]
         lines += [f"| {effect} | {c['covered']}/{c['n']} | {_pct(c['covered'] / c['n'])} |"
                   for effect, c in sorted(coverage.items())]
+        lines.append("")
+    judged = [r for r in rows if r.get("split", "calibration") == ("evaluation" if evaluation_seeds else "calibration")
+              and above_limits(r, limits)]
+    per_effect = _per_effect_errors(judged)
+    if per_effect:
+        lines += ["Parameter error per bench effect, cases above the limits of the "
+                  + ("evaluation" if evaluation_seeds else "calibration")
+                  + " seeds (median [min – max]; with the rival: each estimate with its first rival beside it "
+                  "where one moves it):", "",
+                  "| bench effect | estimates | median parameter error | with the rival | moved by a rival |",
+                  "|---|---|---|---|---|"]
+        lines += [f"| {effect} | {e['n']} | {_num(e['median'])} % [{_num(e['min'])} – {_num(e['max'])}] | "
+                  f"{_num(e['median_with_rival'])} % | {e['n_with_rival']} |" for effect, e in per_effect.items()]
         lines.append("")
     lines += _offset_lines(rows)
     lines += _alarm_lines(alarms, thresholds)

@@ -34,6 +34,11 @@ top-ranked named effect that maps to it (preferring one named in the equation th
 model's inertia (``diagnosis.json`` ``model_parameters.J``, else the bench's nominal J, which the FMU shares);
 the PWM frequency is the bench's.
 
+Parameter error with the rival beside (column ``parameter_error_with_rival_pct``): the same for the value the
+diagnosis reports with the effect's first rival fitted beside it (``rivals`` of the named effect: a candidate the
+data support that was not named, :class:`hybridfmu.diagnosis.selection.Rival`); empty where no rival moves the
+estimate.
+
 Where (column ``where_correct``): every withheld effect was named in an equation it acts on (``SCORING``:
 torque effects and the inertia in d omega/dt, the dead time and the duty time offset in d i_d/dt or d i_q/dt).
 """
@@ -197,14 +202,30 @@ def _scoring_context(record: dict[str, Any], truth: dict[str, Any], parameters: 
                           true_parameters=parameters)
 
 
-def _fitted_value(effect: str, items: list[dict[str, Any]], ctx: ScoringContext
-                  ) -> tuple[float | None, str, str, tuple[float, float] | None]:
-    """(fitted value, named effect it comes from, note, 90 % interval) of the first item with a conversion. The
-    interval is the conversion at the ends of the parameters' 90 % intervals (``interval_90`` of the diagnosis;
-    every conversion rises or falls with each of its parameters), None where the item has none."""
+@dataclass(frozen=True)
+class FittedSize:
+    """A withheld effect's size parameter as the diagnosis estimates it (bench units).
+
+    Attributes:
+        value: from the named effect's parameters (None: no conversion applied); source: that effect and its
+            equation; note: why there is no value; interval: the conversion at the ends of the parameters' 90 %
+            intervals (None where they have none); with_rival: from its values with its first rival beside it
+            (None where no rival moves them).
+    """
+
+    value: float | None
+    source: str = ""
+    note: str = ""
+    interval: tuple[float, float] | None = None
+    with_rival: float | None = None
+
+
+def _fitted_value(effect: str, items: list[dict[str, Any]], ctx: ScoringContext) -> FittedSize:
+    """The :class:`FittedSize` of the first item with a conversion (every conversion rises or falls with each of its
+    parameters, so the interval's ends are the conversion at the parameters' ends)."""
     scoring = SCORING.get(effect)
     if scoring is None:
-        return None, "", "no scoring for this effect", None
+        return FittedSize(None, note="no scoring for this effect")
     notes = []
     for item in items:
         for conversion in scoring.conversions:
@@ -219,9 +240,23 @@ def _fitted_value(effect: str, items: list[dict[str, Any]], ctx: ScoringContext
                 except KeyError as err:
                     notes.append(f"{item['effect']}: no parameter {err}")
                     continue
-                return value, f"{item['effect']} in d{item['equation']}/dt", "", _interval(conversion, rows, ctx)
-    return (None, "", "; ".join(notes) or "no conversion for " + ", ".join(sorted({i["effect"] for i in items})),
-            None)
+                return FittedSize(value, f"{item['effect']} in d{item['equation']}/dt", "",
+                                  _interval(conversion, rows, ctx), _with_rival(conversion, params, item, ctx))
+    return FittedSize(None, note="; ".join(notes) or "no conversion for " + ", ".join(sorted({i["effect"]
+                                                                                            for i in items})))
+
+
+def _with_rival(conversion: Conversion, params: dict[str, float], item: dict[str, Any], ctx: ScoringContext
+                ) -> float | None:
+    """``conversion`` at the named ``item``'s parameter values with its first rival beside it, or None."""
+    rivals = item.get("rivals") or []
+    if not rivals:
+        return None
+    try:
+        value = float(conversion.fitted({**params, **rivals[0]["values"]}, ctx))
+    except (ScoreMismatch, KeyError, ZeroDivisionError):
+        return None
+    return value if math.isfinite(value) else None
 
 
 def _interval(conversion: Conversion, rows: list[dict[str, Any]], ctx: ScoringContext
@@ -311,7 +346,8 @@ def score_case(record: dict[str, Any], truth: dict[str, Any], draw: dict[str, An
         preferred = [i for i in items if _acts_on(i, acting)] + [i for i in items if not _acts_on(i, acting)]
         ctx = _scoring_context(record, truth, true_params[effect])
         true_value = true_size(effect, true_params[effect])
-        fitted, source, note, interval = _fitted_value(effect, preferred, ctx) if items else (None, "", "missed", None)
+        size = _fitted_value(effect, preferred, ctx) if items else FittedSize(None, note="missed")
+        fitted, source, note, interval = size.value, size.source, size.note, size.interval
         per_effect.append({
             "effect": effect, "detected": bool(items),
             "named_in": sorted({e for i in items for e in i.get("equations") or [i["equation"]]}),
@@ -319,7 +355,8 @@ def score_case(record: dict[str, Any], truth: dict[str, Any], draw: dict[str, An
             "size_scale": (draw.get("size_scales") or {}).get(effect),
             "effect_size": effect_size(record, list(expected.get(effect, []))),
             "true_value": true_value, "fitted_value": fitted, "fitted_from": source,
-            "parameter_error_pct": _error_pct(fitted, true_value), "note": note,
+            "parameter_error_pct": _error_pct(fitted, true_value), "note": note, "fitted_with_rival": size.with_rival,
+            "parameter_error_with_rival_pct": _error_pct(size.with_rival, true_value),
             "interval_90": list(interval) if interval else None, "interval_covers_truth": _covers(interval, true_value),
         })
     offsets_found = [p for p in true_offsets if p in offset_items]
@@ -342,12 +379,14 @@ def score_case(record: dict[str, Any], truth: dict[str, Any], draw: dict[str, An
         "where_correct": all(e["where_correct"] for e in per_effect) if per_effect else None,
         "named_in": [",".join(e["named_in"]) or "-" for e in per_effect],
         "parameter_error_pct": [_error_token(e) for e in per_effect],
+        "parameter_error_with_rival_pct": [e["parameter_error_with_rival_pct"] for e in per_effect],
         "true_size_parameters": {e["effect"]: {"parameter": SCORING[e["effect"]].size_parameter if e["effect"] in
                                                SCORING else None, "value": e["true_value"],
                                                "unit": SCORING[e["effect"]].unit if e["effect"] in SCORING else None}
                                  for e in per_effect},
         "fitted_size_parameters": {e["effect"]: {"value": e["fitted_value"], "from": e["fitted_from"],
-                                                 "note": e["note"]} for e in per_effect},
+                                                 "note": e["note"], "with_rival": e["fitted_with_rival"]}
+                                   for e in per_effect},
         "true_params": true_params, "fitted_params": _fitted_parameters(record),
         "background_found": background_found,
         "offsets_true": true_offsets, "offsets_found": offsets_found,
