@@ -169,6 +169,9 @@ def _rival_shifts(term: Term, j: int, rivals: list[Rival], params: list[dict[str
     ``rejected_because`` and ``values`` (name -> the parameter's value with the rival fitted beside; only the
     parameters it moves)."""
     zero = np.zeros((len(term.coef), len(term.coef)))
+    intervals = {row["name"]: identification(row, (stability.get(row["name"]) or {}).get("per_maneuver"),
+                                             log_scale=_log_scaled(term, row["name"]))["interval_90"]
+                 for row in params} if rivals else {}
     out = []
     for rival in rivals:
         joint = {r["name"]: r["value"] for r in term.effect.physical(rival.coefs[j], zero, term.setting, {})}
@@ -177,9 +180,7 @@ def _rival_shifts(term: Term, j: int, rivals: list[Rival], params: list[dict[str
             value, other = row.get("value"), joint.get(row["name"])
             if value is None or other is None or not math.isfinite(float(other)):
                 continue
-            alone = identification(row, (stability.get(row["name"]) or {}).get("per_maneuver"),
-                                   log_scale=_log_scaled(term, row["name"]))
-            interval = alone["interval_90"]
+            interval = intervals[row["name"]]
             if interval is not None and not min(interval) <= float(other) <= max(interval):
                 moved[row["name"]] = float(other)
         if moved:

@@ -183,8 +183,9 @@ def aggregate(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]],
     errors = [e for r in above for e in r["parameter_error_pct"] if isinstance(e, float)]
     mismatches = sum(e == "mismatch" for r in above for e in r["parameter_error_pct"])
     # the same estimates, each with its first rival beside it where one moves it
-    pairs = [(e, w) for r in above for e, w in zip(r["parameter_error_pct"],
-                                                    r.get("parameter_error_with_rival_pct") or [None] * len(r["parameter_error_pct"]))
+    pairs = [(e, w) for r in above
+             for e, w in zip(r["parameter_error_pct"],
+                             r.get("parameter_error_with_rival_pct") or [None] * len(r["parameter_error_pct"]))
              if isinstance(e, float)]
     errors_rival = [w if isinstance(w, float) else e for e, w in pairs]
     shrinks = [r["shrink_factor"] for r in above if r["shrink_factor"] is not None]
