@@ -44,8 +44,9 @@ from hybridfmu.diagnosis.selection import (DesignCache, EquationSelection, Rival
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
 #: Most adjustments fitted beside the named effects (each a rival that moved a named estimate, :func:`select_effects`).
-#: One: on the withheld suite's calibration seeds a second one is a weaker rival of the first's remainder, and it moved
-#: the parameter errors away from the truth (s0__pair_load_dependent_friction__inertia_mismatch: psi -4.8 % against -1.9 %).
+#: One: on a calibration case of the withheld suite (s0__pair_load_dependent_friction__inertia_mismatch) a second one,
+#: a weaker rival of what the first left, moved psi from -1.9 % to -4.8 % and R from +3.9 % to +0.8 %, and the
+#: named effects' windowed open-loop shrink fell from x4.6 to x1.5.
 MAX_ADJUSTMENTS = 1
 
 
