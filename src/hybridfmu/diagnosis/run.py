@@ -168,12 +168,14 @@ def _log_scaled(term: Term, name: str) -> bool:
 
 
 def _rival_shifts(term: Term, j: int, rivals: list[Rival], params: list[dict[str, Any]],
-                  stability: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+                  stability: dict[str, dict[str, Any]], min_relative_shift: float) -> list[dict[str, Any]]:
     """The rivals (:class:`hybridfmu.diagnosis.selection.Rival`) that move a physical parameter of the chosen
     ``term`` (the ``j``-th of the selection) out of the 90 % interval it has without them (regression, bootstrap and
-    maneuver spread, ``params`` rows with ``se_bootstrap`` set): per rival its ``effect``, ``bic_drop``,
-    ``rejected_because`` and ``values`` (name -> the parameter's value with the rival fitted beside; only the
-    parameters it moves)."""
+    maneuver spread, ``params`` rows with ``se_bootstrap`` set) and by more than ``min_relative_shift`` of its value
+    (the selection's ``parameter_tolerance``: on nearly noise-free data the interval is so tight that a shift of a
+    few parts in a million leaves it, and such a shift changes nothing a user would act on): per rival its
+    ``effect``, ``bic_drop``, ``rejected_because`` and ``values`` (name -> the parameter's value with the rival
+    fitted beside; only the parameters it moves)."""
     zero = np.zeros((len(term.coef), len(term.coef)))
     intervals = {row["name"]: identification(row, (stability.get(row["name"]) or {}).get("per_maneuver"),
                                              log_scale=_log_scaled(term, row["name"]))["interval_90"]
@@ -187,7 +189,8 @@ def _rival_shifts(term: Term, j: int, rivals: list[Rival], params: list[dict[str
             if value is None or other is None or not math.isfinite(float(other)):
                 continue
             interval = intervals[row["name"]]
-            if interval is not None and not min(interval) <= float(other) <= max(interval):
+            if interval is not None and not min(interval) <= float(other) <= max(interval) \
+                    and abs(float(other) - float(value)) > min_relative_shift * abs(float(value)):
                 moved[row["name"]] = float(other)
         if moved:
             out.append({"effect": rival.effect, "bic_drop": rival.bic_drop,
@@ -342,7 +345,7 @@ def _chosen_records(selection: EquationSelection, cache: DesignCache, stacked: A
                 stability[row["name"]] = {"per_maneuver": values,
                                           "relative_spread": float(np.ptp(arr) / denom) if denom > 0 else 0.0}
             row["se_bootstrap"] = boot.get(row["name"])
-        rivals = _rival_shifts(term, j, selection.rivals, params, stability)
+        rivals = _rival_shifts(term, j, selection.rivals, params, stability, sel.parameter_tolerance)
         for row in params:
             row.update(identification(row, (stability.get(row["name"]) or {}).get("per_maneuver"),
                                       log_scale=_log_scaled(term, row["name"]),
