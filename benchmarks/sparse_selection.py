@@ -71,9 +71,10 @@ def score_case_files(case: str, withheld: Path, fmu: Path, expected: dict, backg
     inputs = load_inputs(config, fmu, {m: withheld / case / "data" / f"{m}.parquet" for m in maneuvers},
                          {m: withheld / case / "segments" / f"{m}.json" for m in maneuvers})
     prepared, fit_names, _ = prepare_all(inputs.problem, inputs.model, inputs.measured, simulator_for(inputs.model))
-    _, stacked, candidates, calibrate, _ = selection_inputs(prepared, fit_names, inputs.problem, inputs.model)
+    selection = selection_inputs(prepared, fit_names, inputs.problem, inputs.model)
     sel = SelectionSettings.from_config(inputs.settings.get("selection"))
-    features = candidate_features(stacked, candidates, calibrate, fit_names, sel.refine_iterations)
+    features = candidate_features(selection.stacked, selection.candidates, selection.calibrate, fit_names,
+                                  sel.refine_iterations)
     elapsed = time.perf_counter() - started
     forward = score_case(record, truth, draw, expected, background)
     sparse = {}

@@ -184,16 +184,25 @@ def test_effect_sizes_are_given_in_the_unit_the_configured_scale_makes():
     assert scaled_size(0.5, "1/s", None) == "-"
 
 
-def test_an_estimate_that_rests_on_a_term_left_out_names_it_and_reaches_its_value():
+def _viscous_with_a_small_coulomb():
     """Viscous friction with a Coulomb friction too small to be named (it explains 0.8 % of the initial residual,
-    below the 5 % asked for here) but plain in the data: the viscous coefficient fitted alone absorbs the Coulomb
-    part; fitted with it beside, it is the truth. The diagnosis names the rival and widens the interval to it."""
+    below the 5 % asked for here) but plain in the data."""
     def extra(x, u):
         return np.stack([np.zeros(len(x)), -0.3 * x[:, 1] - 0.05 * np.tanh(x[:, 1] / 0.005)], axis=1)
 
     problem, model = msd_problem(parameters=["m"], candidates=["viscous(*)", "coulomb(*)", "parameter(*)"],
                                  selection={"bootstrap_samples": 20, "min_share_of_initial": 0.05})
-    result = run_diagnosis(problem, model, msd_maneuvers(extra, duration_s=20.0), open_loop=False)
+    return problem, model, msd_maneuvers(extra, duration_s=20.0)
+
+
+def test_an_estimate_that_rests_on_a_term_left_out_names_it_and_reaches_its_value(monkeypatch):
+    """With no adjustment allowed: the viscous coefficient fitted alone absorbs the Coulomb part; fitted with it
+    beside, it is the truth. The diagnosis names the rival and widens the interval to it."""
+    import hybridfmu.diagnosis.run as run
+
+    monkeypatch.setattr(run, "MAX_ADJUSTMENTS", 0)
+    problem, model, measured = _viscous_with_a_small_coulomb()
+    result = run_diagnosis(problem, model, measured, open_loop=False)
     assert _names(result) == ["viscous(v)"]
     alone = _param(result, "coefficient")
     assert alone > 0.31                                       # biased by the Coulomb part
@@ -209,3 +218,19 @@ def test_an_estimate_that_rests_on_a_term_left_out_names_it_and_reaches_its_valu
     plain = run_diagnosis(problem, model, msd_maneuvers(_extra(lambda x, u: -0.3 * x[:, 1]), duration_s=20.0),
                           open_loop=False)
     assert _names(plain) == ["viscous(v)"] and plain.which.chosen[0]["rivals"] == []
+
+
+def test_a_rival_that_moves_a_named_estimate_is_fitted_beside_it_as_an_adjustment():
+    """The same data with adjustments (the default): the Coulomb friction is fitted beside the viscous one, not
+    named; the viscous coefficient is the truth, and the verdict says what was fitted beside it."""
+    problem, model, measured = _viscous_with_a_small_coulomb()
+    result = run_diagnosis(problem, model, measured, open_loop=False)
+    assert result.which.found_effects == ["viscous(v)"] and result.which.adjustments == ["coulomb(v)"]
+    by_name = {c["effect"]: c for c in result.which.chosen}
+    assert by_name["viscous(v)"]["role"] == "finding" and by_name["coulomb(v)"]["role"] == "adjustment"
+    coefficient = {p["name"]: p["value"] for p in by_name["viscous(v)"]["parameters"]}["coefficient"]
+    assert coefficient == pytest.approx(0.3, rel=0.02)
+    assert by_name["viscous(v)"]["rivals"] == []
+    text = verdict(result)
+    assert "Unmodelled effects named (rank order): 1. viscous(v)" in text
+    assert "Fitted beside them, not named" in text and "coulomb(v)" in text.split("Fitted beside them")[1]

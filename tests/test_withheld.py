@@ -82,6 +82,23 @@ def test_small_withheld_check(tiny_config, ipbmotor_fmu, tmp_path):
     assert "| coulomb_friction | 1 | 1/1 |" in summary
     assert "Every case was diagnosed by the code at " in summary  # the diagnosis records its code
     check_report(files[0][0])
+    check_sparse_benchmark(tiny_config, ipbmotor_fmu, "s0__single_coulomb_friction__size1")
+
+
+def check_sparse_benchmark(config, fmu_path: Path, case: str) -> None:
+    """benchmarks/sparse_selection.py scores a finished case: the forward selection's row is the suite's own, and
+    STLSQ has a row of the same columns per threshold."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("sparse_selection", ROOT / "benchmarks" / "sparse_selection.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    row = bench.score_case_files(case, Path(config["results_dir"]) / "withheld", Path(fmu_path),
+                                 config["withheld"]["expected"], config["withheld"].get("background") or {})
+    assert row["case"] == case and row["n_columns"] > 0
+    assert "coulomb_friction" in row["forward"]["found_effects"]
+    assert sorted(row["sparse"]) == sorted(bench.THRESHOLDS)
+    assert all(set(r) == set(row["forward"]) for r in row["sparse"].values())
 
 
 def check_report(diagnosis_json: Path) -> None:

@@ -159,6 +159,18 @@ def test_an_estimate_with_its_rival_beside_is_scored_beside_the_named_one():
     assert table["median"] == pytest.approx((row["parameter_error_pct"][0] + plain["parameter_error_pct"][0]) / 2)
 
 
+def test_an_adjustment_is_no_finding():
+    """A term fitted beside the named effects only to keep their estimates unbiased is neither a found effect nor an
+    extra; named, the same term is an extra."""
+    adjustment = {**chosen("coulomb(omega)", "omega", coulomb_level=0.01 / J), "role": "adjustment"}
+    viscous = chosen("viscous(omega)", "omega", coefficient=0.15)
+    case = (truth({"viscous_friction": {"coefficient_nm_s": 3e-5}}), draw("v", {"viscous_friction": 1.0}), EXPECTED)
+    row = score_case(record([viscous, adjustment]), *case)
+    assert row["exact"] is True and row["found_effects"] == ["viscous_friction"] and row["extra_effects"] == []
+    named = score_case(record([viscous, {**adjustment, "role": "finding"}]), *case)
+    assert named["exact"] is False and named["extra_effects"] == ["coulomb_friction"]
+
+
 def test_a_cogging_order_mismatch_and_a_sign_error_are_reported():
     cogging = {"harmonics": [{"order_per_rev": 36, "amplitude_nm": 0.012, "phase_rad": 0.0}]}
     row = score_case(record([chosen("periodic(theta)", "omega", order=12, amplitude_12=50.0, amplitude_24=3.0)]),

@@ -110,8 +110,9 @@ def verdict(result: DiagnosisResult) -> str:
                      f"(equation error {s['rms_residual']:.3g} {s['unit']} RMS, {s['ratio_to_noise']:.2f} x its "
                      "noise floor).")
     if chosen:
-        unmodelled = [c for c in chosen if c["kind"] != "parameter"]
-        errors = [c for c in chosen if c["kind"] == "parameter"]
+        named = [c for c in chosen if c.get("role") != "adjustment"]
+        unmodelled = [c for c in named if c["kind"] != "parameter"]
+        errors = [c for c in named if c["kind"] == "parameter"]
         if unmodelled:
             names = ", ".join(f"{k}. {c['effect']} in {equations_text(c)}" for k, c in enumerate(unmodelled, 1))
             parts.append(f"Unmodelled effects named (rank order): {names}.")
@@ -120,6 +121,10 @@ def verdict(result: DiagnosisResult) -> str:
         if errors:
             names = ", ".join(f"{c['effect']} ({_relative_error_text(c)})" for c in errors)
             parts.append(f"Parameter errors of the model: {names}.")
+        adjusted = [c["effect"] for c in chosen if c.get("role") == "adjustment"]
+        if adjusted:
+            parts.append("Fitted beside them, not named (the data support it, and leaving it out would move a named "
+                         f"estimate out of its interval): {', '.join(adjusted)}.")
         for group in result.which.groups:
             parts.append(f"{group_text(group)} cannot be told apart by these data (their estimates correlate "
                          f"at {max(abs(p['correlation']) for p in group['pairs']):.2f}): only their joint effect is "
@@ -348,7 +353,8 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
         acting = [named(e) for e in c.get("equations") or [c["equation"]]]
         scale = (record.get("report_scale") or {}).get(c["equation"])
         lines += [f"### {c['rank']}. `{c['effect']}` in the equation of {named(c['equation'])}"
-                  + (f" (one value in the equations of {', '.join(acting)})" if len(acting) > 1 else ""), "",
+                  + (f" (one value in the equations of {', '.join(acting)})" if len(acting) > 1 else "")
+                  + (" — an adjustment, not a finding" if c.get("role") == "adjustment" else ""), "",
                   f"{c['description']}: `{c['formula']}` (in {c['equation_unit']}). Drop-one score {c['score']:.4g} "
                   "(increase of the residual sum of squares without it, in residual variances).", "",
                   "| parameter | value | SE (regression) | SE (bootstrap over segments) | unit | spread over fitting "

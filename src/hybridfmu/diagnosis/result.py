@@ -27,7 +27,9 @@ class EffectSelection:
         chosen: per named effect, in rank order (by drop-one score): ``effect``, ``kind``, ``equation`` (the one
             it explains most), ``equations`` (all it acts on), ``equation_unit``, ``description``, ``formula``,
             ``setting``, ``coefficients``, ``parameters`` (physical values with their standard errors, 90 %
-            intervals and identification), ``stability`` (per-maneuver refits), ``score``, ``rank``.
+            intervals and identification), ``stability`` (per-maneuver refits), ``rivals`` (the left-out terms
+            that move its estimates), ``role`` (``finding``, or ``adjustment``: fitted beside the findings so that
+            their estimates are not biased, not named), ``score``, ``rank``.
         equations: per examined state, its equation error before and after the chosen effects (the equation's
             unit), the effects acting there and the selection's steps restricted to it.
         steps: the selection's steps (candidates with the equations they act on, the one chosen, why).
@@ -54,8 +56,14 @@ class EffectSelection:
 
     @property
     def found_effects(self) -> list[str]:
-        """The names of the chosen effects, rank order, each once."""
-        return list(dict.fromkeys(item["effect"] for item in self.chosen))
+        """The names of the named effects (the chosen ones but the adjustments), rank order, each once."""
+        return list(dict.fromkeys(item["effect"] for item in self.chosen if item.get("role") != "adjustment"))
+
+    @property
+    def adjustments(self) -> list[str]:
+        """The names of the adjustments: terms fitted beside the named effects because leaving them out would move a
+        named estimate (a rival, :class:`hybridfmu.diagnosis.selection.Rival`), not named themselves."""
+        return [item["effect"] for item in self.chosen if item.get("role") == "adjustment"]
 
 
 @dataclass

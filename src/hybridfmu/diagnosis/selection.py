@@ -545,11 +545,13 @@ class Rival:
     bic_drop: float
     rejected_because: str | None
     coefs: list[np.ndarray]
+    term: Term | None = None
 
 
 @dataclass
 class EquationSelection:
-    """Result of the selection in one state equation (``rivals``: :class:`Rival`, where asked for)."""
+    """Result of the selection in one state equation (``rivals``: :class:`Rival`, where asked for; ``adjustments``:
+    the names of the terms fitted beside the chosen ones by :func:`with_adjustment`, the last of ``terms``)."""
 
     equation: int
     terms: list[Term]
@@ -560,6 +562,7 @@ class EquationSelection:
     steps: list[SelectionStep]
     calibration: list[dict[str, Any]] = field(default_factory=list)
     rivals: list[Rival] = field(default_factory=list)
+    adjustments: list[str] = field(default_factory=list)
 
 
 def _fit_state(cache, terms: list[Term], equation: int, names: list[str], blocks: list[Block],
@@ -921,10 +924,39 @@ def _rivals(cache, active: list[Term], pool: list[Effect], equation: int, names:
         joint = fit_terms(cache, active + [row["term"]], equation, names)
         found.append(Rival(effect=row["effect"], setting=dict(row["term"].setting), bic_drop=float(row["bic_drop"]),
                            rejected_because=row["rejected_because"],
-                           coefs=[np.array(c, dtype=float) for c in joint.coefs[:len(active)]]))
+                           coefs=[np.array(c, dtype=float) for c in joint.coefs[:len(active)]],
+                           term=Term(row["term"].effect, dict(row["term"].setting),
+                                     setting_se=dict(row["term"].setting_se))))
         if len(found) >= MAX_RIVALS:
             break
     return found
+
+
+def with_adjustment(cache, selection: EquationSelection, rival: Rival, effects: list[Effect], names: list[str],
+                    settings: SelectionSettings) -> EquationSelection:
+    """``selection`` with ``rival`` fitted beside its terms as an adjustment: a term the data support that is too
+    small to be named but whose omission would bias a named estimate (the caller judges that). Every term is
+    refitted with it (settings kept), and the rivals are found anew among ``effects`` (the selection's candidates
+    and calibrated parameter errors) beside the enlarged set. Returns a new selection; ``selection`` is unchanged."""
+    if rival.term is None:
+        raise ValueError(f"rival {rival.effect}: no term to fit (rivals are found with their terms)")
+    equation = selection.equation
+    pool = [e for e in effects if cache.accepts(e, equation)]
+    terms = [Term(t.effect, dict(t.setting), setting_se=dict(t.setting_se)) for t in selection.terms]
+    terms.append(Term(rival.term.effect, dict(rival.term.setting), setting_se=dict(rival.term.setting_se)))
+    fit = fit_terms(cache, terms, equation, names)
+    for term, coef in zip(terms, fit.coefs):
+        term.coef = coef
+    blocks = cache.blocks(equation, names)
+    grid_sizes = {effect_key(e): len(e.grid()) for e in pool + [t.effect for t in terms]}
+    rss_blocks, bic_now = _fit_state(cache, terms, equation, names, blocks, grid_sizes)
+    counts = _effects_per_equation([t for t in terms if t.effect.kind != "parameter"])
+    rivals = _rivals(cache, terms, pool, equation, names, blocks, rss_blocks,
+                     block_rss(cache.target(equation, names), blocks), bic_now, grid_sizes, settings, counts)
+    return EquationSelection(equation=equation, terms=terms, fit=fit, rss_none=selection.rss_none, n=selection.n,
+                             noise_variance=selection.noise_variance, steps=selection.steps,
+                             calibration=selection.calibration, rivals=rivals,
+                             adjustments=selection.adjustments + [rival.effect])
 
 
 def _polish(cache, active: list[Term], equation: int, names, settings) -> list[Term]:
