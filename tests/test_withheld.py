@@ -126,7 +126,7 @@ def check_setting_benchmark(config, fmu_path: Path, case: str, tmp_path: Path) -
     assert scored["changed"]["kernel_s"]["median"] == pytest.approx(record["method"]["kernel_s"])
     assert scored["changed"]["measures"]["n_cases"] == 1
     text = bench.markdown({"n_cases": 1, "change": "`diagnosis.kernel_s=default`", "arguments": "--set x", **scored})
-    assert "| exact set, cases above the limits |" in text and "coulomb_friction" in text
+    assert "| exact set, cases above the limits |" in text and "| none cases naming nothing |" in text
 
 
 def check_report(diagnosis_json: Path) -> None:
