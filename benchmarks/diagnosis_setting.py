@@ -157,9 +157,8 @@ def main() -> None:
     logging.getLogger("hybridfmu").setLevel(logging.WARNING)
     changes = [parse_change(text) for text in args.changes]
     config = load_case_config(args.config)
-    results_dir = ROOT / config.get("results_dir", "results")
-    withheld = args.withheld or results_dir / "withheld"
-    fmu = results_dir / config["case"] / "fmu" / f"{config['fmu']['model_name']}.fmu"
+    withheld = args.withheld or ROOT / config.get("results_dir", "results") / "withheld"
+    fmu = withheld.parent / config["case"] / "fmu" / f"{config['fmu']['model_name']}.fmu"  # the suite's own build
     section = config.get("withheld", {})
     calibration = section.get("calibration_seeds")
     if calibration is None:
