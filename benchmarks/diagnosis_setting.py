@@ -116,6 +116,10 @@ def _num(value: Any) -> str:
     return "–" if value is None else f"{value:.3g}"
 
 
+def _span(values: dict[str, float]) -> str:
+    return f"{_num(values['median'])} [{_num(values['min'])} – {_num(values['max'])}]"
+
+
 def markdown(summary: dict[str, Any]) -> str:
     """The comparison as a Markdown block."""
     base, changed = summary["suite"], summary["changed"]
@@ -124,9 +128,7 @@ def markdown(summary: dict[str, Any]) -> str:
              f"cases diagnosed with {summary['change']} (`python benchmarks/diagnosis_setting.py "
              f"{summary['arguments']}`; detection limits set on each variant's own cases).", "",
              "| measure | suite's setting | changed |", "|---|---|---|",
-             f"| kernel length (s), median [min – max] | {_num(base['kernel_s']['median'])} "
-             f"[{_num(base['kernel_s']['min'])} – {_num(base['kernel_s']['max'])}] | {_num(changed['kernel_s']['median'])}"
-             f" [{_num(changed['kernel_s']['min'])} – {_num(changed['kernel_s']['max'])}] |",
+             f"| kernel length (s), median [min – max] | {_span(base['kernel_s'])} | {_span(changed['kernel_s'])} |",
              f"| exact set, cases above the limits | {_pct(b['exact_set_accuracy'])} ({b['n_exact']}/{b['n_above']}) | "
              f"{_pct(c['exact_set_accuracy'])} ({c['n_exact']}/{c['n_above']}) |",
              f"| exact set, every case with effects | {_pct(b['exact_set_accuracy_all'])} "

@@ -1,4 +1,5 @@
-"""The diagnosis' kernel length chosen from the data when diagnosis.kernel_s is null (hybridfmu.diagnosis.kernel_choice)."""
+"""The diagnosis' kernel length from the model's own time scale when diagnosis.kernel_s is null
+(hybridfmu.diagnosis.kernel_choice)."""
 
 from __future__ import annotations
 
@@ -7,72 +8,73 @@ import pytest
 
 from diagnosis_models import msd_maneuvers, msd_problem
 from hybridfmu.diagnosis.corrected_model import simulator_for
-from hybridfmu.diagnosis.kernel_choice import MIN_KERNEL_SAMPLES, choose_kernel, kernel_lengths
+from hybridfmu.diagnosis.kernel_choice import MIN_KERNEL_SAMPLES, choose_kernel, fastest_time_scales
 from hybridfmu.diagnosis.report import kernel_note
 from hybridfmu.diagnosis.run import prepare_all
 
-DT_S = 1e-3
+DT_S = 1e-4
+M = 5000
 
 
-def _residual(noise_std: float, seed: int = 0, n: int = 40000) -> np.ndarray:
-    """(n, 1) raw equation error: a slow gap (two sines of 0.5 s and 0.13 s period) plus the difference quotient of
-    white measurement noise of ``noise_std`` (what a state differentiated from a noisy measurement leaves)."""
-    time_s = np.arange(n) * DT_S
-    gap = 3.0 * np.sin(2 * np.pi * time_s / 0.5) + 1.0 * np.sin(2 * np.pi * time_s / 0.13)
-    noise = np.diff(np.random.default_rng(seed).standard_normal(n + 1) * noise_std) / DT_S
-    return (gap + noise)[:, None]
+def _jacobians(block: np.ndarray, n_x: int = 3, examined=(0, 1)) -> np.ndarray:
+    """(M, n_x, n_x) Jacobians equal to ``block`` on the examined states, a slow unexamined state beside them."""
+    jac = np.zeros((M, n_x, n_x))
+    jac[:, -1, -1] = -1e6  # a fast state that is not examined must not set the scale
+    index = np.ix_(list(examined), list(examined))
+    jac[:, index[0], index[1]] = block
+    return jac
 
 
-def _choose(noise_std: float, span_samples: float = 40000.0, seed: int = 0):
-    residual = _residual(noise_std, seed)
-    return choose_kernel([residual], [np.ones(len(residual), dtype=bool)], [0], ["v"], DT_S, span_samples)
+def _choose(jacobian: np.ndarray, span_samples: float = 1e6, examined=(0, 1)):
+    return choose_kernel([jacobian], [np.ones(len(jacobian), dtype=bool)], list(examined), DT_S, span_samples)
 
 
-def test_noise_free_data_keep_the_shortest_kernel():
-    choice = _choose(0.0)
-    assert choice.samples == MIN_KERNEL_SAMPLES
-    assert choice.kernel_s == pytest.approx(MIN_KERNEL_SAMPLES * DT_S)
+def test_the_kernel_spans_two_of_the_fastest_decay_times_of_the_examined_equations():
+    # modes decaying in 2 ms and 50 ms: the 2 ms one sets the kernel, 4 ms = 40 samples -> 41 (odd)
+    choice = _choose(_jacobians(np.array([[-500.0, 0.0], [30.0, -20.0]])))
+    assert choice.tau_s == pytest.approx(2e-3)
+    assert choice.samples == 41 and choice.kernel_s == pytest.approx(41 * DT_S)
+    assert "fastest time scale" in choice.reason
 
 
-def test_noisier_data_get_a_longer_kernel_that_averages_the_noise_below_the_gap():
-    chosen = [_choose(noise).samples for noise in (1e-3, 1e-2, 3e-2)]
-    assert chosen[0] < chosen[1] < chosen[2]
-    # the chosen length is the first at which a doubling no longer lowers the residual RMS by 2 %; before, it did
-    choice = _choose(1e-2)
-    k = choice.lengths.index(choice.samples)
-    falls = 1.0 - choice.rms[1:, 0] / choice.rms[:-1, 0]
-    assert k > 0 and falls[k] < 0.02 <= falls[k - 1]
-    assert "less than 2%" in choice.reason or "raises" in choice.reason
+def test_a_lightly_damped_oscillation_counts_by_its_frequency():
+    # x'' = -w^2 x - 2 zeta w x' with w = 1000 rad/s, zeta = 0.01: decay time 0.1 s, but |lambda| = w
+    w, zeta = 1000.0, 0.01
+    choice = _choose(_jacobians(np.array([[0.0, 1.0], [-w ** 2, -2 * zeta * w]])))
+    assert choice.tau_s == pytest.approx(1 / w, rel=1e-6)
+    assert choice.samples == 21
 
 
-def test_the_kernel_stops_before_it_averages_the_gap_away():
-    # so much noise that the RMS still falls by more than 2 % where the kernel starts to swallow the 0.13 s sine:
-    # the fall grows again there, and the kernel stays shorter than that period
-    choice = _choose(3e-2)
-    assert "average the gap away" in choice.reason
-    assert choice.kernel_s < 0.13 and choice.samples < choice.lengths[-1]
+def test_the_kernel_stays_between_the_shortest_and_a_twentieth_of_the_median_segment():
+    fast = _choose(_jacobians(np.diag([-1e5, -1e5])))
+    assert fast.samples == MIN_KERNEL_SAMPLES and "raised to the shortest" in fast.reason
+    slow = _choose(_jacobians(np.diag([-1.0, -2.0])), span_samples=1000.0)
+    assert slow.samples == 49 and "held to 5% of the median segment" in slow.reason
+    still = _choose(_jacobians(np.zeros((2, 2))))
+    assert still.samples == MIN_KERNEL_SAMPLES and still.tau_s is None and "no dynamics" in still.reason
 
 
-def test_the_kernel_stays_within_a_twentieth_of_the_median_segment():
-    choice = _choose(1.0, span_samples=800.0)
-    assert choice.samples <= 40 and choice.samples == choice.lengths[-1]
-    assert "still falls" in choice.reason
-    assert kernel_lengths(40) == [9, 17, 33]
+def test_only_samples_inside_the_segments_count():
+    jac = _jacobians(np.diag([-500.0, -500.0]))
+    jac[: M // 2, 0, 0] = -50.0  # outside the segments the model is faster
+    inside = np.arange(M) >= M // 2
+    scales = fastest_time_scales([jac], [inside], [0, 1])
+    assert np.allclose(scales, 2e-3)
 
 
 def test_the_diagnosis_chooses_the_kernel_when_the_config_leaves_it_out_and_says_so():
     measured = msd_maneuvers(noise=(1e-4, 0.0), duration_s=20.0)
     problem, model = msd_problem(kernel_s=None, state_from_derivative={"v": "x"})
-    prepared, fit_names, _ = prepare_all(problem, model, measured, simulator_for(model))
+    prepared, _, _ = prepare_all(problem, model, measured, simulator_for(model))
     choice = problem.kernel_choice
-    assert choice is not None and choice["samples"] > MIN_KERNEL_SAMPLES
+    assert choice is not None and choice["samples"] >= MIN_KERNEL_SAMPLES and choice["tau_s"] > 0
     assert problem.settings["kernel_s"] == pytest.approx(choice["samples"] * problem.dt_s)
     assert all(len(p.error.kernel) == choice["samples"] for p in prepared.values())
     note = kernel_note({"kernel_s": problem.settings["kernel_s"], "kernel_choice": choice})
-    assert "chosen from the fitting maneuvers" in note and f"{choice['samples']} samples" in note
+    assert "config diagnosis.kernel_s is null" in note and f"{choice['samples']} samples" in note
     # a configured kernel is used as it is, and nothing is chosen
     problem, model = msd_problem()
     prepared, _, _ = prepare_all(problem, model, msd_maneuvers(noise=(1e-4, 0.0), duration_s=20.0),
                                  simulator_for(model))
     assert problem.kernel_choice is None and all(len(p.error.kernel) == 9 for p in prepared.values())
-    assert "config diagnosis.kernel_s" in kernel_note({"kernel_s": 0.09, "kernel_choice": None})
+    assert "(config diagnosis.kernel_s)" in kernel_note({"kernel_s": 0.09, "kernel_choice": None})

@@ -103,29 +103,31 @@ def check_sparse_benchmark(config, fmu_path: Path, case: str) -> None:
 
 
 def check_setting_benchmark(config, fmu_path: Path, case: str, tmp_path: Path) -> None:
-    """benchmarks/diagnosis_setting.py diagnoses a finished case again with a setting at its default (here the
-    kernel: chosen from the data) and scores both diagnoses the suite's way."""
+    """benchmarks/diagnosis_setting.py diagnoses a finished case again with changed settings (here a fixed kernel
+    where the suite's came from the model's time scale) and scores both diagnoses the suite's way."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("diagnosis_setting", ROOT / "benchmarks" / "diagnosis_setting.py")
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     withheld_dir = Path(config["results_dir"]) / "withheld"
-    changes = [bench.parse_change("diagnosis.kernel_s=default"), bench.parse_change("diagnosis.selection.noise_margin=0.2")]
-    assert changes == [(["kernel_s"], "default"), (["selection", "noise_margin"], 0.2)]
+    changes = [bench.parse_change(text) for text in ("diagnosis.kernel_s=0.002", "diagnosis.selection.noise_margin=0.2",
+                                                     "diagnosis.smoothing_s=default")]
+    assert changes == [(["kernel_s"], 0.002), (["selection", "noise_margin"], 0.2), (["smoothing_s"], "default")]
     bench._diagnose((case, withheld_dir, Path(fmu_path), tmp_path / "changed", changes))
     changed_case = yaml.safe_load((tmp_path / "changed" / case / "case.yaml").read_text())
-    assert "kernel_s" not in changed_case["diagnosis"] and changed_case["diagnosis"]["selection"]["noise_margin"] == 0.2
-    record = json.loads((tmp_path / "changed" / case / "diagnosis" / "diagnosis.json").read_text())
-    assert record["method"]["kernel_choice"]["samples"] >= 9  # the data chose the kernel
+    assert changed_case["diagnosis"]["kernel_s"] == 0.002 and changed_case["diagnosis"]["selection"]["noise_margin"] == 0.2
+    changed = json.loads((tmp_path / "changed" / case / "diagnosis" / "diagnosis.json").read_text())
+    suite = json.loads((withheld_dir / case / "diagnosis" / "diagnosis.json").read_text())
+    assert changed["method"]["kernel_choice"] is None and suite["method"]["kernel_choice"]["samples"] >= 9
     section = config["withheld"]
     scored = {name: bench.score([case], {case: root / case / "diagnosis" / "diagnosis.json"}, withheld_dir,
                                 section["expected"], section.get("background") or {}, None)
               for name, root in (("suite", withheld_dir), ("changed", tmp_path / "changed"))}
-    assert scored["suite"]["kernel_s"]["median"] == pytest.approx(config["diagnosis"]["kernel_s"])
-    assert scored["changed"]["kernel_s"]["median"] == pytest.approx(record["method"]["kernel_s"])
+    assert scored["suite"]["kernel_s"]["median"] == pytest.approx(suite["method"]["kernel_s"])
+    assert scored["changed"]["kernel_s"]["median"] == pytest.approx(0.002)
     assert scored["changed"]["measures"]["n_cases"] == 1
-    text = bench.markdown({"n_cases": 1, "change": "`diagnosis.kernel_s=default`", "arguments": "--set x", **scored})
+    text = bench.markdown({"n_cases": 1, "change": "`diagnosis.kernel_s=0.002`", "arguments": "--set x", **scored})
     assert "| exact set, cases above the limits |" in text and "| none cases naming nothing |" in text
 
 

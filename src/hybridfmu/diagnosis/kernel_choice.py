@@ -1,25 +1,23 @@
-"""The length of the Hann kernel chosen from the data, when ``diagnosis.kernel_s`` is not set.
+"""The length of the Hann kernel from the model's own time scale, when ``diagnosis.kernel_s`` is not set.
 
 The diagnosis averages both sides of each state equation with a Hann kernel (:mod:`hybridfmu.diagnosis.residual`).
 Too short a kernel leaves the measurement noise of the differentiated states in the equation error (its floor falls
-with about the kernel length cubed); too long a kernel averages away the fast part of the gap and leaves fewer
-independent fitting centres. The right length depends on the sampling, the noise and the dynamics of the case, so it
-is read off the case's own fitting maneuvers:
+with about the kernel length cubed); too long a kernel averages away dynamics the model describes and leaves fewer
+independent fitting centres. The scale that separates the two is the model's own: the fastest mode of the examined
+state equations along the measured trajectory.
 
-- for lengths on a doubling grid (``MIN_KERNEL_SAMPLES``, 2 x that - 1, ...), the root mean square of each examined
-  equation's kernel-averaged equation error at centres one kernel apart inside the segments;
-- lengthening the kernel removes what the averaging removes: noise and fast content the model's equations cannot
-  follow (interpolation, ripple, quantisation: more than the white-noise estimate of the diagnosis' noise floor
-  covers), and past some length the gap itself. While it removes noise above a gap, each doubling lowers the RMS by
-  a smaller share than the one before; a doubling that lowers it by a clearly larger share
-  (``GAP_FALL_RATIO`` x) than the one before is averaging the gap away. The kernel is shared by the examined
-  equations, so the rule looks at their mean relative fall: the first length is chosen at which a doubling lowers
-  the residual RMS by less than ``CONVERGED_DROP`` on average (what is left is the gap the diagnosis explains) or
-  by more than ``GAP_FALL_RATIO`` x the share the doubling before did;
-- never longer than ``MAX_SPAN_FRACTION`` of the median segment (the bootstrap cuts segments into blocks of 20
-  kernels).
+- At samples inside the segments of the fitting maneuvers, the eigenvalues of the FMU's Jacobian restricted to the
+  examined equations (d f_i / d x_j for examined i, j) give each mode's time scale ``1 / |lambda|`` (decay and
+  oscillation alike: a lightly damped oscillation counts by its frequency); the fastest mode's, in the median over
+  the samples, is the model's time scale ``tau``.
+- The kernel spans ``TIME_CONSTANTS`` of it: a Hann kernel of length 2 tau passes the band of that mode up to about
+  2.25 x its corner frequency 1 / (2 pi tau) (half power) and averages what lies above, which the model cannot
+  describe and where the differentiated noise lives.
+- It is at least ``MIN_KERNEL_SAMPLES`` samples and at most ``MAX_SPAN_FRACTION`` of the median segment (the
+  bootstrap cuts segments into blocks of 20 kernels). A model whose examined equations have no dynamics of their
+  own (every eigenvalue zero) gets the shortest kernel.
 
-The diagnosis report lists the lengths tried with each equation's RMS and the reason for the choice.
+The diagnosis report gives the chosen length, ``tau`` and the reason.
 """
 
 from __future__ import annotations
@@ -29,20 +27,17 @@ from typing import Sequence
 
 import numpy as np
 
-from hybridfmu.diagnosis.derivatives import hann_kernel, smooth_same
-
-#: The shortest kernel tried (samples): the length the diagnosis used before it chose from the data.
+#: The shortest kernel (samples).
 MIN_KERNEL_SAMPLES = 9
 
-#: A doubling of the kernel that lowers the examined equations' residual RMS by less than this share on average has
-#: converged.
-CONVERGED_DROP = 0.02
+#: The kernel spans this many of the model's fastest time scales.
+TIME_CONSTANTS = 2.0
 
-#: A doubling whose mean fall exceeds this multiple of the fall of the doubling before averages the gap away.
-GAP_FALL_RATIO = 1.5
-
-#: The kernel is at most this share of the median segment length (samples).
+#: The kernel is at most this share of the median segment length.
 MAX_SPAN_FRACTION = 0.05
+
+#: Jacobian samples used per maneuver (evenly spread over the samples inside its segments).
+MAX_SAMPLES_PER_MANEUVER = 2000
 
 
 @dataclass(frozen=True)
@@ -50,20 +45,17 @@ class KernelChoice:
     """The chosen kernel and the evidence for it.
 
     Attributes:
-        samples: chosen length (odd, samples); seconds = ``samples * dt_s``.
+        samples: chosen length (odd, samples); seconds: :attr:`kernel_s`.
         dt_s: the sampling interval (s).
-        lengths: (K,) the lengths tried (samples).
-        rms: (K, n_eq) RMS of each examined equation's kernel-averaged equation error at each length (units of the
-            state's derivative); NaN where no centre was inside a segment.
-        equations: (n_eq,) names of the examined equations.
+        tau_s: the model's fastest time scale along the data (s), median over the samples; None without dynamics.
+        tau_quantiles_s: its 10 %, 50 % and 90 % quantiles over the samples (s), or None.
         reason: one sentence saying why this length.
     """
 
     samples: int
     dt_s: float
-    lengths: tuple[int, ...]
-    rms: np.ndarray
-    equations: tuple[str, ...]
+    tau_s: float | None
+    tau_quantiles_s: tuple[float, float, float] | None
     reason: str
 
     @property
@@ -73,92 +65,66 @@ class KernelChoice:
 
     def record(self) -> dict:
         """A JSON-ready account for the diagnosis' result file."""
-        return {"kernel_s": self.kernel_s, "samples": self.samples, "lengths_samples": list(self.lengths),
-                "rms": {name: _finite_list(self.rms[:, j]) for j, name in enumerate(self.equations)},
-                "converged_drop": CONVERGED_DROP, "gap_fall_ratio": GAP_FALL_RATIO, "reason": self.reason}
+        return {"kernel_s": self.kernel_s, "samples": self.samples, "tau_s": self.tau_s,
+                "tau_quantiles_s": None if self.tau_quantiles_s is None else list(self.tau_quantiles_s),
+                "time_constants": TIME_CONSTANTS, "reason": self.reason}
 
 
-def _finite_list(values: np.ndarray) -> list[float | None]:
-    return [float(v) if np.isfinite(v) else None for v in values]
-
-
-def kernel_lengths(max_samples: int) -> list[int]:
-    """Odd lengths (samples) on a doubling grid, ``MIN_KERNEL_SAMPLES``, 2 n - 1, ... up to ``max_samples`` (at
-    least the first)."""
-    lengths = [MIN_KERNEL_SAMPLES]
-    while 2 * lengths[-1] - 1 <= max_samples:
-        lengths.append(2 * lengths[-1] - 1)
-    return lengths
-
-
-def residual_rms(residuals: Sequence[np.ndarray], inside: Sequence[np.ndarray], length: int,
-                 equations: Sequence[int]) -> np.ndarray:
-    """(n_eq,) RMS of the kernel-averaged residuals at centres ``length`` apart that lie inside the segments.
+def fastest_time_scales(jacobians: Sequence[np.ndarray], inside: Sequence[np.ndarray],
+                        equations: Sequence[int]) -> np.ndarray:
+    """(K,) the fastest mode's time scale ``1 / max |lambda|`` (s) of the examined equations' Jacobian block at up to
+    ``MAX_SAMPLES_PER_MANEUVER`` samples inside the segments of each maneuver; infinite where every eigenvalue is 0.
 
     Args:
-        residuals: per maneuver, a raw equation error (M, n_x) (state units per s).
-        inside: per maneuver, (M,) bool, the intervals inside its segments.
-        length: kernel length (odd, samples).
+        jacobians: per maneuver, the model Jacobian d f / d x (M, n_x, n_x) along the data (1/s).
+        inside: per maneuver, (M,) bool, the samples inside its segments.
         equations: state indices of the examined equations.
     """
-    kernel = hann_kernel(length)
-    values = []
-    for residual, mask in zip(residuals, inside):
-        filtered = smooth_same(np.asarray(residual, dtype=float)[:, list(equations)], kernel)
-        half = length // 2
-        centres = np.arange(half, filtered.shape[0] - half, length)
-        centres = centres[mask[centres]]
-        picked = filtered[centres]
-        values.append(picked[np.all(np.isfinite(picked), axis=1)])
-    stacked = np.concatenate(values, axis=0) if values else np.empty((0, len(equations)))
-    if stacked.shape[0] == 0:
-        return np.full(len(equations), np.nan)
-    return np.sqrt(np.mean(stacked ** 2, axis=0))
+    index = np.asarray(list(equations), dtype=int)
+    scales = []
+    for jacobian, mask in zip(jacobians, inside):
+        rows = np.flatnonzero(mask)
+        if rows.size == 0:
+            continue
+        rows = rows[np.linspace(0, rows.size - 1, min(rows.size, MAX_SAMPLES_PER_MANEUVER)).astype(int)]
+        block = np.asarray(jacobian, dtype=float)[rows][:, index][:, :, index]
+        block = block[np.all(np.isfinite(block), axis=(1, 2))]
+        if block.shape[0] == 0:
+            continue
+        fastest = np.max(np.abs(np.linalg.eigvals(block)), axis=1)
+        with np.errstate(divide="ignore"):
+            scales.append(np.where(fastest > 0.0, 1.0 / fastest, np.inf))
+    return np.concatenate(scales) if scales else np.empty(0)
 
 
-def mean_fall(rms: np.ndarray, rms_longer: np.ndarray) -> float | None:
-    """Mean relative fall (share) of the residual RMS from ``rms`` to ``rms_longer`` ((n_eq,) each) over the equations
-    where both are finite and positive; None where none is."""
-    usable = np.isfinite(rms) & np.isfinite(rms_longer) & (rms > 0)
-    if not usable.any():
-        return None
-    return float(np.mean(1.0 - rms_longer[usable] / rms[usable]))
-
-
-def choose_kernel(residuals: Sequence[np.ndarray], inside: Sequence[np.ndarray], equations: Sequence[int],
-                  equation_names: Sequence[str], dt_s: float, median_span_samples: float) -> KernelChoice:
-    """The kernel length of the module's rule for the fitting maneuvers' raw equation errors.
+def choose_kernel(jacobians: Sequence[np.ndarray], inside: Sequence[np.ndarray], equations: Sequence[int],
+                  dt_s: float, median_span_samples: float) -> KernelChoice:
+    """The kernel length of the module's rule.
 
     Args:
-        residuals: per fitting maneuver, the raw equation error (M, n_x) (state units per s).
-        inside: per fitting maneuver, (M,) bool, the intervals inside its segments.
-        equations, equation_names: state indices and names of the examined equations.
+        jacobians: per fitting maneuver, the model Jacobian d f / d x (M, n_x, n_x) along the data (1/s).
+        inside: per fitting maneuver, (M,) bool, the samples inside its segments.
+        equations: state indices of the examined equations.
         dt_s: the sampling interval (s).
         median_span_samples: the median length of the fitting maneuvers' segments (samples).
     """
-    if not residuals:
-        raise ValueError("choose_kernel: no fitting maneuver")
     cap = max(int(MAX_SPAN_FRACTION * median_span_samples), MIN_KERNEL_SAMPLES)
-    lengths = kernel_lengths(cap)
-    rms = np.array([residual_rms(residuals, inside, n, equations) for n in lengths])
-    names = tuple(equation_names)
-    previous = None
-    for k in range(len(lengths) - 1):
-        fall = mean_fall(rms[k], rms[k + 1])
-        lowers = f"doubling it to {lengths[k + 1]} samples lowers the examined equations' residual RMS by"
-        if fall is None:
-            reason = f"no fitting centre inside a segment at {lengths[k + 1]} samples"
-        elif fall < CONVERGED_DROP:
-            reason = (f"{lowers} {fall:.1%} on average, less than {CONVERGED_DROP:.0%}" if fall >= 0 else
-                      f"doubling it to {lengths[k + 1]} samples raises the examined equations' residual RMS by "
-                      f"{-fall:.1%} on average")
-        elif previous is not None and fall > GAP_FALL_RATIO * previous:
-            reason = (f"{lowers} {fall:.1%} on average, more than {GAP_FALL_RATIO:g} x the {previous:.1%} of the "
-                      f"doubling before: it would average the gap away")
-        else:
-            previous = fall
-            continue
-        return KernelChoice(lengths[k], dt_s, tuple(lengths), rms, names, reason)
-    reason = (f"the residual RMS still falls at the longest kernel tried, {MAX_SPAN_FRACTION:.0%} of the median "
-              f"segment ({cap} samples)")
-    return KernelChoice(lengths[-1], dt_s, tuple(lengths), rms, names, reason)
+    cap -= 1 - cap % 2  # odd
+    scales = fastest_time_scales(jacobians, inside, equations)
+    finite = scales[np.isfinite(scales)]
+    if finite.size * 2 <= scales.size or finite.size == 0:
+        return KernelChoice(MIN_KERNEL_SAMPLES, dt_s, None, None,
+                            "the model's examined equations have no dynamics of their own along the data (their "
+                            "Jacobian's eigenvalues are zero at most samples): the shortest kernel")
+    tau_s = float(np.median(scales))
+    quantiles = tuple(float(q) for q in np.quantile(scales, [0.1, 0.5, 0.9]))
+    wanted = int(round(TIME_CONSTANTS * tau_s / dt_s))
+    samples = min(max(wanted | 1, MIN_KERNEL_SAMPLES), cap)
+    reason = (f"{TIME_CONSTANTS:g} x the model's fastest time scale along the fitting maneuvers, {tau_s:.4g} s "
+              f"(the median of 1 / max |eigenvalue| of the examined equations' Jacobian; 10-90 %: "
+              f"{quantiles[0]:.4g}-{quantiles[2]:.4g} s)")
+    if samples == MIN_KERNEL_SAMPLES and wanted < MIN_KERNEL_SAMPLES:
+        reason += f", raised to the shortest kernel ({MIN_KERNEL_SAMPLES} samples)"
+    elif samples == cap and (wanted | 1) > cap:
+        reason += f", held to {MAX_SPAN_FRACTION:.0%} of the median segment ({cap} samples)"
+    return KernelChoice(samples, dt_s, tau_s, quantiles, reason)

@@ -288,16 +288,12 @@ def periodic_order_lines(searches: dict[str, dict[str, Any]]) -> list[str]:
 
 
 def kernel_note(method: dict[str, Any]) -> str:
-    """The report's line on the Hann kernel: its length and, when chosen from the data, why (with each examined
-    equation's residual RMS at the lengths tried)."""
+    """The report's line on the Hann kernel: its length and, when the config left it out, why."""
     choice = method.get("kernel_choice")
     if not choice:
         return f"- Kernel: {format_number(method.get('kernel_s'))} s (config diagnosis.kernel_s)."
-    rms = "; ".join(f"{name}: " + ", ".join(format_number(v, 3) for v in values)
-                    for name, values in choice["rms"].items())
-    return (f"- Kernel: {format_number(choice['kernel_s'])} s ({choice['samples']} samples), chosen from the fitting "
-            f"maneuvers (config diagnosis.kernel_s is null): {choice['reason']}. Residual RMS at "
-            f"{', '.join(str(n) for n in choice['lengths_samples'])} samples: {rms}.")
+    return (f"- Kernel: {format_number(choice['kernel_s'])} s ({choice['samples']} samples; config diagnosis.kernel_s "
+            f"is null): {choice['reason']}.")
 
 
 def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
