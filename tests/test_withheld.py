@@ -116,7 +116,8 @@ def check_setting_benchmark(config, fmu_path: Path, case: str, tmp_path: Path) -
     assert changes == [(["kernel_s"], 0.002), (["selection", "noise_margin"], 0.2), (["smoothing_s"], "default")]
     bench._diagnose((case, withheld_dir, Path(fmu_path), tmp_path / "changed", changes))
     changed_case = yaml.safe_load((tmp_path / "changed" / case / "case.yaml").read_text())
-    assert changed_case["diagnosis"]["kernel_s"] == 0.002 and changed_case["diagnosis"]["selection"]["noise_margin"] == 0.2
+    assert changed_case["diagnosis"]["kernel_s"] == 0.002
+    assert changed_case["diagnosis"]["selection"]["noise_margin"] == 0.2
     changed = json.loads((tmp_path / "changed" / case / "diagnosis" / "diagnosis.json").read_text())
     suite = json.loads((withheld_dir / case / "diagnosis" / "diagnosis.json").read_text())
     assert changed["method"]["kernel_choice"] is None and suite["method"]["kernel_choice"]["samples"] >= 9
