@@ -104,7 +104,8 @@ def score(cases: list[str], diagnoses: dict[str, Path], withheld: Path, expected
     above = set(measures["above_cases"])
     per_effect = {effect: item["median"]
                   for effect, item in per_effect_errors([r for r in rows if r["case"] in above]).items()}
-    return {"measures": measures, "per_effect": per_effect,
+    named = {row["case"]: sorted(row["named_effects"]) for row in rows}
+    return {"measures": measures, "per_effect": per_effect, "named": named,
             "kernel_s": {"median": statistics.median(kernels), "min": min(kernels), "max": max(kernels)}}
 
 
@@ -136,7 +137,9 @@ def markdown(summary: dict[str, Any]) -> str:
              f"({c['n_exact_all']}/{c['n_with_effects']}) |",
              f"| median parameter error, cases above the limits | {_num(b['median_parameter_error_pct'])} % | "
              f"{_num(c['median_parameter_error_pct'])} % |",
-             f"| none cases naming nothing | {b['none_clean']}/{b['n_none']} | {c['none_clean']}/{c['n_none']} |"]
+             f"| none cases naming nothing | {b['none_clean']}/{b['n_none']} | {c['none_clean']}/{c['n_none']} |",
+             f"| cases naming what the suite's diagnosis names | – | "
+             f"{sum(changed['named'][case] == base['named'][case] for case in base['named'])}/{len(base['named'])} |"]
     for effect in sorted(set(base["per_effect"]) | set(changed["per_effect"])):
         lines.append(f"| median parameter error, {effect} | {_num(base['per_effect'].get(effect))} % | "
                      f"{_num(changed['per_effect'].get(effect))} % |")

@@ -130,6 +130,7 @@ def check_setting_benchmark(config, fmu_path: Path, case: str, tmp_path: Path) -
     assert scored["changed"]["measures"]["n_cases"] == 1
     text = bench.markdown({"n_cases": 1, "change": "`diagnosis.kernel_s=0.002`", "arguments": "--set x", **scored})
     assert "| exact set, cases above the limits |" in text and "| none cases naming nothing |" in text
+    assert "| cases naming what the suite's diagnosis names | – | " in text
 
 
 def check_report(diagnosis_json: Path) -> None:
