@@ -85,8 +85,12 @@ def _diagnose(job: tuple[str, Path, Path, Path, list]) -> dict[str, Any]:
 def score(cases: list[str], diagnoses: dict[str, Path], withheld: Path, expected: dict,
           background: dict, targets: dict) -> dict[str, Any]:
     """The suite's measures (:func:`hybridfmu_bench.withheld.report.aggregate`) of one variant's diagnoses, with the
-    detection limits set on its own cases, the median parameter error per bench effect and the kernel lengths
-    (s) the diagnoses used."""
+    detection limits set on its own cases, the median parameter error per bench effect, the effects each case names
+    and the kernel lengths (samples) the diagnoses used."""
+    import numpy as np
+    import pandas as pd
+
+    from hybridfmu.diagnosis.derivatives import odd_window
     from hybridfmu.io import read_json
     from hybridfmu_bench.withheld.report import aggregate, detection_limits, per_effect_errors
     from hybridfmu_bench.withheld.scoring import score_case
@@ -98,7 +102,8 @@ def score(cases: list[str], diagnoses: dict[str, Path], withheld: Path, expected
         truth = read_json(withheld / case / "raw" / f"{maneuvers[-1]}.truth.json")
         rows.append(score_case(record, truth, read_json(withheld / "cases" / f"{case}.draw.json"), expected,
                                background))
-        kernels.append(float(record["method"]["kernel_s"]))
+        time_s = pd.read_parquet(withheld / case / "data" / f"{maneuvers[0]}.parquet", columns=["time_s"])["time_s"]
+        kernels.append(odd_window(float(record["method"]["kernel_s"]), float(np.median(np.diff(time_s.to_numpy())))))
     limits = detection_limits(rows)
     measures = aggregate(rows, limits, targets)
     above = set(measures["above_cases"])
@@ -106,7 +111,7 @@ def score(cases: list[str], diagnoses: dict[str, Path], withheld: Path, expected
                   for effect, item in per_effect_errors([r for r in rows if r["case"] in above]).items()}
     named = {row["case"]: sorted(row["named_effects"]) for row in rows}
     return {"measures": measures, "per_effect": per_effect, "named": named,
-            "kernel_s": {"median": statistics.median(kernels), "min": min(kernels), "max": max(kernels)}}
+            "kernel_samples": {"median": statistics.median(kernels), "min": min(kernels), "max": max(kernels)}}
 
 
 def _pct(value: Any) -> str:
@@ -129,7 +134,8 @@ def markdown(summary: dict[str, Any]) -> str:
              f"cases diagnosed with {summary['change']} (`python benchmarks/diagnosis_setting.py "
              f"{summary['arguments']}`; detection limits set on each variant's own cases).", "",
              "| measure | suite's setting | changed |", "|---|---|---|",
-             f"| kernel length (s), median [min – max] | {_span(base['kernel_s'])} | {_span(changed['kernel_s'])} |",
+             f"| kernel length (samples), median [min – max] | {_span(base['kernel_samples'])} | "
+             f"{_span(changed['kernel_samples'])} |",
              f"| exact set, cases above the limits | {_pct(b['exact_set_accuracy'])} ({b['n_exact']}/{b['n_above']}) | "
              f"{_pct(c['exact_set_accuracy'])} ({c['n_exact']}/{c['n_above']}) |",
              f"| exact set, every case with effects | {_pct(b['exact_set_accuracy_all'])} "
