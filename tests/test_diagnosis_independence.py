@@ -38,7 +38,7 @@ UNIT_SUFFIXES = ("s", "a", "v", "hz", "nm", "rad", "bar", "m", "cm3", "ohm", "nm
 #: Key names (or parts of them) of dimensionless settings: statistics, grids relative to the data, counts.
 DIMENSIONLESS_KEYS = ("quantile", "relative", "order", "harmonic", "degree", "samples", "iterations", "dpi", "seed",
                       "top_statements", "tolerance", "margin_relative", "threshold_relative", "kinds", "correlation",
-                      "range_ratio")
+                      "range_ratio", "fraction", "time_constants")
 #: Sections of the diagnosis settings that hold only dimensionless selection thresholds.
 DIMENSIONLESS_SECTIONS = ("selection",)
 #: Bench constants that are the FMU's own (nominal) parameters, not the bench's truth.

@@ -83,6 +83,7 @@ def test_small_withheld_check(tiny_config, ipbmotor_fmu, tmp_path):
     assert "Every case was diagnosed by the code at " in summary  # the diagnosis records its code
     check_report(files[0][0])
     check_sparse_benchmark(tiny_config, ipbmotor_fmu, "s0__single_coulomb_friction__size1")
+    check_setting_benchmark(tiny_config, ipbmotor_fmu, "s0__single_coulomb_friction__size1", tmp_path)
 
 
 def check_sparse_benchmark(config, fmu_path: Path, case: str) -> None:
@@ -99,6 +100,37 @@ def check_sparse_benchmark(config, fmu_path: Path, case: str) -> None:
     assert "coulomb_friction" in row["forward"]["found_effects"]
     assert sorted(row["sparse"]) == sorted(bench.THRESHOLDS)
     assert all(set(r) == set(row["forward"]) for r in row["sparse"].values())
+
+
+def check_setting_benchmark(config, fmu_path: Path, case: str, tmp_path: Path) -> None:
+    """benchmarks/diagnosis_setting.py diagnoses a finished case again with changed settings (here a fixed kernel
+    where the suite's came from the model's time scale) and scores both diagnoses the suite's way."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("diagnosis_setting", ROOT / "benchmarks" / "diagnosis_setting.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    withheld_dir = Path(config["results_dir"]) / "withheld"
+    changes = [bench.parse_change(text) for text in ("diagnosis.kernel_s=0.002", "diagnosis.selection.noise_margin=0.2",
+                                                     "diagnosis.smoothing_s=default")]
+    assert changes == [(["kernel_s"], 0.002), (["selection", "noise_margin"], 0.2), (["smoothing_s"], "default")]
+    bench._diagnose((case, withheld_dir, Path(fmu_path), tmp_path / "changed", changes))
+    changed_case = yaml.safe_load((tmp_path / "changed" / case / "case.yaml").read_text())
+    assert changed_case["diagnosis"]["kernel_s"] == 0.002
+    assert changed_case["diagnosis"]["selection"]["noise_margin"] == 0.2
+    changed = json.loads((tmp_path / "changed" / case / "diagnosis" / "diagnosis.json").read_text())
+    suite = json.loads((withheld_dir / case / "diagnosis" / "diagnosis.json").read_text())
+    assert changed["method"]["kernel_choice"] is None and suite["method"]["kernel_choice"]["samples"] >= 9
+    section = config["withheld"]
+    scored = {name: bench.score([case], {case: root / case / "diagnosis" / "diagnosis.json"}, withheld_dir,
+                                section["expected"], section.get("background") or {}, None)
+              for name, root in (("suite", withheld_dir), ("changed", tmp_path / "changed"))}
+    assert scored["suite"]["kernel_samples"]["median"] == suite["method"]["kernel_choice"]["samples"]
+    assert scored["changed"]["kernel_samples"]["median"] == 21  # 0.002 s on the 10 kHz grid
+    assert scored["changed"]["measures"]["n_cases"] == 1
+    text = bench.markdown({"n_cases": 1, "change": "`diagnosis.kernel_s=0.002`", "arguments": "--set x", **scored})
+    assert "| exact set, cases above the limits |" in text and "| none cases naming nothing |" in text
+    assert "| cases naming what the suite's diagnosis names | – | " in text
 
 
 def check_report(diagnosis_json: Path) -> None:

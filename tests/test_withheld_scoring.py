@@ -134,7 +134,7 @@ def test_parameters_are_converted_to_the_bench_units(effect, parameters, item, f
 def test_an_estimate_with_its_rival_beside_is_scored_beside_the_named_one():
     """The viscous damping named as parameter(b) at +405 % (its extra damping 4x the true one) and at +151 % with the
     load's time offset beside it: both errors are scored, the aggregate and the per-effect table give both."""
-    from hybridfmu_bench.withheld.report import _per_effect_errors
+    from hybridfmu_bench.withheld.report import per_effect_errors
 
     item = chosen("parameter(b)", "omega", relative_error=4.05, corrected_value=1.01e-4)
     item["rivals"] = [{"effect": "time_offset(tau_load)", "bic_drop": 795.0, "rejected_because": "small",
@@ -154,7 +154,7 @@ def test_an_estimate_with_its_rival_beside_is_scored_beside_the_named_one():
     assert measures["n_with_rival"] == 1
     assert measures["median_parameter_error_with_rival_pct"] == pytest.approx(
         (row["parameter_error_with_rival_pct"][0] + plain["parameter_error_pct"][0]) / 2)
-    table = _per_effect_errors([row, plain])["viscous_friction"]
+    table = per_effect_errors([row, plain])["viscous_friction"]
     assert table["n"] == 2 and table["n_with_rival"] == 1
     assert table["median"] == pytest.approx((row["parameter_error_pct"][0] + plain["parameter_error_pct"][0]) / 2)
 

@@ -21,9 +21,10 @@ import numpy as np
 import pandas as pd
 
 from hybridfmu.data.signals import held_input_array
-from hybridfmu.diagnosis.derivatives import (interval_means, odd_window, savgol_derivative, savgol_smooth,
-                                             white_noise_std)
+from hybridfmu.diagnosis.derivatives import (hann_kernel, interval_means, odd_window, savgol_derivative,
+                                             savgol_smooth, white_noise_std)
 from hybridfmu.diagnosis.effects import EffectInputs, input_derivative
+from hybridfmu.diagnosis.kernel_choice import MIN_KERNEL_SAMPLES, choose_kernel
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.residual import EquationError, equation_error, noise_floor_std
 from hybridfmu.diagnosis.selection import ManeuverFitData
@@ -111,14 +112,25 @@ def maneuver_from_frame(name: str, role: str, frame: pd.DataFrame, spans_s: list
                             x0_unmeasured=dict(x0_unmeasured or {}), source=str(where))
 
 
+def smoothing_samples(problem: Problem, dt_s: float) -> int:
+    """Savitzky-Golay window (odd, samples) of the low-noise states: ``diagnosis.smoothing_s``, else half the kernel
+    (at least 5 samples); 5 samples while the kernel is still to be chosen from the data (the unmeasured states are
+    filled before, :func:`choose_kernel_from_data`)."""
+    smoothing_s = problem.settings.get("smoothing_s")
+    if smoothing_s:
+        return odd_window(float(smoothing_s), dt_s, minimum=5)
+    if not problem.settings.get("kernel_s"):
+        return 5
+    return odd_window(max(kernel_samples(problem, dt_s) // 2, 5) * dt_s, dt_s, minimum=5)
+
+
 def start_states(meas: MeasuredManeuver, problem: Problem) -> np.ndarray:
     """Low-noise states (N, n_x) to start simulations from: measured states smoothed, unmeasured ones
     as filled (or their initial values in the first row when not yet filled)."""
     states = np.array(meas.x, dtype=float)
     dt_s = float(np.median(np.diff(meas.time_s)))
-    window = odd_window(float(problem.settings.get("smoothing_s") or 2.5 * dt_s), dt_s, minimum=5)
     measured = problem.measured
-    states[:, measured] = savgol_smooth(states[:, measured], window)
+    states[:, measured] = savgol_smooth(states[:, measured], smoothing_samples(problem, dt_s))
     for name, value in meas.x0_unmeasured.items():
         i = problem.state_names.index(name)
         if not np.isfinite(states[0, i]):
@@ -172,9 +184,44 @@ class PreparedManeuver:
 
 
 def kernel_samples(problem: Problem, dt_s: float) -> int:
-    """Length (odd, samples) of the Hann kernel: ``diagnosis.kernel_s``, default 9 samples."""
+    """Length (odd, samples) of the Hann kernel: ``diagnosis.kernel_s``, else the shortest length of
+    :mod:`hybridfmu.diagnosis.kernel_choice` (:func:`choose_kernel_from_data` sets ``kernel_s`` before any
+    maneuver is prepared)."""
     kernel_s = problem.settings.get("kernel_s")
-    return odd_window(float(kernel_s), dt_s) if kernel_s else 9
+    return odd_window(float(kernel_s), dt_s) if kernel_s else MIN_KERNEL_SAMPLES
+
+
+def maneuver_error(meas: MeasuredManeuver, model: Any, problem: Problem, kernel_n: int) -> EquationError:
+    """The equation error of one maneuver (unmeasured states filled) with a kernel of ``kernel_n`` samples."""
+    one_step = [problem.state_names.index(n) for n in problem.settings.get("one_step_states") or []]
+    in_span = _span_mask(meas.time_s, meas.spans_s)
+    return equation_error(model, meas.time_s, meas.x, meas.u, kernel_n, maneuver=meas.name, noise_mask=in_span,
+                          one_step_states=one_step)
+
+
+def choose_kernel_from_data(measured: list[MeasuredManeuver], model: Any,
+                            problem: Problem) -> dict[str, EquationError]:
+    """Choose the kernel length from the model's fastest time scale along the fitting maneuvers ``measured`` when
+    ``diagnosis.kernel_s`` is null (:func:`hybridfmu.diagnosis.kernel_choice.choose_kernel`): sets
+    ``problem.settings["kernel_s"]`` and ``problem.kernel_choice``. Returns the equation errors computed for it
+    (maneuver name -> error, with the chosen kernel), for :func:`prepare_maneuver` to reuse; empty when the config
+    sets the kernel."""
+    if problem.settings.get("kernel_s"):
+        return {}
+    dt_s = float(np.median(np.diff(measured[0].time_s)))
+    errors = {meas.name: maneuver_error(meas, model, problem, MIN_KERNEL_SAMPLES) for meas in measured}
+    inside = [_span_mask(errors[meas.name].time_s, meas.spans_s) for meas in measured]
+    spans = [end - start for meas in measured for start, end in meas.spans_s] or \
+        [float(meas.time_s[-1] - meas.time_s[0]) for meas in measured]
+    choice = choose_kernel([errors[meas.name].dfdx for meas in measured], inside, problem.equations, dt_s,
+                           float(np.median(spans)) / dt_s)
+    problem.settings["kernel_s"] = choice.kernel_s
+    problem.kernel_choice = choice.record()
+    LOGGER.info("kernel from the model's time scale: %d samples (%.4g s): %s", choice.samples, choice.kernel_s,
+                choice.reason)
+    for error in errors.values():
+        error.kernel = hann_kernel(choice.samples)
+    return errors
 
 
 def _blocks(time_s: np.ndarray, spans_s: list[list[float]], block_s: float) -> np.ndarray:
@@ -198,17 +245,17 @@ def input_rates(u: np.ndarray, dt_s: float) -> np.ndarray:
     return (padded[2:] - padded[:-2]) / (2.0 * dt_s)
 
 
-def prepare_maneuver(meas: MeasuredManeuver, model: Any, problem: Problem) -> PreparedManeuver:
-    """Equation error, effect inputs, masks and fitting centres of one maneuver (unmeasured states filled)."""
+def prepare_maneuver(meas: MeasuredManeuver, model: Any, problem: Problem,
+                     error: EquationError | None = None) -> PreparedManeuver:
+    """Equation error, effect inputs, masks and fitting centres of one maneuver (unmeasured states filled);
+    ``error``: its equation error with the problem's kernel when already computed (:func:`choose_kernel_from_data`)."""
     settings = problem.settings
     dt_s = float(np.median(np.diff(meas.time_s)))
     kernel_n = kernel_samples(problem, dt_s)
-    one_step = [problem.state_names.index(n) for n in settings.get("one_step_states") or []]
-    in_span = _span_mask(meas.time_s, meas.spans_s)
-    err = equation_error(model, meas.time_s, meas.x, meas.u, kernel_n, maneuver=meas.name, noise_mask=in_span,
-                         one_step_states=one_step)
-    smooth_n = odd_window(float(settings.get("smoothing_s") or max(kernel_n // 2, 5) * dt_s), dt_s, minimum=5)
-    x_smooth = interval_means(savgol_smooth(meas.x, smooth_n))
+    err = error if error is not None else maneuver_error(meas, model, problem, kernel_n)
+    if len(err.kernel) != kernel_n:
+        raise ValueError(f"{meas.name}: equation error with a kernel of {len(err.kernel)} samples, expected {kernel_n}")
+    x_smooth = interval_means(savgol_smooth(meas.x, smoothing_samples(problem, dt_s)))
     # the input lag's du/dt: the filter CorrectedModel.inputs applies too, at the sample each interval holds
     du_dt_smooth = input_derivative(meas.u, dt_s, settings["effects"].get("lag_derivative_window_s"))[:-1]
     inputs = EffectInputs(err.x, err.u, x_smooth=x_smooth, f=err.f_model, dfdx=err.dfdx, dfdu=err.dfdu,

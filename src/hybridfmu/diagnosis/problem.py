@@ -31,7 +31,7 @@ from hybridfmu.config import ConfigError
 
 #: Defaults of the ``diagnosis`` section (the schema fills the same for validated configs).
 DEFAULT_SETTINGS: dict[str, Any] = {
-    "kernel_s": None,                 # None: 9 samples of the case's grid
+    "kernel_s": None,                 # None: from the model's time scale (hybridfmu.diagnosis.kernel_choice)
     "smoothing_s": None,              # None: half the kernel (at least 5 samples)
     "equations": [],                  # empty: every measured state
     "state_from_derivative": {},      # state -> measured state whose time derivative replaces it
@@ -132,6 +132,9 @@ class Problem:
         end_stop: {"state": index, "min": value or None, "max": value or None} or None.
         periodic: state index -> period (state units).
         settings: the diagnosis settings.
+        kernel_choice: how the kernel length was chosen along the data when ``settings["kernel_s"]`` was null
+            (:meth:`hybridfmu.diagnosis.kernel_choice.KernelChoice.record`; the chosen length is then in
+            ``settings["kernel_s"]``), else None.
     """
 
     state_names: list[str]
@@ -153,6 +156,7 @@ class Problem:
     input_quantiles: dict[str, list[float]] = field(default_factory=dict)
     end_stop: dict[str, Any] | None = None
     periodic: dict[int, float] = field(default_factory=dict)
+    kernel_choice: dict[str, Any] | None = None
 
     @property
     def n_x(self) -> int:

@@ -178,7 +178,8 @@ def diagnosis_record(result: DiagnosisResult, config: dict[str, Any]) -> dict[st
                               "trapezoid for the others) with inputs held over each sample (a continuous input at its "
                               "mean over the sample, config.roles.between_samples), averaged with a Hann kernel",
             "unmeasured_states": "taken from an open-loop simulation of the calibrated model",
-            "kernel_s": settings.get("kernel_s"), "state_from_derivative": settings.get("state_from_derivative"),
+            "kernel_s": settings.get("kernel_s"), "kernel_choice": problem.kernel_choice,
+            "state_from_derivative": settings.get("state_from_derivative"),
             "input_lag_compensation_s": settings.get("input_lag_compensation_s", {}),
             "selection": settings.get("selection", {}), "plugins": settings.get("plugins", []),
         },
@@ -284,6 +285,15 @@ def periodic_order_lines(searches: dict[str, dict[str, Any]]) -> list[str]:
         lines.append(f"- {label}: orders up to {found['max_order_resolved']} resolved by the fitting kernel; "
                      f"searched: {shares or 'none'}")
     return lines + [""]
+
+
+def kernel_note(method: dict[str, Any]) -> str:
+    """The report's line on the Hann kernel: its length and, when the config left it out, why."""
+    choice = method.get("kernel_choice")
+    if not choice:
+        return f"- Kernel: {format_number(method.get('kernel_s'))} s (config diagnosis.kernel_s)."
+    return (f"- Kernel: {format_number(choice['kernel_s'])} s ({choice['samples']} samples; config diagnosis.kernel_s "
+            f"is null): {choice['reason']}.")
 
 
 def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
@@ -470,6 +480,7 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
     lines += ["## Figures", ""] + [f"![{name}]({name})" for name in figure_names] + [""]
     lines += ["## Notes", "",
               "- The diagnosis reads only the FMU, its calibration, the ingested logs and their segments.",
+              kernel_note(record["method"]),
               "- Standard errors: regression ones assume independent samples one kernel length apart; bootstrap ones "
               "resample segment blocks with the nonlinear settings fixed.", ""]
     return "\n".join(lines)

@@ -30,8 +30,8 @@ from hybridfmu.diagnosis.library import build_library
 from hybridfmu.diagnosis.inputs import CaseInputs, load_inputs
 from hybridfmu.diagnosis.open_loop import error_growth, how_far, how_far_not_run
 from hybridfmu.diagnosis.periodic_orders import narrow_periodic_orders
-from hybridfmu.diagnosis.prepare import (MeasuredManeuver, PreparedManeuver, fill_unmeasured, kernel_samples,
-                                         prepare_maneuver)
+from hybridfmu.diagnosis.prepare import (MeasuredManeuver, PreparedManeuver, choose_kernel_from_data,
+                                         fill_unmeasured, kernel_samples, prepare_maneuver)
 from hybridfmu.diagnosis.problem import Problem, set_data_statistics
 from hybridfmu.diagnosis.refit import RefitSpec
 from hybridfmu.diagnosis.result import DiagnosisResult, EffectSelection
@@ -445,7 +445,8 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
 
 def prepare_all(problem: Problem, model: Any, measured: dict[str, MeasuredManeuver],
                 simulate_fn: Callable) -> tuple[dict[str, PreparedManeuver], list[str], list[str]]:
-    """Unmeasured states filled, the problem's data statistics set, every maneuver prepared.
+    """Unmeasured states filled, the problem's data statistics set, the kernel chosen from the fitting maneuvers when
+    the config leaves it out (:func:`choose_kernel_from_data`), every maneuver prepared.
 
     Returns (maneuver name -> prepared maneuver, the fitting maneuvers (train, validation), the test ones).
     """
@@ -457,10 +458,11 @@ def prepare_all(problem: Problem, model: Any, measured: dict[str, MeasuredManeuv
         fill_unmeasured(meas, problem, model, simulate_fn)
     first = measured[fit_names[0]]
     set_data_statistics(problem, [measured[n].x for n in fit_names], float(np.median(np.diff(first.time_s))))
+    errors = choose_kernel_from_data([measured[n] for n in fit_names], model, problem)
     prepared = {}
     for count, (name, meas) in enumerate(measured.items()):
         LOGGER.info("preparing maneuver %d/%d: %s", count + 1, len(measured), name)
-        prepared[name] = prepare_maneuver(meas, model, problem)
+        prepared[name] = prepare_maneuver(meas, model, problem, errors.get(name))
     return prepared, fit_names, test_names
 
 

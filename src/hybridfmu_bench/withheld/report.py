@@ -227,7 +227,7 @@ def aggregate(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any]],
     return result
 
 
-def _per_effect_errors(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+def per_effect_errors(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     """Per bench effect over ``rows``: the parameter errors (%) of its estimates, ``n``, ``median``, ``min``, ``max``,
     ``median_with_rival`` (each with its first rival beside it where one moves it) and ``n_with_rival``."""
     out: dict[str, dict[str, Any]] = {}
@@ -578,7 +578,7 @@ def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any
         lines.append("")
     judged = [r for r in rows if r.get("split", "calibration") == ("evaluation" if evaluation_seeds else "calibration")
               and above_limits(r, limits)]
-    per_effect = _per_effect_errors(judged)
+    per_effect = per_effect_errors(judged)
     if per_effect:
         lines += ["Parameter error per bench effect, cases above the limits of the "
                   + ("evaluation" if evaluation_seeds else "calibration")
