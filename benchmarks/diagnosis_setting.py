@@ -122,6 +122,10 @@ def _num(value: Any) -> str:
     return "–" if value is None else f"{value:.3g}"
 
 
+def _covered(entry: dict[str, int] | None) -> str:
+    return "–" if not entry else f"{entry['covered']}/{entry['n']}"
+
+
 def _span(values: dict[str, float]) -> str:
     return f"{_num(values['median'])} [{_num(values['min'])} – {_num(values['max'])}]"
 
@@ -149,6 +153,10 @@ def markdown(summary: dict[str, Any]) -> str:
     for effect in sorted(set(base["per_effect"]) | set(changed["per_effect"])):
         lines.append(f"| median parameter error, {effect} | {_num(base['per_effect'].get(effect))} % | "
                      f"{_num(changed['per_effect'].get(effect))} % |")
+    base_cover, changed_cover = b["interval_coverage"], c["interval_coverage"]
+    for effect in sorted(set(base_cover) | set(changed_cover)):
+        lines.append(f"| 90 % intervals containing the truth, {effect} | {_covered(base_cover.get(effect))} | "
+                     f"{_covered(changed_cover.get(effect))} |")
     return "\n".join(lines) + "\n"
 
 

@@ -76,7 +76,7 @@ class SelectionSettings:
     min_share_of_initial: float = 0.001
     parameter_tolerance: float = 0.005
     noise_margin: float = 0.10
-    max_effects_per_equation: int = 3
+    max_effects_per_equation: int = 6
     bootstrap_samples: int = 200
     refine_iterations: int = 30
     refine_candidates: int = 8
