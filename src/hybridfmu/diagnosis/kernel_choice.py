@@ -112,7 +112,7 @@ def choose_kernel(jacobians: Sequence[np.ndarray], inside: Sequence[np.ndarray],
     cap -= 1 - cap % 2  # odd
     scales = fastest_time_scales(jacobians, inside, equations)
     finite = scales[np.isfinite(scales)]
-    if finite.size * 2 <= scales.size or finite.size == 0:
+    if finite.size * 2 <= scales.size:  # no dynamics at most samples (or no sample at all)
         return KernelChoice(MIN_KERNEL_SAMPLES, dt_s, None, None,
                             "the model's examined equations have no dynamics of their own along the data (their "
                             "Jacobian's eigenvalues are zero at most samples): the shortest kernel")
