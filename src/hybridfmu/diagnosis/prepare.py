@@ -208,7 +208,7 @@ def choose_kernel_from_data(measured: list[MeasuredManeuver], model: Any,
     sets the kernel."""
     if problem.settings.get("kernel_s"):
         return {}
-    dt_s = problem.dt_s  # set_data_statistics: the first fitting maneuver's step
+    dt_s = float(np.median(np.diff(measured[0].time_s)))
     errors = {meas.name: maneuver_error(meas, model, problem, MIN_KERNEL_SAMPLES) for meas in measured}
     inside = [_span_mask(errors[meas.name].time_s, meas.spans_s) for meas in measured]
     spans = [end - start for meas in measured for start, end in meas.spans_s] or \
