@@ -268,13 +268,16 @@ class CorrectedModel:
         return out
 
     def additive_batch(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """The additive derivative terms vectorised over rows: (N, n_x), (N, n_u) -> (N, n_x).
-
-        Same values as :meth:`__call__`: a row term is its effect's regressors at (x, u) times its coefficients
-        (the row functions are the regressors' plain-float form), so many rows cost one array evaluation.
-        """
+        """The additive derivative terms vectorised over rows, the hold included: (N, n_x), (N, n_u) -> (N, n_x)
+        (same values as :meth:`__call__`; :meth:`_terms_batch` without the hold)."""
         x = np.asarray(x, dtype=float).reshape(-1, self.n_x)
         u = np.asarray(u, dtype=float).reshape(-1, self.n_u)
+        return self._with_hold(x, u, self._terms_batch(x, u))
+
+    def _terms_batch(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The additive terms without the hold, vectorised over rows: (N, n_x), (N, n_u) -> (N, n_x). A row term
+        is its effect's regressors at (x, u) times its coefficients (the row functions are the regressors'
+        plain-float form), so many rows cost one array evaluation."""
         out = np.zeros_like(x)
         if self.row_terms:
             inputs = EffectInputs(x, u, model=self.helper)
@@ -282,7 +285,7 @@ class CorrectedModel:
                 out[:, equation] += np.asarray(effect.regressors(inputs, setting), dtype=float) @ coef
         for equation, batch in self.batches:
             out[:, equation] += batch(x, u)
-        return self._with_hold(x, u, out)
+        return out
 
     def coefficient_regressors(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """d(additive terms)/d(row coefficients): (N, n_x), (N, n_u) -> (N, n_x, n_c), the coefficients in the
@@ -309,8 +312,7 @@ class CorrectedModel:
         """The hold's rows of :meth:`coefficient_regressors` (in place): a held row's rate depends on no
         coefficient; a sliding row's friction acts as at the band's edge."""
         j = self.hold_state
-        without = self.additive_batch_without_hold(x, u)
-        held = self._held_rows(x, u, without)
+        held = self._held_rows(x, u, self._terms_batch(x, u))
         if held is None:
             return
         rows, _, holding, edge_states = held
@@ -326,14 +328,6 @@ class CorrectedModel:
             change = (np.asarray(effect.regressors(at_edge, setting), dtype=float)
                       - np.asarray(effect.regressors(at_state, setting), dtype=float)).reshape(sliding.size, -1)
             out[sliding, j, start:start + coef.size] += change
-
-    def additive_batch_without_hold(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """:meth:`additive_batch` without the hold's change."""
-        hold, self.hold = self.hold, None
-        try:
-            return self.additive_batch(x, u)
-        finally:
-            self.hold = hold
 
     def effect_program(self) -> EffectProgram | None:
         """The additive terms as an :class:`~hybridfmu.fmu.effect_program.EffectProgram` (rows, then batches,
