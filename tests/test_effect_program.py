@@ -143,6 +143,49 @@ def test_an_fmu_simulation_with_the_effects_in_c_equals_the_callback_per_stage(i
     assert np.array_equal(plain, again)  # nothing of the program stays behind
 
 
+def test_the_standstill_hold_in_c_equals_its_python_form_and_holds_what_the_friction_can_hold(ipbmotor_fmu):
+    """The speed held at rest by its friction (Coulomb and load-dependent): the C step loop gives the states of the
+    Python callback to the bit; a push the friction at the band's edge can hold leaves the rotor at rest, where the
+    smoothed friction alone lets it creep; a push beyond it moves the rotor either way."""
+    from hybridfmu.diagnosis.standstill_hold import StandstillHold
+
+    time_s = np.arange(0.0, 0.2, 1e-4)
+    u = np.zeros((len(time_s), 5))
+    u[:, 3] = 24.0
+    hold = StandstillHold("omega", 2.0, 2000.0)
+    with load_fmu(ipbmotor_fmu) as fmu, load_fmu(ipbmotor_fmu) as helper:
+        x0 = np.asarray(fmu.initial_states, dtype=float)
+        x0[2], x0[3] = 30.0, 0.5  # between the end stops, moving slowly, within the band
+        corrected = CorrectedModel(motor_terms(), MotorProblem(), helper, hold=hold)
+        program = corrected.correction()
+        assert [t.kind for t in program.terms][-1] == "hold"
+        assert program.terms[-1].ints == (3, 1, 3)  # the speed, its Coulomb and its load-dependent friction
+        runs = {}
+        for load in (0.002, 0.2):  # N m: within and beyond what the friction holds
+            u[:, 4] = load
+            in_c = simulate_open_loop(fmu, time_s, u, x0, correction=program).states
+            called_back = simulate_open_loop(fmu, time_s, u, x0, correction=corrected).states
+            assert np.array_equal(in_c, called_back), load
+            free = simulate_open_loop(fmu, time_s, u, x0, correction=CorrectedModel(
+                motor_terms(), MotorProblem(), helper).correction()).states
+            runs[load] = (in_c, free)
+    held, creeping = runs[0.002]
+    assert np.max(np.abs(held[-500:, 3])) < 1e-6 and np.ptp(held[-500:, 2]) < 1e-6  # at rest
+    assert np.ptp(creeping[-500:, 2]) > 1e-5  # the smoothed friction alone creeps
+    assert np.ptp(runs[0.2][0][:, 2]) > 1e-3  # a push beyond the friction moves it
+
+
+def test_a_hold_without_friction_in_its_equation_holds_nothing(ipbmotor_fmu):
+    from hybridfmu.diagnosis.standstill_hold import StandstillHold
+
+    terms = [t for t in motor_terms() if t.effect.kind not in ("coulomb", "scaled_coulomb")]
+    with load_fmu(ipbmotor_fmu) as helper:
+        corrected = CorrectedModel(terms, MotorProblem(), helper, hold=StandstillHold("omega", 2.0, 2000.0))
+        assert corrected.hold is None and "hold" not in [t.kind for t in corrected.correction().terms]
+    with pytest.raises(ValueError, match="needs a helper model instance"):
+        CorrectedModel(motor_terms(), MotorProblem(), None, hold=StandstillHold("omega", 2.0, 2000.0))
+
+
 def test_windows_with_the_effects_in_c_equal_the_windows_side_by_side(ipbmotor_fmu):
     """The restarted windows of the open-loop check: with an effect program each window runs in the C step loop,
     the same states to the bit as the windows side by side with the terms called back per stage."""
@@ -183,6 +226,8 @@ def test_a_term_without_a_c_form_keeps_the_callback(library, monkeypatch):
     (EffectTerm("scaled_coulomb", (1,), (1, 1), (1.0, 0.0, 0.1)), "index 1 at position 1: expected 0..0"),
     (EffectTerm("coulomb", (1,), (1,), (1.0,)), "1 real arguments do not fit"),
     (EffectTerm("periodic", (1,), (1,), (1.0, 2.0)), "2 real arguments do not fit"),
+    (EffectTerm("hold", (1,), (1, 0), (1.0, 10.0)), "friction term 0: expected an earlier term of one value"),
+    (EffectTerm("hold", (1,), (1,), (1.0, 10.0)), "expected one equation, a state and at least one friction term"),
 ])
 def test_a_program_that_does_not_fit_the_model_is_refused(term, message):
     with pytest.raises(ValueError, match=f"effect term 0 \\({term.kind}\\): {message}"):

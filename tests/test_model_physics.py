@@ -180,7 +180,7 @@ def test_saved_model_loads_back_and_bad_files_are_named(diagnosed, tmp_path):
         load_diagnosed(garbage)
     other = tmp_path / "other.pkl"
     other.write_bytes(pickle.dumps({"format_version": 99, "model": diagnosed}))
-    with pytest.raises(ValueError, match="field .format_version. is 99, expected 'diagnosed_model/2'"):
+    with pytest.raises(ValueError, match="field .format_version. is 99, expected 'diagnosed_model/3'"):
         load_diagnosed(other)
 
 

@@ -29,6 +29,7 @@ import numpy as np
 from hybridfmu.diagnosis.effects import EffectInputs, input_derivative
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.selection import Term
+from hybridfmu.diagnosis.standstill_hold import StandstillHold, friction_rows, held_rate
 from hybridfmu.fmu.bridge import FmuModel
 from hybridfmu.fmu.simulate import simulate_open_loop
 from hybridfmu.fmu.effect_program import EffectProgram, EffectTerm
@@ -115,9 +116,13 @@ class CorrectedModel:
         joint_batches: evaluate a joint effect whose members offer ``joint_batch_function`` (e.g. one
             actuator dead time acting in several equations) once for all its equations; False evaluates each member on its
             own (same values; ``benchmarks/physics_layer.py`` times both).
+        hold: hold a state at rest by the friction terms of its own equation
+            (:mod:`hybridfmu.diagnosis.standstill_hold`; it needs ``helper`` for the model's derivatives), or None.
+            Without such friction terms among ``terms`` nothing is held.
     """
 
-    def __init__(self, terms: list[Term], problem: Problem, helper: Any = None, joint_batches: bool = True) -> None:
+    def __init__(self, terms: list[Term], problem: Problem, helper: Any = None, joint_batches: bool = True,
+                 hold: StandstillHold | None = None) -> None:
         self.n_x, self.n_u = problem.n_x, problem.n_u
         self.helper = helper
         self.rows: list[tuple[int, Callable]] = []
@@ -192,9 +197,53 @@ class CorrectedModel:
                     source_stage = getattr(member, "source_stage_term", None)
                     self.batch_stage_terms.append(source_stage(setting) if callable(source_stage) else None)
 
+        #: the hold, its state and its friction terms (indices into rows / row_terms), when it holds anything
+        self.hold: StandstillHold | None = None
+        self.hold_state, self.hold_friction = -1, []
+        if hold is not None:
+            if hold.state not in list(problem.state_names):
+                raise ValueError(f"standstill hold: {hold.state!r} is not a state of the model; expected one of "
+                                 f"{list(problem.state_names)}")
+            state = list(problem.state_names).index(hold.state)
+            friction = friction_rows(self.row_terms, state)
+            if friction:
+                if helper is None:
+                    raise ValueError(f"the standstill hold of {hold.state} needs a helper model instance")
+                self.hold, self.hold_state, self.hold_friction = hold, state, friction
+
     @property
     def has_correction(self) -> bool:
         return bool(self.rows or self.batches)
+
+    def _held_rows(self, x: np.ndarray, u: np.ndarray, out: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The rows (indices) within the hold's band, their rate with the hold, whether the friction holds them,
+        and their states with the held state at the band's edge the push points to; None if no row is within.
+        ``out`` (N, n_x): the other terms' sum at (x, u)."""
+        j, hold = self.hold_state, self.hold
+        rows = np.flatnonzero(np.abs(x[:, j]) < hold.band)
+        if not rows.size:
+            return None
+        xs, us = x[rows], u[rows]
+        before = np.asarray(self.helper.derivatives(xs, us), dtype=float).reshape(len(rows), -1)[:, j] + out[rows, j]
+        friction = self._friction(xs, us)
+        edge_states = xs.copy()
+        edge_states[:, j] = np.where(before - friction >= 0.0, hold.band, -hold.band)
+        rate, held = held_rate(before, friction, self._friction(edge_states, us), xs[:, j], hold.rate_per_s)
+        return rows, rate - before, held, edge_states
+
+    def _friction(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """(N,) the hold's friction terms summed in order at (x, u), with their coefficients as they are now
+        (row by row, the operations of the C step loop)."""
+        functions = [effect.row_function(coef, setting)
+                     for _, effect, coef, setting in (self.row_terms[n] for n in self.hold_friction)]
+        total = np.zeros(x.shape[0])
+        for r in range(x.shape[0]):
+            x_row, u_row, value = x[r].tolist(), u[r].tolist(), 0.0
+            for function in functions:
+                value += function(x_row, u_row)
+            total[r] = value
+        return total
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Additive derivative terms: (N, n_x), (N, n_u) -> (N, n_x) (one row per RK stage in a simulation)."""
@@ -208,16 +257,27 @@ class CorrectedModel:
                     out[r, equation] += func(x_row, u_row)
         for equation, batch in self.batches:
             out[:, equation] += batch(x, u)
+        return self._with_hold(x, u, out)
+
+    def _with_hold(self, x: np.ndarray, u: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """``out`` (N, n_x), the terms' sum at (x, u), with the hold's change added (in place)."""
+        if self.hold is not None:
+            held = self._held_rows(x, u, out)
+            if held is not None:
+                out[held[0], self.hold_state] += held[1]
         return out
 
     def additive_batch(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """The additive derivative terms vectorised over rows: (N, n_x), (N, n_u) -> (N, n_x).
-
-        Same values as :meth:`__call__`: a row term is its effect's regressors at (x, u) times its coefficients
-        (the row functions are the regressors' plain-float form), so many rows cost one array evaluation.
-        """
+        """The additive derivative terms vectorised over rows, the hold included: (N, n_x), (N, n_u) -> (N, n_x)
+        (same values as :meth:`__call__`; :meth:`_terms_batch` without the hold)."""
         x = np.asarray(x, dtype=float).reshape(-1, self.n_x)
         u = np.asarray(u, dtype=float).reshape(-1, self.n_u)
+        return self._with_hold(x, u, self._terms_batch(x, u))
+
+    def _terms_batch(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The additive terms without the hold, vectorised over rows: (N, n_x), (N, n_u) -> (N, n_x). A row term
+        is its effect's regressors at (x, u) times its coefficients (the row functions are the regressors'
+        plain-float form), so many rows cost one array evaluation."""
         out = np.zeros_like(x)
         if self.row_terms:
             inputs = EffectInputs(x, u, model=self.helper)
@@ -244,7 +304,30 @@ class CorrectedModel:
                 start = starts[id(coef)]
                 regressors = np.asarray(effect.regressors(inputs, setting), dtype=float).reshape(x.shape[0], -1)
                 out[:, equation, start:start + coef.size] += regressors
+        if self.hold is not None and self.row_terms:
+            self._hold_regressors(x, u, out, starts)
         return out
+
+    def _hold_regressors(self, x: np.ndarray, u: np.ndarray, out: np.ndarray, starts: dict[int, int]) -> None:
+        """The hold's rows of :meth:`coefficient_regressors` (in place): a held row's rate depends on no
+        coefficient; a sliding row's friction acts as at the band's edge."""
+        j = self.hold_state
+        held = self._held_rows(x, u, self._terms_batch(x, u))
+        if held is None:
+            return
+        rows, _, holding, edge_states = held
+        out[rows[holding], j, :] = 0.0
+        sliding = rows[~holding]
+        if not sliding.size:
+            return
+        at_state = EffectInputs(x[sliding], u[sliding], model=self.helper)
+        at_edge = EffectInputs(edge_states[~holding], u[sliding], model=self.helper)
+        for n in self.hold_friction:
+            _, effect, coef, setting = self.row_terms[n]
+            start = starts[id(coef)]
+            change = (np.asarray(effect.regressors(at_edge, setting), dtype=float)
+                      - np.asarray(effect.regressors(at_state, setting), dtype=float)).reshape(sliding.size, -1)
+            out[sliding, j, start:start + coef.size] += change
 
     def effect_program(self) -> EffectProgram | None:
         """The additive terms as an :class:`~hybridfmu.fmu.effect_program.EffectProgram` (rows, then batches,
@@ -255,6 +338,9 @@ class CorrectedModel:
         terms = rows + self.batch_stage_terms
         if not terms or any(term is None for term in terms):
             return None
+        if self.hold is not None:  # rows come first: a friction row's index is its term number
+            terms.append(EffectTerm("hold", (self.hold_state,), (self.hold_state, *self.hold_friction),
+                                    (float(self.hold.band), float(self.hold.rate_per_s))))
         return EffectProgram(terms, self.n_x, self.n_u, python=self)
 
     def correction(self) -> Callable | None:

@@ -21,13 +21,14 @@ import numpy as np
 from hybridfmu.diagnosis.corrected_model import CorrectedModel
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.selection import Term
+from hybridfmu.diagnosis.standstill_hold import StandstillHold
 from hybridfmu.io import atomic_path
 
 #: File name of the diagnosed model in the diagnosis folder.
 DIAGNOSED_MODEL = "diagnosed_model.pkl"
 
 #: Version of the saved layout; a file of another version is refused with a request to rerun the diagnosis.
-FORMAT_VERSION = "diagnosed_model/2"
+FORMAT_VERSION = "diagnosed_model/3"
 
 
 @dataclass
@@ -42,6 +43,8 @@ class DiagnosedModel:
         effects: the effects' names, in rank order (for reports).
         initial_states: maneuver -> unmeasured state -> initial value recalibrated with the effects ({} without
             the refit; a maneuver not listed starts where the calibration says).
+        hold: the standstill state held at rest by its friction (:mod:`hybridfmu.diagnosis.standstill_hold`), or
+            None.
     """
 
     terms: list[Term]
@@ -49,6 +52,7 @@ class DiagnosedModel:
     problem: Problem
     effects: list[str] = field(default_factory=list)
     initial_states: dict[str, dict[str, float]] = field(default_factory=dict)
+    hold: StandstillHold | None = None
 
     def initial_state(self, x0: np.ndarray, maneuver: str) -> np.ndarray:
         """``x0`` (n_x,) of ``maneuver`` with the unmeasured states recalibrated with the effects (a copy)."""
@@ -80,7 +84,7 @@ class DiagnosedModel:
         terms = [t for t in self.terms if (names is None or t.effect.name in names)
                  and t.effect.kind not in without_kinds]
         return DiagnosedModel(terms, dict(self.parameters), self.problem, [t.effect.name for t in terms],
-                              {name: dict(values) for name, values in self.initial_states.items()})
+                              {name: dict(values) for name, values in self.initial_states.items()}, self.hold)
 
     def simulate(self, fmu: Any, helper: Any, time_s: np.ndarray, u: np.ndarray, x0: np.ndarray) -> np.ndarray:
         """States (T, n_x) of the FMU plus the effects open loop from ``x0`` (n_x,) with the logged inputs ``u``
@@ -97,7 +101,7 @@ class DiagnosedModel:
     def corrected(self, helper: Any) -> CorrectedModel:
         """The effects as changes of the model (:class:`CorrectedModel`); ``helper`` is a second model instance
         with ``parameters`` set, for effects that evaluate the model's derivatives."""
-        return CorrectedModel(self.terms, self.problem, helper)
+        return CorrectedModel(self.terms, self.problem, helper, hold=self.hold)
 
 
 def save_diagnosed(model: DiagnosedModel, path: str | Path) -> Path:

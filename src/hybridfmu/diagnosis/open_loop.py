@@ -8,6 +8,7 @@ gives, per maneuver and target, when the model's normalised open-loop error firs
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from typing import Any, Callable
@@ -22,6 +23,7 @@ from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.refit import Refit, RefitSpec, parameters_set, refit_terms, simulate_corrected
 from hybridfmu.diagnosis.result import HeldOutCheck
 from hybridfmu.diagnosis.selection import Term
+from hybridfmu.diagnosis.standstill_hold import StandstillHold, choose_hold, friction_rows
 
 LOGGER = logging.getLogger("hybridfmu.diagnosis")
 
@@ -56,7 +58,8 @@ def _refit_record(refit: Refit) -> dict[str, Any]:
 
 def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
             test_names: list[str], terms: list[Term], problem: Problem,
-            refit: RefitSpec | None = None, refit_names: list[str] | None = None) -> HeldOutCheck:
+            refit: RefitSpec | None = None, refit_names: list[str] | None = None,
+            fit_names: list[str] | None = None) -> HeldOutCheck:
     """Open-loop errors on the test maneuvers: the model, and after each chosen effect (cumulative, rank order)
     (:class:`hybridfmu.diagnosis.result.HeldOutCheck`).
 
@@ -69,7 +72,12 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
     no other effect (recalibrated from the model alone's optimum with ``refit``); ``parameter_shrink_factor`` is the
     gap of the model alone over its gap, ``effect_shrink_factor`` its gap over the diagnosed model's (what the named
     effects add on top of the parameter corrections; 1 when every chosen term is a parameter error), and the same
-    with ``window_`` over the restarted windows."""
+    with ``window_`` over the restarted windows.
+
+    With a configured standstill (``diagnosis.standstill``) and ``fit_names``, the diagnosed model may hold that
+    state at rest by its friction: the band is chosen on the whole fitting maneuvers (:func:`standstill_hold`), and
+    when one is, the check ends with one more variant, the diagnosed model with it (``standstill_hold`` records the
+    choice)."""
     window_s = problem.settings["open_loop"].get("window_s")
     steps = []
     trajectories: dict[str, dict[str, np.ndarray]] = {name: {} for name in test_names}
@@ -92,32 +100,44 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
             trajectories[name][label] = whole[name]
         steps.append(step)
     active = fitted.terms if fitted is not None else terms
-    before, after = steps[0], steps[len(terms)]
-    keys = [k for k in before if k not in ("model", "effects", "per_maneuver")]
     diagnosed = DiagnosedModel(list(active), dict(fitted.parameters) if fitted is not None else {}, problem,
                                [t.effect.name for t in terms],
                                {name: dict(fitted.initial_states_of(name, refit)) for name in prepared
                                 if fitted.initial_states_of(name, refit)} if fitted is not None else {})
+    hold_record = None
+    if fit_names and problem.settings.get("standstill"):
+        diagnosed, hold_record = standstill_hold(model, helper, simulate_fn, prepared, fit_names, diagnosed,
+                                                 problem)
+        if diagnosed.hold is not None:
+            label = f"+ {diagnosed.hold.describe(problem.unit(diagnosed.hold.state))}"
+            step, corrected, whole = _variant(model, helper, simulate_fn, prepared, test_names, label, terms,
+                                              fitted, problem, refit, window_s, diagnosed.hold)
+            for name in test_names:
+                trajectories[name][label] = whole[name]
+            steps.append(step)
+    before, after = steps[0], steps[-1]
+    keys = [k for k in before if k not in ("model", "effects", "per_maneuver")]
     return HeldOutCheck(
         steps=steps, before={k: before[k] for k in keys}, after={k: after[k] for k in keys},
         gap_before=before["gap"], gap_after=after["gap"],
         shrink_factor=before["gap"] / after["gap"] if after["gap"] and after["gap"] > 0 else float("inf"),
         notes=notes, trajectories=trajectories, diagnosed=diagnosed,
         window_gap_before=before.get("window_gap"), window_gap_after=after.get("window_gap"),
+        standstill_hold=hold_record,
         **_attributed(model, helper, simulate_fn, prepared, test_names, terms, steps, alone, problem, refit,
                       refit_names, window_s))
 
 
 def _variant(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
              test_names: list[str], label: str, active: list[Term], fitted: Refit | None, problem: Problem,
-             refit: RefitSpec | None, window_s: float | None
+             refit: RefitSpec | None, window_s: float | None, hold: StandstillHold | None = None
              ) -> tuple[dict[str, Any], CorrectedModel | None, dict[str, np.ndarray]]:
     """One variant of the held-out check open loop on every test maneuver: its step record (errors per maneuver and
     their means, the refit record), its corrected model and its whole-maneuver states (maneuver -> (T, n_x))."""
     names = [t.effect.name for t in active]
     if fitted is not None:
         active = fitted.terms
-    corrected = CorrectedModel(active, problem, helper) if active else None
+    corrected = CorrectedModel(active, problem, helper, hold=hold) if active else None
     per, whole = {}, {}
     with parameters_set([model, helper], fitted.parameters if fitted is not None else {}):
         for name in test_names:
@@ -172,6 +192,42 @@ def _attributed(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[s
         out["window_parameter_shrink_factor"] = _shrink(before["window_gap"], only["window_gap"])
         out["window_effect_shrink_factor"] = _shrink(only["window_gap"], after["window_gap"])
     return out
+
+
+def standstill_hold(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
+                    fit_names: list[str], diagnosed: DiagnosedModel, problem: Problem
+                    ) -> tuple[DiagnosedModel, dict[str, Any]]:
+    """The diagnosed model with the standstill hold whose open-loop gap over the whole fitting maneuvers
+    ``fit_names`` is the smallest (:func:`hybridfmu.diagnosis.standstill_hold.choose_hold`; unchanged when no hold
+    beats none), and the record of the choice: ``state``, ``threshold`` (``diagnosis.standstill.below``),
+    ``band`` (None: no hold), ``candidates`` (``band``, ``gap``), ``maneuvers``."""
+    setting = problem.settings["standstill"]
+    state, threshold = str(setting["state"]), float(setting["below"])
+    record: dict[str, Any] = {"state": state, "threshold": threshold, "band": None, "candidates": [],
+                              "maneuvers": list(fit_names)}
+    if not friction_rows(diagnosed.corrected(helper).row_terms, problem.state_names.index(state)):
+        record["note"] = f"no friction of {state} was named in its equation: nothing to hold it at rest"
+        return diagnosed, record
+
+    def gap_of(hold: StandstillHold | None) -> float:
+        candidate = dataclasses.replace(diagnosed, hold=hold)
+        gaps = []
+        with parameters_set([model, helper], candidate.parameters):
+            corrected = candidate.corrected(helper)
+            for name in fit_names:
+                meas = prepared[name].measured
+                starts = prepared[name].starts
+                if candidate.initial_states.get(name):
+                    starts = _refit_starts(model, simulate_fn, meas, starts, corrected, candidate.initial_states[name],
+                                           problem)
+                errors, _ = open_loop_errors(model, simulate_fn, meas.time_s, reference_states(meas, starts, problem),
+                                             meas.u, starts, problem, corrected, None)
+                gaps.append(errors["gap"])
+        return float(np.mean(gaps)) if gaps else float("nan")
+
+    hold, record["candidates"] = choose_hold(state, threshold, problem.dt_s, gap_of)
+    record["band"] = None if hold is None else hold.band
+    return dataclasses.replace(diagnosed, hold=hold), record
 
 
 def _refitted_parameter(term: Term, refit: RefitSpec) -> bool:

@@ -154,6 +154,12 @@ def verdict(result: DiagnosisResult) -> str:
                         + (f", over the windows {_factor(far.window_effect_shrink_factor)}"
                            if far.window_effect_shrink_factor is not None else "")
                         if far.parameters_only else "") + ").")
+        hold = far.standstill_hold or {}
+        if hold.get("band") is not None:
+            state = hold["state"]
+            parts.append(f"The diagnosed model holds {problem.labels.get(state, state)} at rest by its friction below "
+                         f"{hold['band']:.4g} {problem.unit(state)} (the band with the smallest open-loop gap over "
+                         f"the fitting maneuvers {', '.join(hold['maneuvers'])}; the held-out figures above include it).")
     elif result.how_far_not_run:
         parts.append(f"Held-out check not run: {result.how_far_not_run}")
     return " ".join(parts)
@@ -217,7 +223,7 @@ def held_out_record(far: HeldOutCheck) -> dict[str, Any]:
     if far.windowed:
         record.update(window_gap_before=far.window_gap_before, window_gap_after=far.window_gap_after)
     record.update(parameters_only=far.parameters_only, parameter_shrink_factor=far.parameter_shrink_factor,
-                  effect_shrink_factor=far.effect_shrink_factor)
+                  effect_shrink_factor=far.effect_shrink_factor, standstill_hold=far.standstill_hold)
     if far.windowed:
         record.update(window_parameter_shrink_factor=far.window_parameter_shrink_factor,
                       window_effect_shrink_factor=far.window_effect_shrink_factor)

@@ -504,7 +504,7 @@ def run_diagnosis(problem: Problem, model: Any, measured: dict[str, MeasuredMane
     if not_run is None:
         train_names = [n for n in fit_names if measured[n].role == "train"] or fit_names
         far = how_far(model, helper, simulate_fn, prepared, test_names, which.terms, problem, refit=refit,
-                      refit_names=train_names)
+                      refit_names=train_names, fit_names=fit_names)
         growth = error_growth(model, simulate_fn, prepared, problem)
     else:
         LOGGER.warning("diagnosis: %s", not_run)

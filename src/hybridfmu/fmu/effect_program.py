@@ -24,7 +24,13 @@ kind                  ints                                 reals
 ``spill``             j                                    s, x_c
 ``phase_deadtime``    duty a, b, c (inputs), i_d, i_q,     delta, i_0, pole pairs
                       angle (states)
+``hold``              j, friction term numbers t_1, ..     band, rate (1/s)
 ====================  ===================================  =========================================
+
+``hold`` holds the velocity x_j at rest by the friction terms it lists (terms earlier in the program): within
+|x_j| < band the equation's rate becomes -rate x_j where that friction can hold it, else the rate without the
+friction plus the friction at the band's edge (a Karnopp stick band; ``effects.c``). It reads the rate the
+terms before it have summed, so it comes last.
 """
 
 from __future__ import annotations
@@ -61,6 +67,7 @@ TERM_KINDS: dict[str, TermKind] = {
     "limit_below": TermKind(10, "x", 2),
     "spill": TermKind(11, "x", 2),
     "phase_deadtime": TermKind(12, "uuuxxx", 3, evaluates_model=True),
+    "hold": TermKind(13, "x", 2),
 }
 #: kinds with any positive number of reals that is a multiple of TermKind.reals (one per coefficient or harmonic)
 _REPEATED_REALS = ("polynomial", "periodic")
@@ -114,6 +121,9 @@ class EffectProgram:
             raise ValueError(f"{where}: equations {list(term.equations)}: expected state indices in "
                              f"0..{self.n_states - 1}")
         kind = TERM_KINDS[term.kind]
+        if term.kind == "hold":
+            self._check_hold(number, term)
+            return
         if len(term.ints) != len(kind.ints):
             raise ValueError(f"{where}: expected {len(kind.ints)} indices, got {len(term.ints)}")
         for position, (index, space) in enumerate(zip(term.ints, kind.ints)):
@@ -124,6 +134,19 @@ class EffectProgram:
         fits = n_reals > 0 and n_reals % kind.reals == 0 if term.kind in _REPEATED_REALS else n_reals == kind.reals
         if not fits:
             raise ValueError(f"{where}: {n_reals} real arguments do not fit the kind")
+
+    def _check_hold(self, number: int, term: EffectTerm) -> None:
+        where = f"effect term {number} (hold)"
+        if len(term.equations) != 1 or len(term.reals) != 2 or len(term.ints) < 2:
+            raise ValueError(f"{where}: expected one equation, a state and at least one friction term, and the "
+                             "band and rate")
+        if not 0 <= term.ints[0] < self.n_states:
+            raise ValueError(f"{where}: state {term.ints[0]}: expected 0..{self.n_states - 1}")
+        for friction in term.ints[1:]:
+            if not 0 <= friction < number or self.terms[friction].kind in ("hold", "phase_deadtime"):
+                raise ValueError(f"{where}: friction term {friction}: expected an earlier term of one value")
+        if number != len(self.terms) - 1:
+            raise ValueError(f"{where}: expected the program's last term (it reads the rate the others sum)")
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """The terms in Python (:attr:`python`): (N, n_x), (N, n_u) -> (N, n_x)."""
