@@ -14,12 +14,14 @@ run (:data:`VOLATILE_KEYS`: an MLflow run id, elapsed times) left out, any other
 
 Prints a table and, last line, a JSON object: per commit the rule's wall times (s) and their median, whether
 its outputs equal the first commit's, and the ratio of the first commit's median to each other's.
+``--field KEY`` (a dotted key of a JSON target, e.g. ``which.found_effects``) adds that value of each commit's first
+run to the table, and whether it equals the first commit's, for outputs that differ as a whole but must agree on it.
 ``--markdown FILE`` writes the table as Markdown (for the docs: ``python -m hybridfmu.evaluation.measured_blocks
 --block <name>=FILE``).
 
     python benchmarks/stage_wall.py --results results/ipb --rule diagnose --target results/ipb/diagnosis/diagnosis.json
         --inputs fmu data segments calibration [--commit 357ca3c --commit HEAD] [--configfile FILE] [--repeats 1]
-        [--cores 1] [--markdown FILE]
+        [--cores 1] [--field which.found_effects] [--markdown FILE]
 """
 
 from __future__ import annotations
@@ -59,6 +61,14 @@ def comparable(path: Path) -> object:
     return strip(json.loads(path.read_text()))
 
 
+def field_value(path: Path, key: str) -> object:
+    """The value at the dotted ``key`` of the JSON file ``path`` (None where a part of it is missing)."""
+    value: object = json.loads(path.read_text())
+    for part in key.split("."):
+        value = value.get(part) if isinstance(value, dict) else None
+    return value
+
+
 def touch_tree(folder: Path) -> None:
     """Give every file under ``folder`` the current time (the copied inputs newer than the clone's sources)."""
     now = time.time()
@@ -94,19 +104,45 @@ def run_stage(checkout: Path, results: Path, inputs: list[str], rule: str, targe
         raise FileNotFoundError(f"{tsv}: the rule {rule!r} wrote no benchmark file (is it the rule's name?)")
     with tsv.open() as stream:
         rows = list(csv.DictReader(stream, delimiter="\t"))
-    return {"rule_s": float(rows[-1]["s"]), "command_s": command_s, "output": comparable(checkout / target)}
+    return {"rule_s": float(rows[-1]["s"]), "command_s": command_s, "output": comparable(checkout / target),
+            "path": checkout / target}
 
 
-def markdown(summary: dict, rule: str, results: str, ratios: dict, target: str, cores: int) -> str:
-    """The table of the runs as Markdown."""
+def agreement(value: object, first: object) -> str:
+    """Whether a field's ``value`` equals the first commit's: the same, the same list in another order, or not."""
+    if value == first:
+        return "the same"
+    if isinstance(value, list) and isinstance(first, list) and sorted(map(str, value)) == sorted(map(str, first)):
+        return "the same, in another order"
+    return "**differs**"
+
+
+def _shown(value: object) -> str:
+    """A field's value as table text (a list joined by commas, a Markdown table's bar escaped)."""
+    text = ", ".join(map(str, value)) if isinstance(value, list) else str(value)
+    return text.replace("|", "\\|")
+
+
+def markdown(summary: dict, rule: str, results: str, ratios: dict, target: str, cores: int,
+             fields: list[str] | None = None) -> str:
+    """The table of the runs as Markdown (with each of ``fields`` of the target per commit)."""
+    fields = fields or []
     lines = [f"Rule `{rule}` rerun on the inputs of `{results}`, one job at a time with {cores} core(s), side by side "
              f"on this machine ({os.cpu_count()} cores; `benchmarks/stage_wall.py`):", "",
              f"| commit | wall time of the rule | runs | against the first commit | `{Path(target).name}` as the "
-             "first commit's |", "|---|---|---|---|---|"]
+             "first commit's |" + "".join(f" `{key}` |" for key in fields),
+             "|---|---|---|---|---|" + "---|" * len(fields)]
+    first = next(iter(summary.values()))
     for commit, figures in summary.items():
         runs = ", ".join(f"{s:.0f} s" for s in figures["rule_s"])
         same = "the same" if figures["same_output"] else "**differs**"
-        lines.append(f"| {commit[:10]} | {figures['median_s']:.0f} s | {runs} | ×{ratios[commit]:.2f} | {same} |")
+        shown = ""
+        for key in fields:
+            value = figures["fields"][key]
+            agrees = "" if figures is first else f" ({agreement(value, first['fields'][key])})"
+            shown += f" {_shown(value)}{agrees} |"
+        lines.append(f"| {commit[:10]} | {figures['median_s']:.0f} s | {runs} | ×{ratios[commit]:.2f} | {same} |"
+                     + shown)
     return "\n".join(lines) + "\n"
 
 
@@ -120,6 +156,8 @@ def main() -> None:
     parser.add_argument("--configfile", default=None, help="case config (default: the demo)")
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--cores", type=int, default=1, help="cores of the job (snakemake -jN)")
+    parser.add_argument("--field", action="append", default=[],
+                        help="a dotted key of the JSON target shown per commit (repeatable), e.g. which.found_effects")
     parser.add_argument("--markdown", type=Path, default=None, help="write the table as Markdown to this file")
     args = parser.parse_args()
     commits = [resolve(c) for c in (args.commit or ["HEAD"])]
@@ -138,6 +176,9 @@ def main() -> None:
                 figures = run_stage(checkout, results, args.inputs, args.rule, args.target, args.configfile,
                                     args.cores)
                 output = figures.pop("output")
+                target_path = figures.pop("path")
+                if repeat == 0:
+                    summary[commit]["fields"] = {key: field_value(target_path, key) for key in args.field}
                 reference = output if reference is None else reference
                 summary[commit]["same_output"] &= output == reference
                 print(f"  {label}: rule {args.rule} in {figures['rule_s']:.0f} s, {args.target} "
@@ -155,9 +196,12 @@ def main() -> None:
         print(f"{commit[:10]:<12} {figures['median_s']:>10.0f}  {ratios[commit]:>7.2f}x  "
               f"{'same' if figures['same_output'] else 'DIFFERS':>8}  "
               + ", ".join(f"{s:.0f}" for s in figures["rule_s"]))
+        for key, value in figures["fields"].items():
+            print(f"  {key}: {_shown(value)}")
     if args.markdown:
         args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        args.markdown.write_text(markdown(summary, args.rule, str(results), ratios, args.target, args.cores))
+        args.markdown.write_text(markdown(summary, args.rule, str(results), ratios, args.target, args.cores,
+                                          args.field))
     print(json.dumps({"rule": args.rule, "results": str(results), "commits": summary, "ratios": ratios}))
 
 
