@@ -939,6 +939,7 @@ class ResponseMap:
         from scipy.interpolate import PchipInterpolator
 
         self._inverse = PchipInterpolator(response[low:high + 1], relative[low:high + 1], extrapolate=False)
+        self._derivative = self._inverse.derivative()
         self._ends = (float(response[low]), float(response[high]))
 
     @classmethod
@@ -959,7 +960,7 @@ class ResponseMap:
         """dr/dc at ``coefficient`` (1 for the identity)."""
         if self._inverse is None:
             return 1.0
-        return float(self._inverse.derivative()(self._clamped(float(coefficient))))
+        return float(self._derivative(self._clamped(float(coefficient))))
 
     def __call__(self, coefficient: float) -> float:
         """The relative error r with c(r) = ``coefficient``."""
