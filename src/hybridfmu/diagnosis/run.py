@@ -305,9 +305,7 @@ def selection_inputs(prepared: dict[str, PreparedManeuver], fit_names: list[str]
     cache = DesignCache([prepared[n].fit for n in prepared])
     stacked = StackedCache(cache, problem.equations)
     candidates = joint_candidates(library, problem.equations)
-    noise_std = prepared[fit_names[0]].fit.noise_std
-    weights = {eq: 1.0 / float(noise_std[eq]) ** 2 if noise_std[eq] > 0 and np.isfinite(noise_std[eq]) else 1.0
-               for eq in problem.equations}
+    weights = {eq: stacked.row_weight(eq, fit_names[0]) ** 2 for eq in problem.equations}  # least-squares weights
     for candidate in candidates:
         if isinstance(candidate, JointEffect) and candidate.kind == "parameter":
             share_response_map(candidate.members, weights)
