@@ -119,3 +119,24 @@ def test_the_motor_plugin_adds_dead_time_to_the_current_equations_only():
         effects_motor.plugin_effects(Stub(), 0, {"duty_inputs": ["d_a"]}, None)
     phases = effects_motor.dq_to_abc(np.array([0.0]), np.array([1.0]), np.array([0.0]))
     assert phases.sum() == pytest.approx(0.0) and phases[0, 0] == pytest.approx(0.0)
+
+
+def test_every_effect_states_sizes_that_its_physical_parameters_carry(library):
+    """The confirmation of an effect (:func:`hybridfmu.diagnosis.identification.confirmed`) reads its sizes among its
+    physical parameters: each effect of the library names at least one that is there, none of them a setting."""
+    _, _, _, effects, _ = library
+    kinds = set()
+    for effect in effects[0] + effects[1]:
+        grid = effect.grid()
+        for setting in (grid[0], grid[-1]):
+            n = len(effect.coefficient_names(setting))
+            rows = effect.physical(np.linspace(0.5, 1.5, n), np.eye(n) * 1e-4, setting, {})
+            names = [r["name"] for r in rows]
+            sizes = effect.size_parameters(setting)
+            matched = [r for r in names if any(r == s or (s.endswith("_") and r.startswith(s)) for s in sizes)]
+            assert matched, f"{effect.name} {setting}: sizes {sizes} among none of {names}"
+            assert not set(matched) & set(setting) - {"half_width"}, f"{effect.name}: a searched shape as a size"
+        kinds.add(effect.kind)
+    assert {"viscous", "quadratic", "polynomial", "coulomb", "scaled_coulomb", "periodic", "saturation_above",
+            "limit_above", "input_gain", "input_offset", "time_offset", "input_lag", "input_deadzone",
+            "input_saturation_above", "parameter"} <= kinds

@@ -116,3 +116,49 @@ def test_the_report_names_the_rival_an_estimate_rests_on():
     assert rival_text(item) == ("parameter(b): relative_error 4.05; with time_offset(tau_load) beside it "
                                 "relative_error 1.51")
     assert rival_text({**item, "rivals": []}) is None
+
+
+def test_an_effect_is_confirmed_by_one_identified_size():
+    from hybridfmu.diagnosis.identification import confirmed
+
+    rows = [{"name": "coulomb_level", "identified": False}, {"name": "breakaway_level", "identified": True},
+            {"name": "smoothing", "identified": True}]
+    assert confirmed(rows, ["coulomb_level", "breakaway_level"]) is True
+    assert confirmed(rows[:1] + rows[2:], ["coulomb_level", "breakaway_level"]) is False  # a shape confirms nothing
+    periodic = [{"name": "order", "identified": None}, {"name": "amplitude_24", "identified": False},
+                {"name": "amplitude_48", "identified": False}, {"name": "phase_24", "identified": None}]
+    assert confirmed(periodic, ["amplitude_"]) is False
+    periodic[2]["identified"] = True
+    assert confirmed(periodic, ["amplitude_"]) is True
+    assert confirmed([{"name": "level", "identified": None}], ["level"]) is None  # nothing judged: not refused
+
+
+def test_the_verdict_keeps_an_unconfirmed_term_apart_from_the_findings():
+    from hybridfmu.diagnosis.result import EffectSelection
+
+    def item(effect, kind, role):
+        return {"effect": effect, "kind": kind, "role": role, "equation": "i_d", "equations": ["i_d"],
+                "parameters": [], "rivals": []}
+
+    which = EffectSelection(chosen=[item("parameter(R)", "parameter", "finding"),
+                                    item("polynomial(i_d)", "polynomial", "unconfirmed"),
+                                    item("time_offset(u)", "time_offset", "adjustment")],
+                            equations={}, steps=[], calibration=[], skipped={}, terms=[], cache=None, n_candidates=3,
+                            groups=[])
+    assert which.found_effects == ["parameter(R)"]
+    assert which.unconfirmed == ["polynomial(i_d)"] and which.adjustments == ["time_offset(u)"]
+
+
+def test_a_chosen_term_without_an_identified_size_is_unconfirmed():
+    from types import SimpleNamespace
+
+    from hybridfmu.diagnosis.run import _role
+
+    effect = SimpleNamespace(name="polynomial(i_d)", size_parameters=lambda setting: ["c_2", "c_3"])
+    term = SimpleNamespace(effect=effect, setting={"degree": 3.0})
+    rows = [{"name": "c_2", "identified": False}, {"name": "c_3", "identified": False},
+            {"name": "degree", "identified": True}]
+    assert _role(term, SimpleNamespace(adjustments=[]), rows) == "unconfirmed"
+    rows[1]["identified"] = True
+    assert _role(term, SimpleNamespace(adjustments=[]), rows) == "finding"
+    assert _role(term, SimpleNamespace(adjustments=["polynomial(i_d)"]), rows) == "adjustment"

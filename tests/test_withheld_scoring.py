@@ -169,6 +169,10 @@ def test_an_adjustment_is_no_finding():
     assert row["exact"] is True and row["found_effects"] == ["viscous_friction"] and row["extra_effects"] == []
     named = score_case(record([viscous, {**adjustment, "role": "finding"}]), *case)
     assert named["exact"] is False and named["extra_effects"] == ["coulomb_friction"]
+    unconfirmed = score_case(record([viscous, {**adjustment, "role": "unconfirmed"}]), *case)
+    assert unconfirmed["exact"] is True and unconfirmed["extra_effects"] == []
+    alone = score_case(record([{**viscous, "role": "unconfirmed"}]), *case)
+    assert alone["detected"] == [False] and alone["parameter_error_pct"] == ["missed"]
 
 
 def test_a_cogging_order_mismatch_and_a_sign_error_are_reported():

@@ -405,6 +405,14 @@ class Effect:
     def coefficient_names(self, setting: dict[str, float]) -> list[str]:
         return ["coefficient"]
 
+    def size_parameters(self, setting: dict[str, float]) -> list[str]:
+        """Names of the physical parameters (:meth:`physical`) that say how large the effect is, each zero when the
+        effect is absent (a friction level, an amplitude, a time offset, a relative parameter error); a name
+        ending in ``_`` stands for every parameter it begins (``amplitude_``). Not its shape (a smoothing, a
+        Stribeck velocity) nor its location (a threshold). The effect is confirmed by the data when one of them is
+        identified (:func:`hybridfmu.diagnosis.identification.confirmed`). Default: the coefficient names."""
+        return self.coefficient_names(setting)
+
     def coefficient_bounds(self, setting: dict[str, float]) -> list[tuple[float, float]]:
         """(min, max) of each linear coefficient where it is refitted by output error (default: unbounded)."""
         return [(-math.inf, math.inf)] * len(self.coefficient_names(setting))

@@ -22,6 +22,11 @@ Stribeck velocity, a current scale) has its interval on that scale, value x/÷ e
 identified when it spans no more than a factor of ten. A location (a threshold, a level, a phase) has no such scale
 and is judged by nothing here; a setting held fixed or an integer (an order, a number of harmonics) has no standard
 error and is not judged either.
+
+An effect is confirmed by the data when one of its sizes is identified (:func:`confirmed`). One whose every judged
+size is not identified improved the pooled fit, but the data leave open whether it is there at all (the maneuvers
+disagree on its sign, or a rival would take its place): it stays in the model and is reported as unconfirmed, not
+named as a finding.
 """
 
 from __future__ import annotations
@@ -117,6 +122,22 @@ def identification(row: dict[str, Any], per_maneuver: dict[str, float] | None,
     else:
         out["identified"] = True
     return out
+
+
+def confirmed(rows: list[dict[str, Any]], size_names: list[str]) -> bool | None:
+    """Whether the data confirm an effect: one of its size parameters (``size_names``, :meth:`hybridfmu.diagnosis.
+    effects.Effect.size_parameters`; a name ending in ``_`` matches every row it begins) is identified. False when
+    every judged size parameter is not identified (the 90 % intervals of its size all cover zero or span more than a
+    factor ten: the maneuvers, the bootstrap or a rival leave open whether the effect is there at all); None when no
+    size parameter was judged. ``rows``: the effect's physical parameters with their :func:`identification`."""
+    def is_size(name: str) -> bool:
+        return any(name == s or (s.endswith("_") and name.startswith(s)) for s in size_names)
+
+    judged = [row.get("identified") for row in rows if is_size(str(row.get("name", "")))]
+    judged = [j for j in judged if j is not None]
+    if not judged:
+        return None
+    return any(judged)
 
 
 #: the correlation of two chosen effects' estimates above which the data do not tell them apart

@@ -80,6 +80,9 @@ class JointEffect(Effect):
     def coefficient_bounds(self, setting):
         return self.first.coefficient_bounds(setting)
 
+    def size_parameters(self, setting):
+        return self.first.size_parameters(setting)
+
     def regressors(self, inputs, setting):
         raise TypeError(f"{self.name}: a joint effect has regressors per member equation; use its members")
 

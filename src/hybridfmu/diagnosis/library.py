@@ -225,6 +225,9 @@ class Coulomb(StateEffect):
     def coefficient_names(self, setting):
         return ["coulomb_level", "stribeck_excess"] if setting.get("stribeck_velocity", 0.0) > 0 else ["coulomb_level"]
 
+    def size_parameters(self, setting):
+        return ["coulomb_level", "breakaway_level"]
+
     def regressors(self, inputs, setting):
         v = inputs.x_smooth[:, self.variable]
         sign = smooth_sign(v, setting["smoothing"])
@@ -295,6 +298,9 @@ class ScaledCoulomb(Effect):
     def coefficient_names(self, setting):
         return ["coefficient", "asymmetry"] if setting.get("asymmetric") else ["coefficient"]
 
+    def size_parameters(self, setting):
+        return ["coefficient", "coefficient_positive", "coefficient_negative"]
+
     def regressors(self, inputs, setting):
         s = smooth_sign(inputs.x_smooth[:, self.variable], setting["smoothing"])
         load = np.abs(inputs.u[:, self.input])
@@ -361,6 +367,9 @@ class Periodic(StateEffect):
         k = int(setting["order"])
         return [f"{f}_{m * k}" for m in range(1, self._count(setting) + 1) for f in ("sin", "cos")]
 
+    def size_parameters(self, setting):
+        return ["amplitude_"]
+
     def _phases(self, values: np.ndarray, setting) -> list[np.ndarray]:
         k = int(setting["order"])
         return [2.0 * math.pi * m * k * values / self.period for m in range(1, self._count(setting) + 1)]
@@ -414,6 +423,9 @@ class Saturation(StateEffect):
         self.side = side
         self.thresholds = state_levels(problem, var, options["saturation_quantiles"])
         self.state_unit = problem.unit(var)
+
+    def size_parameters(self, setting):
+        return ["slope"]
 
     def grid(self):
         return [{"threshold": t} for t in self.thresholds]
@@ -701,6 +713,9 @@ class TimeOffset(InputEffect):
     def coefficient_names(self, setting):
         return ["scale"]
 
+    def size_parameters(self, setting):
+        return ["offset_s"]
+
     def regressors(self, inputs, setting):
         delta = np.zeros_like(inputs.u)
         delta[:, self.columns] = inputs.shifted_inputs(setting["shift_s"], self.columns) - inputs.u[:, self.columns]
@@ -835,6 +850,9 @@ class InputDeadzone(InputEffect):
 
     def coefficient_names(self, setting):
         return ["scale"]
+
+    def size_parameters(self, setting):
+        return ["half_width", "scale"]
 
     def regressors(self, inputs, setting):
         d = float(setting["half_width"])

@@ -110,7 +110,7 @@ def verdict(result: DiagnosisResult) -> str:
                      f"(equation error {s['rms_residual']:.3g} {s['unit']} RMS, {s['ratio_to_noise']:.2f} x its "
                      "noise floor).")
     if chosen:
-        named = [c for c in chosen if c.get("role") != "adjustment"]
+        named = [c for c in chosen if c.get("role", "finding") == "finding"]
         unmodelled = [c for c in named if c["kind"] != "parameter"]
         errors = [c for c in named if c["kind"] == "parameter"]
         if unmodelled:
@@ -125,6 +125,11 @@ def verdict(result: DiagnosisResult) -> str:
         if adjusted:
             parts.append("Fitted beside them, not named (the data support it, and leaving it out would move a named "
                          f"estimate out of its interval): {', '.join(adjusted)}.")
+        unsure = [f"{c['effect']} in {equations_text(c)}" for c in chosen if c.get("role") == "unconfirmed"]
+        if unsure:
+            parts.append("In the model but not named, unconfirmed (it lowers the pooled fit's criterion, but no size of "
+                         "it is identified: the fitting maneuvers, the bootstrap or a rival leave open whether it is "
+                         f"there at all): {', '.join(unsure)}.")
         for group in result.which.groups:
             parts.append(f"{group_text(group)} cannot be told apart by these data (their estimates correlate "
                          f"at {max(abs(p['correlation']) for p in group['pairs']):.2f}): only their joint effect is "
@@ -370,7 +375,9 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
         scale = (record.get("report_scale") or {}).get(c["equation"])
         lines += [f"### {c['rank']}. `{c['effect']}` in the equation of {named(c['equation'])}"
                   + (f" (one value in the equations of {', '.join(acting)})" if len(acting) > 1 else "")
-                  + (" — an adjustment, not a finding" if c.get("role") == "adjustment" else ""), "",
+                  + {"adjustment": " — an adjustment, not a finding",
+                     "unconfirmed": " — unconfirmed: no size of it is identified, not a finding"}.get(c.get("role"), ""),
+                  "",
                   f"{c['description']}: `{c['formula']}` (in {c['equation_unit']}). Drop-one score {c['score']:.4g} "
                   "(increase of the residual sum of squares without it, in residual variances).", "",
                   "| parameter | value | SE (regression) | SE (bootstrap over segments) | unit | spread over fitting "

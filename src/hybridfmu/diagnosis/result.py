@@ -28,8 +28,9 @@ class EffectSelection:
             it explains most), ``equations`` (all it acts on), ``equation_unit``, ``description``, ``formula``,
             ``setting``, ``coefficients``, ``parameters`` (physical values with their standard errors, 90 %
             intervals and identification), ``stability`` (per-maneuver refits), ``rivals`` (the left-out terms
-            that move its estimates), ``role`` (``finding``, or ``adjustment``: fitted beside the findings so that
-            their estimates are not biased, not named), ``score``, ``rank``.
+            that move its estimates), ``role`` (``finding``; ``adjustment``: fitted beside the findings so that
+            their estimates are not biased, not named; ``unconfirmed``: in the model, not named, since none of its
+            sizes is identified, :func:`hybridfmu.diagnosis.identification.confirmed`), ``score``, ``rank``.
         equations: per examined state, its equation error before and after the chosen effects (the equation's
             unit), the effects acting there and the selection's steps restricted to it.
         steps: the selection's steps (candidates with the equations they act on, the one chosen, why).
@@ -56,14 +57,20 @@ class EffectSelection:
 
     @property
     def found_effects(self) -> list[str]:
-        """The names of the named effects (the chosen ones but the adjustments), rank order, each once."""
-        return list(dict.fromkeys(item["effect"] for item in self.chosen if item.get("role") != "adjustment"))
+        """The names of the named effects (the chosen findings: not the adjustments, not the unconfirmed), rank
+        order, each once."""
+        return list(dict.fromkeys(item["effect"] for item in self.chosen if item.get("role", "finding") == "finding"))
 
     @property
     def adjustments(self) -> list[str]:
         """The names of the adjustments: terms fitted beside the named effects because leaving them out would move a
         named estimate (a rival, :class:`hybridfmu.diagnosis.selection.Rival`), not named themselves."""
         return [item["effect"] for item in self.chosen if item.get("role") == "adjustment"]
+
+    @property
+    def unconfirmed(self) -> list[str]:
+        """The names of the unconfirmed terms: in the model, not named, since the data identify none of their sizes."""
+        return [item["effect"] for item in self.chosen if item.get("role") == "unconfirmed"]
 
 
 @dataclass

@@ -24,7 +24,7 @@ from hybridfmu.diagnosis.beside import Beside
 from hybridfmu.diagnosis.corrected_model import simulator_for
 from hybridfmu.diagnosis.derivatives import smooth_at
 from hybridfmu.diagnosis.export import DiagnosedModel
-from hybridfmu.diagnosis.identification import identification, indistinguishable_groups
+from hybridfmu.diagnosis.identification import confirmed, identification, indistinguishable_groups
 from hybridfmu.diagnosis.joint import (JOINT, JointEffect, StackedCache, effect_equations, effect_key,
                                       joint_candidates)
 from hybridfmu.diagnosis.library import build_library, share_response_map
@@ -359,7 +359,7 @@ def _chosen_records(selection: EquationSelection, cache: DesignCache, stacked: A
         terms_of[effect_key(term.effect)] = term
         chosen.append({
             "effect": term.effect.name, "kind": term.effect.kind,
-            "role": "adjustment" if term.effect.name in selection.adjustments else "finding",
+            "role": _role(term, selection, params),
             "equation": problem.state_names[primary],
             "equations": [problem.state_names[eq] for eq in effect_equations(term.effect)],
             "equation_unit": problem.rate_unit(primary), "description": term.effect.description,
@@ -370,6 +370,17 @@ def _chosen_records(selection: EquationSelection, cache: DesignCache, stacked: A
             "_key": effect_key(term.effect),
         })
     return chosen, terms_of
+
+
+def _role(term: Term, selection: EquationSelection, params: list[dict[str, Any]]) -> str:
+    """A chosen term's role (:class:`hybridfmu.diagnosis.result.EffectSelection`): ``adjustment`` when fitted beside
+    the named effects for a rival, ``unconfirmed`` when none of its sizes is identified (:func:`confirmed`), else
+    ``finding``."""
+    if term.effect.name in selection.adjustments:
+        return "adjustment"
+    if confirmed(params, term.effect.size_parameters(term.setting)) is False:
+        return "unconfirmed"
+    return "finding"
 
 
 def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], problem: Problem,

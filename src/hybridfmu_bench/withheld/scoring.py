@@ -319,7 +319,7 @@ def score_case(record: dict[str, Any], truth: dict[str, Any], draw: dict[str, An
     extras: list[str] = []
     background_found: list[str] = []
     for item in chosen:  # rank order
-        if item.get("role") == "adjustment":  # fitted beside the named effects, not named: no finding
+        if item.get("role", "finding") != "finding":  # an adjustment or unconfirmed: in the model, not named
             continue
         bench = bench_effect_of(item["effect"], expected)
         parameter = _PARAMETER_RE.match(item["effect"])
