@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hybridfmu.diagnosis.corrected_model import CorrectedModel, open_loop_errors, simulate
+from hybridfmu.diagnosis.corrected_model import CorrectedModel, open_loop_errors, simulate, simulate_windows
 from hybridfmu.diagnosis.export import DiagnosedModel
 from hybridfmu.diagnosis.joint import effect_equations
 from hybridfmu.diagnosis.prepare import MeasuredManeuver, PreparedManeuver
@@ -78,7 +78,8 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
     state at rest by its friction: the band is chosen on the whole fitting maneuvers (:func:`standstill_hold`), and
     when one is, the check ends with one more variant, the diagnosed model with it (``standstill_hold`` records the
     choice)."""
-    window_s = problem.settings["open_loop"].get("window_s")
+    window = window_setting(model, simulate_fn, prepared, fit_names, problem)
+    window_s = window["window_s"] if window else None
     steps = []
     trajectories: dict[str, dict[str, np.ndarray]] = {name: {} for name in test_names}
     variants = [("FMU", [])] + [(f"+ {t.effect.name} ({equation_label(t.effect, problem)})", terms[:k + 1])
@@ -123,7 +124,7 @@ def how_far(model: Any, helper: Any, simulate_fn: Callable, prepared: dict[str, 
         shrink_factor=before["gap"] / after["gap"] if after["gap"] and after["gap"] > 0 else float("inf"),
         notes=notes, trajectories=trajectories, diagnosed=diagnosed,
         window_gap_before=before.get("window_gap"), window_gap_after=after.get("window_gap"),
-        standstill_hold=hold_record,
+        window=window, standstill_hold=hold_record,
         **_attributed(model, helper, simulate_fn, prepared, test_names, terms, steps, alone, problem, refit,
                       refit_names, window_s))
 
@@ -273,6 +274,72 @@ def error_growth(model: Any, simulate_fn: Callable, prepared: dict[str, Prepared
             item["normalised_error"][problem.state_signal[state]] = err
         out.append(item)
     return out
+
+
+#: Restarted simulations per fitting maneuver that measure how long the model alone stays near the data.
+TAKE_OFF_STARTS = 32
+#: The longest window: this share of the shortest fitting maneuver.
+LONGEST_WINDOW_SHARE = 1.0 / 3.0
+
+
+def take_off_times(model: Any, simulate_fn: Callable, meas: MeasuredManeuver, starts: np.ndarray, problem: Problem,
+                   horizon: int, count: int = TAKE_OFF_STARTS) -> np.ndarray:
+    """How long the model alone, restarted from the measured state, stays near the data: (count,) times (s) until
+    the first target's |error| exceeds ``open_loop.growth_threshold_relative`` of that target's spread along the
+    maneuver (the threshold :func:`error_growth` uses), from ``count`` starts spread evenly over the maneuver, each
+    run ``horizon`` samples at most (a window that stays near the data for all of them gives its full length)."""
+    threshold = float(problem.settings["open_loop"].get("growth_threshold_relative", 0.1))
+    n = len(meas.time_s)
+    horizon = int(min(horizon, n - 1))
+    first = np.unique(np.linspace(0, n - 1 - horizon, count).astype(int))
+    ref = reference_states(meas, starts, problem)
+    windows = simulate_windows(model, simulate_fn, meas.time_s, meas.u, starts[first], first, horizon, None)
+    exceeded = np.zeros((len(first), horizon + 1), dtype=bool)
+    for state in problem.target_weights:
+        i = problem.state_names.index(state)
+        spread = float(np.std(ref[:, i])) or 1.0
+        measured = np.stack([ref[s:s + horizon + 1, i] for s in first])
+        exceeded |= ~(np.abs(windows[:, :, i] - measured) <= threshold * spread)
+    dt_s = float(np.median(np.diff(meas.time_s)))
+    steps = np.where(exceeded.any(axis=1), exceeded.argmax(axis=1), horizon)
+    return steps * dt_s
+
+
+def window_from_data(model: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver], fit_names: list[str],
+                     problem: Problem) -> dict[str, Any]:
+    """The length of the held-out check's restarted windows, chosen on the fitting maneuvers (``open_loop.window_s``
+    absent or ``auto``): the median time the model alone stays near the data (:func:`take_off_times` over every
+    fitting maneuver), at most :data:`LONGEST_WINDOW_SHARE` of the shortest of them and at least two samples. Windows
+    of that length measure the model where its own error is still local: a shorter one sees little of an effect, a
+    longer one mostly the drift the model has once it left the data.
+
+    Returns ``window_s`` and how it was found (``take_off_s``: median per maneuver, ``longest_s``, ``starts``)."""
+    dt_s = float(problem.dt_s)
+    lengths = [len(prepared[n].measured.time_s) for n in fit_names]
+    horizon = max(int(LONGEST_WINDOW_SHARE * min(lengths)), 2)
+    started = time.perf_counter()
+    times = {n: take_off_times(model, simulate_fn, prepared[n].measured, prepared[n].starts, problem, horizon)
+             for n in fit_names}
+    window_s = max(float(np.median(np.concatenate(list(times.values())))), 2 * dt_s)
+    LOGGER.info("open-loop windows of %.4g s: the median time the model alone stays within the growth threshold on "
+                "%s (%.1f s)", window_s, ", ".join(fit_names), time.perf_counter() - started)
+    return {"window_s": window_s, "take_off_s": {n: float(np.median(t)) for n, t in times.items()},
+            "longest_s": horizon * dt_s, "starts": int(sum(len(t) for t in times.values()))}
+
+
+def window_setting(model: Any, simulate_fn: Callable, prepared: dict[str, PreparedManeuver],
+                   fit_names: list[str] | None, problem: Problem) -> dict[str, Any] | None:
+    """The restarted windows of the held-out check from ``open_loop.window_s``: a number fixes their length (s),
+    null means none, absent or ``auto`` chooses it on the fitting maneuvers (:func:`window_from_data`; none without
+    them). Returns ``window_s`` with ``chosen`` (``config`` or ``data``, and how), or None."""
+    setting = problem.settings["open_loop"].get("window_s", "auto")
+    if setting is None:
+        return None
+    if setting != "auto":
+        return {"window_s": float(setting), "chosen": "config"}
+    if not fit_names:
+        return None
+    return {**window_from_data(model, simulate_fn, prepared, fit_names, problem), "chosen": "data"}
 
 
 def how_far_not_run(test_names: list[str], open_loop: bool = True) -> str | None:

@@ -93,7 +93,7 @@ DEFAULT_REGION_SETTINGS: dict[str, Any] = {
     "top_statements": 6,
 }
 
-DEFAULT_OPEN_LOOP: dict[str, Any] = {"window_s": None, "growth_threshold_relative": 0.1, "refit": False,
+DEFAULT_OPEN_LOOP: dict[str, Any] = {"window_s": "auto", "growth_threshold_relative": 0.1, "refit": False,
                                      "refit_max_evaluations": 160}
 
 

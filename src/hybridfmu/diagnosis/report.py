@@ -226,13 +226,27 @@ def held_out_record(far: HeldOutCheck) -> dict[str, Any]:
     record = {"steps": far.steps, "before": far.before, "after": far.after, "gap_before": far.gap_before,
               "gap_after": far.gap_after, "shrink_factor": far.shrink_factor, "notes": far.notes}
     if far.windowed:
-        record.update(window_gap_before=far.window_gap_before, window_gap_after=far.window_gap_after)
+        record.update(window=far.window, window_gap_before=far.window_gap_before,
+                      window_gap_after=far.window_gap_after)
     record.update(parameters_only=far.parameters_only, parameter_shrink_factor=far.parameter_shrink_factor,
                   effect_shrink_factor=far.effect_shrink_factor, standstill_hold=far.standstill_hold)
     if far.windowed:
         record.update(window_parameter_shrink_factor=far.window_parameter_shrink_factor,
                       window_effect_shrink_factor=far.window_effect_shrink_factor)
     return record
+
+
+def window_text(window: dict[str, Any] | None) -> str:
+    """How long the held-out check's restarted windows are and why, one sentence (empty without a record)."""
+    if not window:
+        return ""
+    if window.get("chosen") != "data":
+        return f"The windowed gap restarts the models from the measured state every {window['window_s']:.4g} s " \
+               "(diagnosis.open_loop.window_s)."
+    takes = ", ".join(f"{n} {v:.3g} s" for n, v in window["take_off_s"].items())
+    return (f"The windowed gap restarts the models from the measured state every {window['window_s']:.4g} s: the "
+            f"median time the model alone, restarted at {window['starts']} points of the fitting maneuvers, stays "
+            f"within the growth threshold of the data ({takes}; at most {window['longest_s']:.3g} s).")
 
 
 def format_number(value: Any, digits: int = 4) -> str:
@@ -457,7 +471,8 @@ def report_markdown(record: dict[str, Any], figure_names: list[str]) -> str:
                   "the start; unmeasured states from the calibration), with the chosen effects added one at a time in "
                   "rank order: "
                   "additive terms in their equations, input effects on the logged inputs, parameter errors as corrected "
-                  f"parameters; {how}. The normalised gap is the target-weighted MAE over the spread of each target.",
+                  f"parameters; {how}. The normalised gap is the target-weighted MAE over the spread of each target."
+                  + (" " + window_text(far.get("window")) if windowed else ""),
                   "", f"| model | {head} | normalised gap |" + (" windowed gap |" if windowed else "") +
                   (" train cost |" if refitted else ""),
                   "|---|" + "---|---|" * len(states) + "---|" + ("---|" if windowed else "") +

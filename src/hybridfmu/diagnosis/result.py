@@ -92,7 +92,9 @@ class HeldOutCheck:
         parameter_shrink_factor: the FMU's gap over ``parameters_only``'s; effect_shrink_factor: that gap over the
             diagnosed model's (what the named effects add; 1 when every chosen term is a parameter error).
         window_gap_before, window_gap_after, window_parameter_shrink_factor, window_effect_shrink_factor: the
-            same over windows restarted from the measured state (None without ``open_loop.window_s``).
+            same over windows restarted from the measured state (None without windows).
+        window: the windows' length ``window_s`` and how it was chosen
+            (:func:`hybridfmu.diagnosis.open_loop.window_setting`), or None without windows.
         standstill_hold: how the standstill hold was chosen on the fitting maneuvers
             (:func:`hybridfmu.diagnosis.open_loop.standstill_hold`; the last step is the model with it when one
             was), or None without a configured standstill.
@@ -114,6 +116,7 @@ class HeldOutCheck:
     window_gap_after: float | None = None
     window_parameter_shrink_factor: float | None = None
     window_effect_shrink_factor: float | None = None
+    window: dict[str, Any] | None = None
     standstill_hold: dict[str, Any] | None = None
 
     @property

@@ -610,8 +610,9 @@ def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any
                   f"×{_num(r.get('window_effect_shrink'))} |"
                   for r in pairs]
         lines.append("")
-    lines += ["Windowed shrink: the normalised open-loop gap over windows of diagnosis.open_loop.window_s started "
-              "from the measured state, FMU before / FMU + the named effects after; whole-maneuver: the same over "
+    lines += ["Windowed shrink: the normalised open-loop gap over windows started from the measured state (their "
+              "length diagnosis.open_loop.window_s, by default chosen on each case's fitting maneuvers: how long the "
+              "model alone stays near the data), FMU before / FMU + the named effects after; whole-maneuver: the same over "
               "the whole test maneuver; the named effects': FMU with only the named parameter errors corrected before / "
               "FMU + the named effects after (about ×1 where the named effects explain nothing on the test data). Per case: {files[0]}; figures: {files[1]} (detection against effect size per "
               "effect), {files[2]} (withheld against found effects).".format(files=settings.get("files") or
