@@ -1,4 +1,5 @@
-"""A diagnosis setting changed, side by side with the withheld suite's own diagnoses, on the calibration seeds.
+"""A diagnosis setting or the diagnosis code changed, side by side with the withheld suite's own diagnoses, on the
+calibration seeds.
 
 Every setting of the demo's ``diagnosis`` section that differs from the schema's default needs a reason that is not
 the bench; this script measures what a change does before anyone makes it. For every case of a finished withheld
@@ -6,13 +7,15 @@ suite (``snakemake -j2 withheld``) on the calibration seeds (``withheld.calibrat
 are never read), it diagnoses the case again with the changed setting (``--set diagnosis.KEY=VALUE``, a YAML
 value; ``default`` removes the key, so the schema's default applies) and scores both diagnoses with the suite's
 own scoring (:func:`hybridfmu_bench.withheld.scoring.score_case`; detection limits set on each variant's own cases,
-as the suite does). The changed diagnoses go to ``--out`` (default ``<withheld>_settings/<change>``); a case already
+as the suite does). Without ``--set`` the variant is the code of this checkout (its commit, with local changes if
+any) against the code that diagnosed the suite: a change of the diagnosis' code measured the same way. The changed
+diagnoses go to ``--out`` (default ``<withheld>_settings/<change>``, for code ``code-<commit>``); a case already
 diagnosed there with the same case config is not diagnosed again.
 
 Prints a table; the last line is a JSON object with the figures. ``--markdown FILE`` writes the table for the
 documentation.
 
-    python benchmarks/diagnosis_setting.py --set diagnosis.kernel_s=default --set diagnosis.smoothing_s=default
+    python benchmarks/diagnosis_setting.py [--set diagnosis.kernel_s=default --set diagnosis.smoothing_s=default]
         [--config config/config.yaml] [--withheld results/withheld] [--cases PATTERN] [--jobs 2] [--out DIR]
         [--markdown FILE]
 """
@@ -33,7 +36,9 @@ from typing import Any
 import yaml
 
 from hybridfmu.config import load_case_config
-from hybridfmu.io import write_text_atomic
+from hybridfmu.io import read_json, write_text_atomic
+from hybridfmu.tracking.provenance import code_version, describe
+from hybridfmu_bench.withheld.report import code_versions
 
 ROOT = Path(__file__).resolve().parents[1]
 LOG = logging.getLogger("diagnosis_setting")
@@ -134,10 +139,11 @@ def markdown(summary: dict[str, Any]) -> str:
     """The comparison as a Markdown block."""
     base, changed = summary["suite"], summary["changed"]
     b, c = base["measures"], changed["measures"]
-    lines = [f"Withheld suite, calibration seeds ({summary['n_cases']} cases): the suite's diagnoses against the same "
-             f"cases diagnosed with {summary['change']} (`python benchmarks/diagnosis_setting.py "
-             f"{summary['arguments']}`; detection limits set on each variant's own cases).", "",
-             "| measure | suite's setting | changed |", "|---|---|---|",
+    command = " ".join(["python benchmarks/diagnosis_setting.py", summary["arguments"]]).strip()
+    lines = [f"Withheld suite, calibration seeds ({summary['n_cases']} cases): the suite's diagnoses (the code at "
+             f"{summary['suite_code']}) against the same cases diagnosed with {summary['change']} (`{command}`; "
+             "detection limits set on each variant's own cases).", "",
+             "| measure | the suite's | changed |", "|---|---|---|",
              f"| kernel length (samples), median [min – max] | {_span(base['kernel_samples'])} | "
              f"{_span(changed['kernel_samples'])} |",
              f"| exact set, cases above the limits | {_pct(b['exact_set_accuracy'])} ({b['n_exact']}/{b['n_above']}) | "
@@ -162,8 +168,9 @@ def markdown(summary: dict[str, Any]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--set", dest="changes", action="append", required=True,
-                        help="diagnosis.KEY[.SUBKEY]=VALUE (YAML; default: the schema's default); repeatable")
+    parser.add_argument("--set", dest="changes", action="append", default=[],
+                        help="diagnosis.KEY[.SUBKEY]=VALUE (YAML; default: the schema's default); repeatable; none: "
+                             "the code of this checkout against the suite's")
     parser.add_argument("--config", type=Path, default=ROOT / "config" / "config.yaml")
     parser.add_argument("--withheld", type=Path, default=None, help="the suite's folder (default <results>/withheld)")
     parser.add_argument("--cases", default=None, help="fnmatch pattern of case names (default: the calibration "
@@ -189,7 +196,8 @@ def main() -> None:
     if not cases or missing:
         raise SystemExit(f"{withheld}: no finished withheld suite ({len(missing)} of {len(cases)} calibration cases "
                          "without diagnosis.json); run `snakemake -j2 withheld` first")
-    slug = "__".join(re.sub(r"[^A-Za-z0-9_.=-]+", "_", text) for text in args.changes)
+    code = describe(code_version())
+    slug = "__".join(re.sub(r"[^A-Za-z0-9_.=-]+", "_", text) for text in args.changes) or f"code-{code}"
     out = args.out or withheld.with_name(withheld.name + "_settings") / slug
     jobs = [(c, withheld, fmu, out, changes) for c in cases]
     started = time.perf_counter()
@@ -199,7 +207,10 @@ def main() -> None:
             LOG.info("%d/%d cases (%s, %.0f s), %.2f cases/min, %.0f s left", k, len(jobs), result["case"],
                      result["seconds"], 60.0 * k / elapsed, elapsed / k * (len(jobs) - k))
     expected, background, targets = section.get("expected", {}), section.get("background", {}), section.get("targets")
-    summary = {"n_cases": len(cases), "change": ", ".join(f"`{text}`" for text in args.changes),
+    suite_records = {c: read_json(withheld / c / "diagnosis" / "diagnosis.json") for c in cases}
+    summary = {"n_cases": len(cases),
+               "change": f"the code at {code}" + "".join(f", `{text}`" for text in args.changes),
+               "suite_code": ", ".join(code_versions(suite_records)), "changed_code": code,
                "arguments": " ".join(f"--set {text}" for text in args.changes),
                "suite": score(cases, {c: withheld / c / "diagnosis" / "diagnosis.json" for c in cases}, withheld,
                               expected, background, targets),

@@ -71,15 +71,16 @@ def test_corrected_model_applies_each_kind_of_change(library):
     problem, _, _, effects, _ = library
     by_name = {e.name: e for e in effects[1]}
     terms = [Term(by_name["viscous(v)"], {}, np.array([0.2])),
-             Term(by_name["parameter(m)"], {}, np.array([0.1])),
+             # dv/dt is proportional to 1 / m: a first-order coefficient 0.1 / 1.1 is a mass 10 % larger
+             Term(by_name["parameter(m)"], {}, np.array([0.1 / 1.1])),
              Term(by_name["input_gain(F)"], {}, np.array([0.05]))]
     corrected = CorrectedModel(terms, problem)
-    assert corrected.parameters == {"m": pytest.approx(1.1)}
+    assert corrected.parameters == {"m": pytest.approx(1.1, rel=1e-4)}
     np.testing.assert_allclose(corrected(np.array([[0.0, 2.0]]), np.array([[1.0]])), [[0.0, -0.4]])
     np.testing.assert_allclose(corrected.inputs(np.ones((3, 1)), 0.01), 1.05)
     model = MassSpringDamper()
     with corrected.parameters_applied(model):
-        assert model.values["m"] == pytest.approx(1.1)
+        assert model.values["m"] == pytest.approx(1.1, rel=1e-4)
     assert model.values["m"] == 1.0
 
 

@@ -128,7 +128,10 @@ def check_setting_benchmark(config, fmu_path: Path, case: str, tmp_path: Path) -
     assert scored["suite"]["kernel_samples"]["median"] == suite["method"]["kernel_choice"]["samples"]
     assert scored["changed"]["kernel_samples"]["median"] == 21  # 0.002 s on the 10 kHz grid
     assert scored["changed"]["measures"]["n_cases"] == 1
-    text = bench.markdown({"n_cases": 1, "change": "`diagnosis.kernel_s=0.002`", "arguments": "--set x", **scored})
+    text = bench.markdown({"n_cases": 1, "change": "the code at 0123456789, `diagnosis.kernel_s=0.002`",
+                           "suite_code": "abcdefabcd", "arguments": "--set x", **scored})
+    assert "the suite's diagnoses (the code at abcdefabcd) against the same cases diagnosed with the code at " \
+           "0123456789, `diagnosis.kernel_s=0.002` (`python benchmarks/diagnosis_setting.py --set x`" in text
     assert "| exact set, cases above the limits |" in text and "| none cases naming nothing |" in text
     assert "| cases naming what the suite's diagnosis names | – | " in text
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, Callable
 
@@ -142,6 +143,7 @@ class EffectInputs:
         self.model = model
         self.parameter_step = float(parameter_step)
         self._sensitivities: dict[str, np.ndarray | None] = {}
+        self._responses: dict[str, ParameterResponse | None] = {}
         self.u_samples = u_samples
         self.dt_s = float(dt_s)
         self._shifted: OrderedDict[tuple, np.ndarray] = OrderedDict()
@@ -182,6 +184,15 @@ class EffectInputs:
             self._shifted.popitem(last=False)
         return shifted
 
+    def response(self, parameter: str) -> ParameterResponse | None:
+        """The model's response to finite errors of ``parameter`` along these rows (:func:`parameter_response`),
+        or None when it has no sensitivity or the model rejects the changed values."""
+        if parameter not in self._responses:
+            sensitivity = self.sensitivity(parameter)
+            self._responses[parameter] = None if sensitivity is None else \
+                parameter_response(self.model, self.x, self.u, parameter, sensitivity)
+        return self._responses[parameter]
+
     def sensitivity(self, parameter: str) -> np.ndarray | None:
         """p * df/dp (M, n_x) by central finite differences of the model's derivatives, or None when the
         parameter cannot be perturbed (e.g. an integer parameter, or a value the model rejects)."""
@@ -216,6 +227,89 @@ def parameter_sensitivity(model: Any, x: np.ndarray, u: np.ndarray, parameter: s
             pass
     derivative = (upper - lower) / (2.0 * step)
     return derivative * value if value != 0.0 else derivative
+
+
+#: relative parameter errors r at which :func:`parameter_response` evaluates the model: 1 + r log-spaced from
+#: x1/4 to x4 (and r = 0), the range over which a fitted first-order error is mapped to the model's own response
+RESPONSE_FACTORS = np.unique(np.concatenate([np.geomspace(0.25, 4.0, 41), [1.0]]))
+#: rows :func:`parameter_response` evaluates at most (evenly spread over the fitting maneuver's): the response is
+#: an average over the operating points, which a few thousand of them describe
+RESPONSE_ROWS = 4000
+
+
+@dataclass(frozen=True)
+class ParameterResponse:
+    """How a model's derivatives respond to finite relative errors r of one parameter, projected on its
+    first-order regressor s_i = p df_i/dp in each equation i (least squares along the rows):
+    ``numerator[k, i] = <f_i(p (1 + r_k)) - f_i(p), s_i>``, ``denominator[i] = <s_i, s_i>``.
+
+    Attributes:
+        relative: (K,) the relative errors r_k (one of them 0).
+        numerator: (K, n_x) and denominator: (n_x,) as above (equation units squared).
+    """
+
+    relative: np.ndarray
+    numerator: np.ndarray
+    denominator: np.ndarray
+
+    def coefficients(self, weights: np.ndarray) -> np.ndarray:
+        """(K,) the first-order coefficient c(r_k) that a fit of the equations with row weights ``weights`` (n_x,)
+        (0: an equation not fitted) finds for the error r_k: c = sum_i w_i numerator_i / sum_i w_i denominator_i
+        (r for a model linear in p; r / (1 + r) for a derivative proportional to 1 / p, such as an inertia's or an
+        inductance's). NaN when the weighted equations have no sensitivity."""
+        weights = np.asarray(weights, dtype=float)
+        total = float(np.sum(weights * self.denominator))
+        if not total > 0.0:
+            return np.full(self.relative.shape, np.nan)
+        return (self.numerator * weights).sum(axis=1) / total
+
+
+def parameter_response(model: Any, x: np.ndarray, u: np.ndarray, parameter: str,
+                       sensitivity: np.ndarray) -> ParameterResponse | None:
+    """The model's response to finite errors of ``parameter`` (:class:`ParameterResponse`) at the rows (x, u) (at
+    most :data:`RESPONSE_ROWS` of them, evenly spread), for every r of :data:`RESPONSE_FACTORS` - 1 the model
+    accepts; the parameter is restored afterwards.
+
+    Args:
+        model: the model (``get_parameters``, ``set_parameters``, ``derivatives``).
+        x: (M, n_x) states and u: (M, n_u) inputs of the rows.
+        parameter: the parameter's name.
+        sensitivity: (M, n_x) its first-order regressor p df/dp at the rows (:func:`parameter_sensitivity`).
+
+    Returns:
+        The response, or None when the parameter is zero (its regressor is df/dp, not a relative error) or the
+        model rejects every changed value.
+    """
+    if model is None or not hasattr(model, "set_parameters"):
+        return None
+    value = float(model.get_parameters([parameter])[parameter])
+    if value == 0.0:
+        return None
+    rows = np.flatnonzero(np.all(np.isfinite(sensitivity), axis=1) & np.all(np.isfinite(x), axis=1)
+                          & np.all(np.isfinite(u), axis=1))
+    rows = rows[::max(1, -(-rows.size // RESPONSE_ROWS))]  # evenly spread, at most RESPONSE_ROWS of them
+    column = np.asarray(sensitivity, dtype=float)[rows]
+    base = np.asarray(model.derivatives(x[rows], u[rows]), dtype=float)
+    relative, numerator = [], []
+    try:
+        for factor in RESPONSE_FACTORS:
+            try:
+                model.set_parameters({parameter: value * float(factor)})
+                changed = np.asarray(model.derivatives(x[rows], u[rows]), dtype=float)
+            except (ValueError, RuntimeError):
+                continue
+            if not np.all(np.isfinite(changed)):
+                continue
+            relative.append(float(factor) - 1.0)
+            numerator.append(np.sum((changed - base) * column, axis=0))
+    finally:
+        try:
+            model.set_parameters({parameter: value})
+        except (ValueError, RuntimeError):
+            pass
+    if not relative:
+        return None
+    return ParameterResponse(np.asarray(relative), np.asarray(numerator), np.sum(column ** 2, axis=0))
 
 
 def make_input_change(input_index: int | list[int], *, gain: float = 0.0, offset: float = 0.0,

@@ -149,7 +149,9 @@ class StackedCache:
         #: the latest fits of :func:`hybridfmu.diagnosis.selection.fit_terms`
         self.fits = LruMemo()
 
-    def _weight(self, equation: int, name: str) -> float:
+    def row_weight(self, equation: int, name: str) -> float:
+        """The factor every row of ``equation`` from maneuver ``name`` is multiplied by: 1 / its noise floor (1
+        where that is not a positive finite number)."""
         std = float(self.maneuvers[name].noise_std[equation])
         return 1.0 / std if std > 0 and np.isfinite(std) else 1.0
 
@@ -161,7 +163,7 @@ class StackedCache:
 
     def target(self, equation: int, names: list[str]) -> np.ndarray:
         """(n,) the weighted equation errors of all blocks."""
-        parts = [self._weight(eq, n) * self.maneuvers[n].target[:, eq] for eq in self.equations for n in names]
+        parts = [self.row_weight(eq, n) * self.maneuvers[n].target[:, eq] for eq in self.equations for n in names]
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def design(self, effect: Effect, setting: dict[str, float], names: list[str]) -> np.ndarray:
@@ -180,7 +182,7 @@ class StackedCache:
                 if member is None:
                     parts.append(np.zeros((self._rows(n), width)))
                 else:
-                    parts.append(self._weight(eq, n) * self.base.design(member, setting, [n]))
+                    parts.append(self.row_weight(eq, n) * self.base.design(member, setting, [n]))
         return np.concatenate(parts, axis=0) if parts else np.zeros((0, width))
 
     def blocks(self, equation: int, names: list[str]) -> list[Block]:
@@ -203,4 +205,4 @@ class StackedCache:
 
     def weights(self, equation: int, names: list[str]) -> np.ndarray:
         """(rows of ``equation``'s block,) the weights of its rows (1 / noise floor)."""
-        return np.concatenate([np.full(self._rows(n), self._weight(equation, n)) for n in names])
+        return np.concatenate([np.full(self._rows(n), self.row_weight(equation, n)) for n in names])

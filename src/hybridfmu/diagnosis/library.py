@@ -30,7 +30,8 @@ name                           term in dx_i/dt                                  
 ``input_deadzone(u)``          -c (df_i/du) clip(u, -d, d)  (dead band of half width d)    d (grid, refined)
 ``input_saturation_above(u)``  -c (df_i/du) max(u - u_c, 0)  (the model sees min(u, u_c))  u_c (grid, refined)
 ``input_saturation_below(u)``  c (df_i/du) max(u_c - u, 0)  (the model sees max(u, u_c))   u_c (grid, refined)
-``parameter(p)``               r p (df_i/dp)  (relative parameter error r)                -
+``parameter(p)``               c p (df_i/dp), read as the error r with the model's own    -
+                               response c(r) to p (1 + r) (relative parameter error r)
 =============================  =========================================================  ==========================
 
 eps (the Coulomb smoothing) and the Stribeck velocity are searched jointly on grids relative to the
@@ -63,8 +64,8 @@ from typing import Any, Callable
 import numpy as np
 
 from hybridfmu.config import ConfigError
-from hybridfmu.diagnosis.effects import (Effect, EffectInputs, first_order_lag, linear_estimate, make_input_change,
-                                         param, shift_samples, smooth_sign)
+from hybridfmu.diagnosis.effects import (Effect, EffectInputs, ParameterResponse, first_order_lag, linear_estimate,
+                                         make_input_change, param, shift_samples, smooth_sign)
 from hybridfmu.diagnosis.problem import Problem, positive_grid, quantile_grid
 from hybridfmu.fmu.effect_program import EffectTerm
 from hybridfmu.runge_kutta import RK4, numpy_axpy
@@ -907,15 +908,87 @@ class InputSaturation(InputEffect):
 
 # ----------------------------------------------------------------------------- parameters
 
+class ResponseMap:
+    """The relative parameter error r that a first-order coefficient c of ``parameter(p)`` stands for.
+
+    The regressor of a parameter error is its first-order sensitivity p df/dp, so the fitted coefficient c is the
+    error only where the model is linear in p. The model's own response to finite errors, c(r)
+    (:func:`hybridfmu.diagnosis.effects.parameter_response`; c(r) = r / (1 + r) for a derivative proportional to
+    1 / p), is inverted on the branch through r = 0 where it rises with r (monotone cubic interpolation). A
+    coefficient beyond the evaluated range is continued with the slope at its end. Without a response (none
+    given, or too few points) the map is the identity: the first-order reading.
+    """
+
+    def __init__(self, relative: np.ndarray | None = None, response: np.ndarray | None = None) -> None:
+        self._inverse = None
+        if relative is None or response is None:
+            return
+        relative, response = np.asarray(relative, dtype=float), np.asarray(response, dtype=float)
+        keep = np.isfinite(response)
+        relative, response = relative[keep], response[keep]
+        if relative.size < 3 or not np.any(relative == 0.0):
+            return
+        zero = int(np.flatnonzero(relative == 0.0)[0])
+        low, high = zero, zero
+        while low > 0 and response[low - 1] < response[low]:
+            low -= 1
+        while high < relative.size - 1 and response[high + 1] > response[high]:
+            high += 1
+        if high - low < 2:
+            return
+        from scipy.interpolate import PchipInterpolator
+
+        self._inverse = PchipInterpolator(response[low:high + 1], relative[low:high + 1], extrapolate=False)
+        self._derivative = self._inverse.derivative()
+        self._ends = (float(response[low]), float(response[high]))
+
+    @classmethod
+    def of(cls, response: ParameterResponse | None, weights: np.ndarray) -> "ResponseMap":
+        """The map of a fit of the equations with row weights ``weights`` (n_x,) (None: the identity)."""
+        if response is None:
+            return cls()
+        return cls(response.relative, response.coefficients(weights))
+
+    @property
+    def is_identity(self) -> bool:
+        return self._inverse is None
+
+    def _clamped(self, coefficient: float) -> float:
+        return min(max(coefficient, self._ends[0]), self._ends[1])
+
+    def slope(self, coefficient: float) -> float:
+        """dr/dc at ``coefficient`` (1 for the identity)."""
+        if self._inverse is None:
+            return 1.0
+        return float(self._derivative(self._clamped(float(coefficient))))
+
+    def __call__(self, coefficient: float) -> float:
+        """The relative error r with c(r) = ``coefficient``."""
+        coefficient = float(coefficient)
+        if self._inverse is None or not math.isfinite(coefficient):
+            return coefficient
+        end = self._clamped(coefficient)
+        return float(self._inverse(end)) + (coefficient - end) * self.slope(end)
+
+
 class ParameterError(Effect):
     kind = "parameter"
     model_wide = True
+    #: the first-order reading, for an instance pickled before the response existed
+    response: ParameterResponse | None = None
+    response_map = ResponseMap()
 
-    def __init__(self, problem, equation, parameter):
+    def __init__(self, problem, equation, parameter, response: ParameterResponse | None = None):
+        """``response``: the model's response to finite errors of the parameter along the fitting rows
+        (:meth:`EffectInputs.response`; None: the first-order reading, :class:`ResponseMap`). Alone, the effect reads
+        its coefficient by its own equation's response; fitted jointly over equations, by theirs
+        (:func:`share_response_map`)."""
         self.parameter = parameter
         self.value = float(problem.parameter_values.get(parameter, 0.0))
+        self.response = response if self.value != 0.0 else None
+        self.response_map = ResponseMap.of(self.response, np.eye(problem.n_x)[equation])
         super().__init__(f"parameter({parameter})", equation, f"model parameter {parameter} differs from its value",
-                         f"r * {parameter} * df/d{parameter}", "-")
+                         f"f({parameter} (1 + r)) - f({parameter}) ~ c {parameter} df/d{parameter}", "-")
 
     def coefficient_names(self, setting):
         return ["relative_error"]
@@ -927,16 +1000,35 @@ class ParameterError(Effect):
         return sens[:, [self.equation]]
 
     def relative_error(self, coef):
-        return float(coef[0])
+        return self.response_map(float(coef[0]))
 
     def physical(self, coef, cov, setting, setting_se):
-        r, se = linear_estimate(coef, cov, [1.0])
+        c, se_c = linear_estimate(coef, cov, [1.0])
+        r = self.response_map(c)
+        se = abs(self.response_map.slope(c)) * se_c
         return [param("relative_error", r, se, "-", f"({self.parameter}_true - {self.parameter}) / {self.parameter}"),
                 param("corrected_value", self.value * (1.0 + r), abs(self.value) * se, "",
                       f"{self.parameter} implied by the fit (model value {self.value:g})")]
 
     def parameter_change(self, coef, setting):
-        return self.parameter, self.value * (1.0 + float(coef[0]))
+        return self.parameter, self.value * (1.0 + self.relative_error(coef))
+
+
+def share_response_map(members: list[Effect], weights: dict[int, float]) -> None:
+    """Give the members of one model-wide parameter error (the same ``parameter(p)`` in several equations, fitted
+    with one coefficient over their stacked rows) the response map of that joint fit: each equation's response
+    weighted by its rows' weight ``weights[equation]`` (the inverse noise variance of the stacked design,
+    :class:`hybridfmu.diagnosis.joint.StackedCache`). Members of another kind are left alone."""
+    errors = [m for m in members if isinstance(m, ParameterError)]
+    if not errors or errors[0].response is None:
+        return
+    n_x = errors[0].response.denominator.shape[0]
+    vector = np.zeros(n_x)
+    for member in errors:
+        vector[member.equation] = float(weights.get(member.equation, 0.0))
+    shared = ResponseMap.of(errors[0].response, vector)
+    for member in errors:
+        member.response_map = shared
 
 
 # ----------------------------------------------------------------------------- building the library
@@ -1065,7 +1157,7 @@ def build_library(problem: Problem, inputs: EffectInputs, model: Any) -> tuple[d
                     skipped[f"parameter({name}) in d{problem.state_names[eq]}/dt"] = \
                         "no sensitivity along the data" if sens is not None else "the model rejects a perturbed value"
                     continue
-                effects.append(ParameterError(problem, eq, name))
+                effects.append(ParameterError(problem, eq, name, inputs.response(name)))
         for module, plugin_options in plugins:
             effects += list(module.plugin_effects(problem, eq, plugin_options, inputs))
         kept = []

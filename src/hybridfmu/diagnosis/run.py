@@ -25,8 +25,9 @@ from hybridfmu.diagnosis.corrected_model import simulator_for
 from hybridfmu.diagnosis.derivatives import smooth_at
 from hybridfmu.diagnosis.export import DiagnosedModel
 from hybridfmu.diagnosis.identification import identification, indistinguishable_groups
-from hybridfmu.diagnosis.joint import JOINT, StackedCache, effect_equations, effect_key, joint_candidates
-from hybridfmu.diagnosis.library import build_library
+from hybridfmu.diagnosis.joint import (JOINT, JointEffect, StackedCache, effect_equations, effect_key,
+                                      joint_candidates)
+from hybridfmu.diagnosis.library import build_library, share_response_map
 from hybridfmu.diagnosis.inputs import CaseInputs, load_inputs
 from hybridfmu.diagnosis.open_loop import error_growth, how_far, how_far_not_run
 from hybridfmu.diagnosis.periodic_orders import narrow_periodic_orders
@@ -304,6 +305,10 @@ def selection_inputs(prepared: dict[str, PreparedManeuver], fit_names: list[str]
     cache = DesignCache([prepared[n].fit for n in prepared])
     stacked = StackedCache(cache, problem.equations)
     candidates = joint_candidates(library, problem.equations)
+    weights = {eq: stacked.row_weight(eq, fit_names[0]) ** 2 for eq in problem.equations}  # least-squares weights
+    for candidate in candidates:
+        if isinstance(candidate, JointEffect) and candidate.kind == "parameter":
+            share_response_map(candidate.members, weights)
     candidates, periodic, unresolved = narrow_periodic_orders(
         candidates, cache, fit_names, int(problem.settings["effects"]["periodic_orders"]), problem)
     skipped.update(unresolved)
