@@ -127,6 +127,10 @@ def _num(value: Any) -> str:
     return "–" if value is None else f"{value:.3g}"
 
 
+def _factor(value: Any) -> str:
+    return "–" if value is None else f"×{value:.3g}"
+
+
 def _covered(entry: dict[str, int] | None) -> str:
     return "–" if not entry else f"{entry['covered']}/{entry['n']}"
 
@@ -154,6 +158,11 @@ def markdown(summary: dict[str, Any]) -> str:
              f"| median parameter error, cases above the limits | {_num(b['median_parameter_error_pct'])} % | "
              f"{_num(c['median_parameter_error_pct'])} % |",
              f"| none cases naming nothing | {b['none_clean']}/{b['n_none']} | {c['none_clean']}/{c['n_none']} |",
+             f"| median windowed shrink of the named effects on top of the parameter corrections, exact cases | "
+             f"{_factor(b.get('median_window_effect_shrink_exact'))} | "
+             f"{_factor(c.get('median_window_effect_shrink_exact'))} |",
+             f"| largest windowed shrink of the named effects, none cases | "
+             f"{_factor(b.get('max_window_effect_shrink_none'))} | {_factor(c.get('max_window_effect_shrink_none'))} |",
              f"| cases naming what the suite's diagnosis names | – | "
              f"{sum(changed['named'][case] == base['named'][case] for case in base['named'])}/{len(base['named'])} |"]
     for effect in sorted(set(base["per_effect"]) | set(changed["per_effect"])):
@@ -208,9 +217,11 @@ def main() -> None:
                      result["seconds"], 60.0 * k / elapsed, elapsed / k * (len(jobs) - k))
     expected, background, targets = section.get("expected", {}), section.get("background", {}), section.get("targets")
     suite_records = {c: read_json(withheld / c / "diagnosis" / "diagnosis.json") for c in cases}
+    # the code that made the changed diagnoses, as they record it (a case kept from an earlier run keeps its own)
+    changed_code = ", ".join(code_versions({c: read_json(out / c / "diagnosis" / "diagnosis.json") for c in cases}))
     summary = {"n_cases": len(cases),
-               "change": f"the code at {code}" + "".join(f", `{text}`" for text in args.changes),
-               "suite_code": ", ".join(code_versions(suite_records)), "changed_code": code,
+               "change": f"the code at {changed_code}" + "".join(f", `{text}`" for text in args.changes),
+               "suite_code": ", ".join(code_versions(suite_records)), "changed_code": changed_code,
                "arguments": " ".join(f"--set {text}" for text in args.changes),
                "suite": score(cases, {c: withheld / c / "diagnosis" / "diagnosis.json" for c in cases}, withheld,
                               expected, background, targets),
