@@ -48,3 +48,13 @@ def test_without_fitting_maneuvers_there_is_no_window_to_choose():
     assert window_setting(model, simulate_fn, prepared, [], problem) is None
     chosen = window_setting(model, simulate_fn, prepared, ["train"], problem)
     assert chosen["chosen"] == "data" and chosen["window_s"] > 0
+
+
+def test_the_report_says_how_long_the_windows_are_and_why():
+    from hybridfmu.diagnosis.report import window_text
+
+    assert window_text(None) == ""
+    assert "every 0.5 s (diagnosis.open_loop.window_s)" in window_text({"window_s": 0.5, "chosen": "config"})
+    text = window_text({"window_s": 0.35, "chosen": "data", "take_off_s": {"train": 0.37, "validation": 0.34},
+                        "longest_s": 3.9, "starts": 64})
+    assert "every 0.35 s" in text and "64 points" in text and "train 0.37 s, validation 0.34 s" in text
