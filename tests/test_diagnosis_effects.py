@@ -140,21 +140,3 @@ def test_every_effect_states_sizes_that_its_physical_parameters_carry(library):
     assert {"viscous", "quadratic", "polynomial", "coulomb", "scaled_coulomb", "periodic", "saturation_above",
             "limit_above", "input_gain", "input_offset", "time_offset", "input_lag", "input_deadzone",
             "input_saturation_above", "parameter"} <= kinds
-
-
-def test_inputs_logged_in_one_unit_are_offset_together():
-    """Besides every input alone and all of them together, each group of inputs of one unit (the channels of one
-    kind) gets a common time offset; a group that would be all inputs, or one input, gets none of its own."""
-    from types import SimpleNamespace
-
-    from hybridfmu.diagnosis.library import same_unit_groups, time_offset_together
-
-    units = {"d_a": "1", "d_b": "1", "d_c": "1", "u_dc": "V", "tau_load": "N m"}
-    problem = SimpleNamespace(input_names=list(units), n_u=5, unit=units.get)
-    assert same_unit_groups(problem, [0, 1, 2, 3, 4]) == [[0, 1, 2]]
-    assert same_unit_groups(problem, [0, 3, 4]) == []   # one duty acts on the equation: no group
-    same = SimpleNamespace(input_names=["a", "b"], n_u=2, unit=lambda name: "V")
-    assert same_unit_groups(same, [0, 1]) == []          # all inputs: already offset together
-    effect = time_offset_together(problem, 0, [0, 1, 2], 1e-3)
-    assert effect.name == "time_offset(d_a,d_b,d_c)" and effect.columns == [0, 1, 2]
-    assert "d_a,d_b,d_c offset in time" in effect.description

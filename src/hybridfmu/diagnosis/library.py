@@ -24,9 +24,7 @@ name                           term in dx_i/dt                                  
 ``input_gain(u)``              g (df_i/du) u                                              -
 ``input_offset(u)``            o (df_i/du)                                                -
 ``time_offset(u)``             c [f_i(x, u(t + s)) - f_i(x, u)]  (offset c s)              s (grid, refined)
-``time_offset(u1,u2,..)``      the same with several inputs shifted together: all of      s (grid, refined)
-                               them, and each group of inputs logged in one unit (the
-                               channels of one kind, e.g. three phase duties)
+``time_offset(u1,u2,..)``      the same with all inputs shifted together                  s (grid, refined)
 ``input_lag(u)``               T (df_i/du) du/dt  (the model should see u + T du/dt)      first-order or actuator
                                or c (df_i/du) [L_tau(u) - u]  (plant sees u lagged by tau)  tau (grid, refined)
 ``input_deadzone(u)``          -c (df_i/du) clip(u, -d, d)  (dead band of half width d)    d (grid, refined)
@@ -695,8 +693,7 @@ class TimeOffset(InputEffect):
     continuous = "shift_s"
 
     def __init__(self, problem, equation, input_index, max_offset_s, columns=None, name=None):
-        label = problem.input_names[input_index] if columns is None else \
-            ",".join(problem.input_names[k] for k in columns)
+        label = problem.input_names[input_index] if columns is None else ",".join(problem.input_names)
         super().__init__(problem, equation, input_index, "time_offset",
                          f"input(s) {label} offset in time against the states",
                          "c * [f(x, u(t + s)) - f(x, u(t))]; the model should see u + c [u(t + s) - u] "
@@ -740,19 +737,10 @@ class TimeOffset(InputEffect):
                                  transform=lambda v, dt_s: v + c * (shift_samples(v, shift, dt_s) - v))
 
 
-def time_offset_together(problem, equation, columns: list[int], max_offset_s):
-    """``time_offset(u1,u2,...)``: the inputs ``columns`` (indices, in the problem's order) offset together."""
-    return TimeOffset(problem, equation, columns[0], max_offset_s, columns=list(columns),
-                      name=f"time_offset({','.join(problem.input_names[k] for k in columns)})")
-
-
-def same_unit_groups(problem, inputs: list[int]) -> list[list[int]]:
-    """The groups of two or more of ``inputs`` (indices) logged in one unit, each fewer than all of the problem's
-    inputs: channels of one kind (three phase duties, two wheel speeds), which one logging path may offset together."""
-    groups: dict[str, list[int]] = {}
-    for k in inputs:
-        groups.setdefault(problem.unit(problem.input_names[k]), []).append(k)
-    return [g for g in groups.values() if 1 < len(g) < problem.n_u]
+def time_offset_all(problem, equation, max_offset_s):
+    """``time_offset(u1,u2,...)``: all inputs offset together."""
+    return TimeOffset(problem, equation, 0, max_offset_s, columns=list(range(problem.n_u)),
+                      name=f"time_offset({','.join(problem.input_names)})")
 
 
 class InputLag(InputEffect):
@@ -1177,12 +1165,9 @@ def build_library(problem: Problem, inputs: EffectInputs, model: Any) -> tuple[d
             if "input_saturation" in kinds:
                 effects += [InputSaturation(problem, eq, k, side, inputs.u[:, k], input_quantiles)
                             for side in ("above", "below")]
-        # all inputs offset together, and each group logged in one unit: a member in every equation some input of
-        # it acts on (one offset for all of them)
+        # all inputs offset together: a member in every equation some input acts on (one offset for all of them)
         if "time_offset" in kinds and problem.n_u > 1 and active_inputs:
-            effects.append(time_offset_together(problem, eq, list(range(problem.n_u)), max_offset_s))
-            effects += [time_offset_together(problem, eq, group, max_offset_s)
-                        for group in same_unit_groups(problem, active_inputs)]
+            effects.append(time_offset_all(problem, eq, max_offset_s))
         if "parameter" in kinds:
             for name in parameters:
                 sens = inputs.sensitivity(name)
