@@ -134,6 +134,8 @@ def check_setting_benchmark(config, fmu_path: Path, case: str, tmp_path: Path) -
            "0123456789, `diagnosis.kernel_s=0.002` (`python benchmarks/diagnosis_setting.py --set x`" in text
     assert "| exact set, cases above the limits |" in text and "| none cases naming nothing |" in text
     assert "| cases naming what the suite's diagnosis names | – | " in text
+    assert "| median windowed shrink of the named effects on top of the parameter corrections, exact cases |" in text
+    assert "| largest windowed shrink of the named effects, none cases |" in text
 
 
 def check_report(diagnosis_json: Path) -> None:
