@@ -124,6 +124,8 @@ def test_the_motor_plugin_adds_dead_time_to_the_current_equations_only():
 def test_every_effect_states_sizes_that_its_physical_parameters_carry(library):
     """The confirmation of an effect (:func:`hybridfmu.diagnosis.identification.confirmed`) reads its sizes among its
     physical parameters: each effect of the library names at least one that is there, none of them a setting."""
+    from hybridfmu.diagnosis.identification import parameter_matches
+
     _, _, _, effects, _ = library
     kinds = set()
     for effect in effects[0] + effects[1]:
@@ -133,7 +135,7 @@ def test_every_effect_states_sizes_that_its_physical_parameters_carry(library):
             rows = effect.physical(np.linspace(0.5, 1.5, n), np.eye(n) * 1e-4, setting, {})
             names = [r["name"] for r in rows]
             sizes = effect.size_parameters(setting)
-            matched = [r for r in names if any(r == s or (s.endswith("_") and r.startswith(s)) for s in sizes)]
+            matched = [r for r in names if parameter_matches(r, sizes)]
             assert matched, f"{effect.name} {setting}: sizes {sizes} among none of {names}"
             assert not set(matched) & set(setting) - {"half_width"}, f"{effect.name}: a searched shape as a size"
         kinds.add(effect.kind)

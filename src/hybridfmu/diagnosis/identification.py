@@ -44,9 +44,14 @@ MAX_RANGE_RATIO = 10.0
 LOCATION_PARAMETERS = ("threshold", "level", "phase_")
 
 
+def parameter_matches(name: str, patterns: list[str] | tuple[str, ...]) -> bool:
+    """Whether the parameter ``name`` is one of ``patterns``: a name, or a prefix ending in ``_`` (``phase_``)."""
+    return any(name == p or (p.endswith("_") and name.startswith(p)) for p in patterns)
+
+
 def is_location(name: str) -> bool:
     """Whether the physical parameter ``name`` is a location (threshold, level, phase) rather than a size."""
-    return any(name == p or (p.endswith("_") and name.startswith(p)) for p in LOCATION_PARAMETERS)
+    return parameter_matches(name, LOCATION_PARAMETERS)
 
 
 def spread_widening(n_values: int) -> float:
@@ -130,10 +135,7 @@ def confirmed(rows: list[dict[str, Any]], size_names: list[str]) -> bool | None:
     every judged size parameter is not identified (the 90 % intervals of its size all cover zero or span more than a
     factor ten: the maneuvers, the bootstrap or a rival leave open whether the effect is there at all); None when no
     size parameter was judged. ``rows``: the effect's physical parameters with their :func:`identification`."""
-    def is_size(name: str) -> bool:
-        return any(name == s or (s.endswith("_") and name.startswith(s)) for s in size_names)
-
-    judged = [row.get("identified") for row in rows if is_size(str(row.get("name", "")))]
+    judged = [row.get("identified") for row in rows if parameter_matches(str(row.get("name", "")), size_names)]
     judged = [j for j in judged if j is not None]
     if not judged:
         return None

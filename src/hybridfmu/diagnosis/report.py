@@ -11,6 +11,7 @@ import numpy as np
 
 from hybridfmu.diagnosis import figures
 from hybridfmu.diagnosis.export import DIAGNOSED_MODEL, save_diagnosed
+from hybridfmu.diagnosis.result import is_finding
 from hybridfmu.io import write_json_atomic, write_text_atomic
 from hybridfmu.numerics import one_math_thread
 from hybridfmu.tracking.provenance import code_version
@@ -110,7 +111,7 @@ def verdict(result: DiagnosisResult) -> str:
                      f"(equation error {s['rms_residual']:.3g} {s['unit']} RMS, {s['ratio_to_noise']:.2f} x its "
                      "noise floor).")
     if chosen:
-        named = [c for c in chosen if c.get("role", "finding") == "finding"]
+        named = [c for c in chosen if is_finding(c)]
         unmodelled = [c for c in named if c["kind"] != "parameter"]
         errors = [c for c in named if c["kind"] == "parameter"]
         if unmodelled:

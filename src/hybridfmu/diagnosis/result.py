@@ -18,6 +18,12 @@ if TYPE_CHECKING:
     from hybridfmu.diagnosis.selection import DesignCache, Term
 
 
+def is_finding(item: dict[str, Any]) -> bool:
+    """Whether a record of ``EffectSelection.chosen`` is a named finding (not an adjustment, not unconfirmed; a record
+    without a role, from before roles, is one)."""
+    return item.get("role", "finding") == "finding"
+
+
 @dataclass
 class EffectSelection:
     """Which effects: one selection over all examined equations on the fitting maneuvers
@@ -59,7 +65,7 @@ class EffectSelection:
     def found_effects(self) -> list[str]:
         """The names of the named effects (the chosen findings: not the adjustments, not the unconfirmed), rank
         order, each once."""
-        return list(dict.fromkeys(item["effect"] for item in self.chosen if item.get("role", "finding") == "finding"))
+        return list(dict.fromkeys(item["effect"] for item in self.chosen if is_finding(item)))
 
     @property
     def adjustments(self) -> list[str]:

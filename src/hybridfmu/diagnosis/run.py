@@ -35,7 +35,7 @@ from hybridfmu.diagnosis.prepare import (MeasuredManeuver, PreparedManeuver, cho
                                          fill_unmeasured, kernel_samples, prepare_maneuver)
 from hybridfmu.diagnosis.problem import Problem, set_data_statistics
 from hybridfmu.diagnosis.refit import RefitSpec
-from hybridfmu.diagnosis.result import DiagnosisResult, EffectSelection
+from hybridfmu.diagnosis.result import DiagnosisResult, EffectSelection, is_finding
 from hybridfmu.diagnosis.regions import (RegionSamples, band_family, ranked_statements, region_table, reversal_mask,
                                          time_bins)
 from hybridfmu.diagnosis.selection import (DesignCache, EquationSelection, Rival, SelectionSettings, Term,
@@ -410,7 +410,7 @@ def select_effects(prepared: dict[str, PreparedManeuver], fit_names: list[str], 
                     len(candidates), [t.effect.name for t in selection.terms], time.perf_counter() - started)
         chosen, terms_of = _chosen_records(selection, cache, stacked, problem, fit_names, sel, settings["seed"])
         for _ in range(MAX_ADJUSTMENTS):
-            moving = {r["effect"] for c in chosen if c["role"] == "finding" for r in c["rivals"]}
+            moving = {r["effect"] for c in chosen if is_finding(c) for r in c["rivals"]}
             pick = max((r for r in selection.rivals if r.effect in moving), key=lambda r: r.bic_drop, default=None)
             if pick is None:
                 break

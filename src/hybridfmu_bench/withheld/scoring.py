@@ -52,6 +52,8 @@ import re
 from dataclasses import dataclass
 from typing import Any, Callable
 
+from hybridfmu.diagnosis.result import is_finding
+
 __all__ = ["SCORING", "EffectScoring", "Conversion", "ScoringContext", "ScoreMismatch", "bench_effect_of",
            "effect_size", "score_case", "rejected_candidates", "selection_thresholds", "true_size"]
 
@@ -319,7 +321,7 @@ def score_case(record: dict[str, Any], truth: dict[str, Any], draw: dict[str, An
     extras: list[str] = []
     background_found: list[str] = []
     for item in chosen:  # rank order
-        if item.get("role", "finding") != "finding":  # an adjustment or unconfirmed: in the model, not named
+        if not is_finding(item):  # an adjustment or unconfirmed: in the model, not named
             continue
         bench = bench_effect_of(item["effect"], expected)
         parameter = _PARAMETER_RE.match(item["effect"])
