@@ -10,14 +10,16 @@ own scoring (:func:`hybridfmu_bench.withheld.scoring.score_case`; detection limi
 as the suite does). Without ``--set`` the variant is the code of this checkout (its commit, with local changes if
 any) against the code that diagnosed the suite: a change of the diagnosis' code measured the same way. The changed
 diagnoses go to ``--out`` (default ``<withheld>_settings/<change>``, for code ``code-<commit>``); a case already
-diagnosed there with the same case config is not diagnosed again.
+diagnosed there with the same case config is not diagnosed again. ``--against SUITE`` diagnoses nothing: the changed
+diagnoses are those of another finished suite of the same draws (the same cases rerun at another code or config;
+the block names the diagnosis settings in which the two suites' case configs differ).
 
 Prints a table; the last line is a JSON object with the figures. ``--markdown FILE`` writes the table for the
 documentation.
 
     python benchmarks/diagnosis_setting.py [--set diagnosis.kernel_s=default --set diagnosis.smoothing_s=default]
         [--config config/config.yaml] [--withheld results/withheld] [--cases PATTERN] [--jobs 2] [--out DIR]
-        [--markdown FILE]
+        [--markdown FILE] [--against OTHER_SUITE]
 """
 
 from __future__ import annotations
@@ -85,6 +87,43 @@ def _diagnose(job: tuple[str, Path, Path, Path, list]) -> dict[str, Any]:
         diagnose_case(case_path, fmu, {m: withheld / case / "data" / f"{m}.parquet" for m in maneuvers},
                       {m: withheld / case / "segments" / f"{m}.json" for m in maneuvers}, folder / "diagnosis")
     return {"case": case, "seconds": time.perf_counter() - started}
+
+
+def _settings_differences(old: dict[str, Any], new: dict[str, Any], prefix: str = "diagnosis") -> list[str]:
+    """The keys (dotted) in which two ``diagnosis`` sections differ, each as ``key=new value`` (``default`` when the
+    new section leaves the key out)."""
+    out = []
+    for key in sorted(set(old) | set(new)):
+        path = f"{prefix}.{key}"
+        if key not in new:
+            out.append(f"{path}=default")
+        elif isinstance(old.get(key), dict) and isinstance(new[key], dict):
+            out.extend(_settings_differences(old[key], new[key], path))
+        elif old.get(key) != new[key]:
+            out.append(f"{path}={json.dumps(new[key])}")
+    return out
+
+
+def against_suite(withheld: Path, other: Path, cases: list[str]) -> list[str]:
+    """Check that ``other`` holds the same finished cases as ``withheld`` (the same draws and the same emulated
+    truths) and return the diagnosis settings in which their case configs differ (one list for every case; an error
+    when cases differ in different ways)."""
+    differences = set()
+    for case in cases:
+        for part in (Path("cases") / f"{case}.draw.json", *sorted(p.relative_to(withheld) for p in
+                                                               (withheld / case / "raw").glob("*.truth.json"))):
+            if not (other / part).is_file() or read_json(other / part) != read_json(withheld / part):
+                raise SystemExit(f"{other / part}: missing or not the same as {withheld / part}; --against needs a "
+                                 "suite of the same draws and bench")
+        if not (other / case / "diagnosis" / "diagnosis.json").is_file():
+            raise SystemExit(f"{other / case / 'diagnosis' / 'diagnosis.json'}: missing; finish that suite first")
+        old, new = (yaml.safe_load((root / "cases" / f"{case}.yaml").read_text()).get("diagnosis") or {}
+                    for root in (withheld, other))
+        differences.add(tuple(_settings_differences(old, new)))
+    if len(differences) > 1:
+        raise SystemExit(f"{other}: its cases' diagnosis settings differ from {withheld}'s in different ways: "
+                         f"{sorted(differences)}")
+    return list(differences.pop()) if differences else []
 
 
 def score(cases: list[str], diagnoses: dict[str, Path], withheld: Path, expected: dict,
@@ -187,9 +226,14 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--markdown", type=Path, default=None)
+    parser.add_argument("--against", type=Path, default=None,
+                        help="another finished suite of the same draws whose diagnoses are the changed ones (no "
+                             "diagnosis is run; not with --set)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     logging.getLogger("hybridfmu").setLevel(logging.WARNING)
+    if args.against is not None and args.changes:
+        raise SystemExit("--against compares two finished suites; it takes no --set")
     changes = [parse_change(text) for text in args.changes]
     config = load_case_config(args.config)
     withheld = args.withheld or ROOT / config.get("results_dir", "results") / "withheld"
@@ -205,24 +249,29 @@ def main() -> None:
     if not cases or missing:
         raise SystemExit(f"{withheld}: no finished withheld suite ({len(missing)} of {len(cases)} calibration cases "
                          "without diagnosis.json); run `snakemake -j2 withheld` first")
-    code = describe(code_version())
-    slug = "__".join(re.sub(r"[^A-Za-z0-9_.=-]+", "_", text) for text in args.changes) or f"code-{code}"
-    out = args.out or withheld.with_name(withheld.name + "_settings") / slug
-    jobs = [(c, withheld, fmu, out, changes) for c in cases]
-    started = time.perf_counter()
-    with multiprocessing.Pool(max(1, args.jobs)) as pool:
-        for k, result in enumerate(pool.imap_unordered(_diagnose, jobs), start=1):
-            elapsed = time.perf_counter() - started
-            LOG.info("%d/%d cases (%s, %.0f s), %.2f cases/min, %.0f s left", k, len(jobs), result["case"],
-                     result["seconds"], 60.0 * k / elapsed, elapsed / k * (len(jobs) - k))
+    if args.against is not None:
+        out, settings = args.against, against_suite(withheld, args.against, cases)
+        arguments = f"--withheld {withheld} --against {args.against}"
+    else:
+        code = describe(code_version())
+        slug = "__".join(re.sub(r"[^A-Za-z0-9_.=-]+", "_", text) for text in args.changes) or f"code-{code}"
+        out, settings = args.out or withheld.with_name(withheld.name + "_settings") / slug, args.changes
+        arguments = " ".join(f"--set {text}" for text in args.changes)
+        jobs = [(c, withheld, fmu, out, changes) for c in cases]
+        started = time.perf_counter()
+        with multiprocessing.Pool(max(1, args.jobs)) as pool:
+            for k, result in enumerate(pool.imap_unordered(_diagnose, jobs), start=1):
+                elapsed = time.perf_counter() - started
+                LOG.info("%d/%d cases (%s, %.0f s), %.2f cases/min, %.0f s left", k, len(jobs), result["case"],
+                         result["seconds"], 60.0 * k / elapsed, elapsed / k * (len(jobs) - k))
     expected, background, targets = section.get("expected", {}), section.get("background", {}), section.get("targets")
     suite_records = {c: read_json(withheld / c / "diagnosis" / "diagnosis.json") for c in cases}
     # the code that made the changed diagnoses, as they record it (a case kept from an earlier run keeps its own)
     changed_code = ", ".join(code_versions({c: read_json(out / c / "diagnosis" / "diagnosis.json") for c in cases}))
     summary = {"n_cases": len(cases),
-               "change": f"the code at {changed_code}" + "".join(f", `{text}`" for text in args.changes),
+               "change": f"the code at {changed_code}" + "".join(f", `{text}`" for text in settings),
                "suite_code": ", ".join(code_versions(suite_records)), "changed_code": changed_code,
-               "arguments": " ".join(f"--set {text}" for text in args.changes),
+               "arguments": arguments,
                "suite": score(cases, {c: withheld / c / "diagnosis" / "diagnosis.json" for c in cases}, withheld,
                               expected, background, targets),
                "changed": score(cases, {c: out / c / "diagnosis" / "diagnosis.json" for c in cases}, withheld,

@@ -105,11 +105,7 @@ def check_sparse_benchmark(config, fmu_path: Path, case: str) -> None:
 def check_setting_benchmark(config, fmu_path: Path, case: str, tmp_path: Path) -> None:
     """benchmarks/diagnosis_setting.py diagnoses a finished case again with changed settings (here a fixed kernel
     where the suite's came from the model's time scale) and scores both diagnoses the suite's way."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("diagnosis_setting", ROOT / "benchmarks" / "diagnosis_setting.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = _setting_benchmark()
     withheld_dir = Path(config["results_dir"]) / "withheld"
     changes = [bench.parse_change(text) for text in ("diagnosis.kernel_s=0.002", "diagnosis.selection.noise_margin=0.2",
                                                      "diagnosis.smoothing_s=default")]
@@ -185,3 +181,39 @@ def test_snakemake_plans_one_job_per_case_seed_and_maneuver(tiny_config, ipbmoto
     assert counts.get("withheld_emulate") == counts.get("withheld_segments") == 3 * cases
     assert counts.get("withheld_summary") == 1
     assert "s1__single_coulomb_friction__size2" in text
+
+
+def _setting_benchmark():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("diagnosis_setting", ROOT / "benchmarks" / "diagnosis_setting.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    return bench
+
+
+def _fake_suite(root: Path, case: str, diagnosis: dict, draw: dict, truth: dict) -> None:
+    (root / "cases").mkdir(parents=True)
+    (root / "cases" / f"{case}.yaml").write_text(yaml.safe_dump({"diagnosis": diagnosis}))
+    (root / "cases" / f"{case}.draw.json").write_text(json.dumps(draw))
+    for part, record in (("raw/test.truth.json", truth), ("diagnosis/diagnosis.json", {"maneuvers": ["test"]})):
+        (root / case / part).parent.mkdir(parents=True, exist_ok=True)
+        (root / case / part).write_text(json.dumps(record))
+
+
+def test_setting_benchmark_against_another_suite_names_the_settings_that_differ(tmp_path):
+    """``--against`` compares two finished suites of the same draws: it names the diagnosis settings in which their
+    case configs differ and refuses suites of other draws or truths."""
+    bench = _setting_benchmark()
+    old = {"kernel_s": 0.01, "open_loop": {"window_s": 0.12, "horizons": 3}, "end_stop_margin": 0.07}
+    new = {"kernel_s": 0.01, "open_loop": {"window_s": "auto", "horizons": 3}}
+    assert bench._settings_differences(old, new) == ["diagnosis.end_stop_margin=default",
+                                                     'diagnosis.open_loop.window_s="auto"']
+    case, draw, truth = "s0__none", {"effects": []}, {"J": 1.0}
+    _fake_suite(tmp_path / "a", case, old, draw, truth)
+    _fake_suite(tmp_path / "b", case, new, draw, truth)
+    assert bench.against_suite(tmp_path / "a", tmp_path / "b", [case]) == [
+        "diagnosis.end_stop_margin=default", 'diagnosis.open_loop.window_s="auto"']
+    _fake_suite(tmp_path / "c", case, new, draw, {"J": 2.0})
+    with pytest.raises(SystemExit, match="test.truth.json: missing or not the same"):
+        bench.against_suite(tmp_path / "a", tmp_path / "c", [case])
