@@ -104,15 +104,26 @@ def _settings_differences(old: dict[str, Any], new: dict[str, Any], prefix: str 
     return out
 
 
+def _without_run_times(record: Any) -> Any:
+    """A JSON record without the wall-clock times it carries (keys ending in ``wall_s``): what two runs of the same
+    emulation share."""
+    if isinstance(record, dict):
+        return {k: _without_run_times(v) for k, v in record.items() if not k.endswith("wall_s")}
+    if isinstance(record, list):
+        return [_without_run_times(v) for v in record]
+    return record
+
+
 def against_suite(withheld: Path, other: Path, cases: list[str]) -> list[str]:
     """Check that ``other`` holds the same finished cases as ``withheld`` (the same draws and the same emulated
-    truths) and return the diagnosis settings in which their case configs differ (one list for every case; an error
+    truths, but for their run times) and return the diagnosis settings in which their case configs differ (one list for every case; an error
     when cases differ in different ways)."""
     differences = set()
     for case in cases:
         for part in (Path("cases") / f"{case}.draw.json", *sorted(p.relative_to(withheld) for p in
                                                                (withheld / case / "raw").glob("*.truth.json"))):
-            if not (other / part).is_file() or read_json(other / part) != read_json(withheld / part):
+            if not (other / part).is_file() or (_without_run_times(read_json(other / part))
+                                                != _without_run_times(read_json(withheld / part))):
                 raise SystemExit(f"{other / part}: missing or not the same as {withheld / part}; --against needs a "
                                  "suite of the same draws and bench")
         if not (other / case / "diagnosis" / "diagnosis.json").is_file():
@@ -251,7 +262,7 @@ def main() -> None:
                          "without diagnosis.json); run `snakemake -j2 withheld` first")
     if args.against is not None:
         out, settings = args.against, against_suite(withheld, args.against, cases)
-        arguments = f"--withheld {withheld} --against {args.against}"
+        arguments = "--withheld SUITE --against OTHER_SUITE"  # the two suites are named by their code above
     else:
         code = describe(code_version())
         slug = "__".join(re.sub(r"[^A-Za-z0-9_.=-]+", "_", text) for text in args.changes) or f"code-{code}"

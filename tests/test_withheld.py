@@ -209,9 +209,9 @@ def test_setting_benchmark_against_another_suite_names_the_settings_that_differ(
     new = {"kernel_s": 0.01, "open_loop": {"window_s": "auto", "horizons": 3}}
     assert bench._settings_differences(old, new) == ["diagnosis.end_stop_margin=default",
                                                      'diagnosis.open_loop.window_s="auto"']
-    case, draw, truth = "s0__none", {"effects": []}, {"J": 1.0}
+    case, draw, truth = "s0__none", {"effects": []}, {"J": 1.0, "summary": {"wall_s": 0.9}}
     _fake_suite(tmp_path / "a", case, old, draw, truth)
-    _fake_suite(tmp_path / "b", case, new, draw, truth)
+    _fake_suite(tmp_path / "b", case, new, draw, {**truth, "summary": {"wall_s": 1.4}})
     assert bench.against_suite(tmp_path / "a", tmp_path / "b", [case]) == [
         "diagnosis.end_stop_margin=default", 'diagnosis.open_loop.window_s="auto"']
     _fake_suite(tmp_path / "c", case, new, draw, {"J": 2.0})
