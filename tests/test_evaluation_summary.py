@@ -26,6 +26,20 @@ def test_summary_says_when_the_effects_were_recalibrated_with_the_fmu():
     assert "| level | FMU + diagnosed effects, recalibrated (saturation_above(x2)) | 0.19 V |" in text
 
 
+def test_summary_names_the_terms_the_model_carries_without_naming_them():
+    """The FMU + diagnosed effects row lists every term of that model: the named effects, then the adjustments and
+    the unconfirmed terms, each with its role (the model carries them, the diagnosis does not name them)."""
+    chosen = [{"effect": "overflow(x1->x2)", "role": "finding"}, {"effect": "time_offset(u)", "role": "adjustment"},
+              {"effect": "parameter(k2)", "role": "unconfirmed"}, {"effect": "parameter(k3)", "role": "unconfirmed"}]
+    diagnosis = {**DIAGNOSIS, "which": {"found_effects": ["overflow(x1->x2)"], "chosen": chosen}}
+    text = case_summary("tanks", TEST_METRICS, diagnosis, {"level": "V"})
+    assert ("| level | FMU + diagnosed effects (overflow(x1->x2); also in the model, not named: time_offset(u) "
+            "(adjustment), parameter(k2) (unconfirmed), parameter(k3) (unconfirmed)) | 0.19 V |") in text
+    only_unconfirmed = {**DIAGNOSIS, "which": {"found_effects": [], "chosen": chosen[2:3]}}
+    assert "FMU + diagnosed effects (also in the model, not named: parameter(k2) (unconfirmed)) |" in \
+        case_summary("tanks", TEST_METRICS, only_unconfirmed, {"level": "V"})
+
+
 def test_summary_without_diagnosis_has_no_corrected_row():
     text = case_summary("tanks", TEST_METRICS, None, {"level": "V"})
     assert "diagnosed" not in text and text.count("| level |") == 2 and "rank" not in text

@@ -31,6 +31,17 @@ def _square(value: Any) -> float | None:
     return None if value is None else float(value) ** 2
 
 
+def model_terms_text(which: dict[str, Any]) -> str:
+    """The terms the FMU + diagnosed effects model carries, in words: the named effects (``found_effects``), then the
+    terms it also carries without naming them (``chosen`` records with the role ``adjustment`` or ``unconfirmed``),
+    e.g. ``overflow(x1->x2); also in the model, not named: parameter(k2) (unconfirmed)``; ``none`` without terms."""
+    named = ", ".join(which.get("found_effects", []))
+    beside = [f"{item['effect']} ({item['role']})" for item in which.get("chosen", [])
+              if item.get("role") in ("adjustment", "unconfirmed")]
+    beside_text = f"also in the model, not named: {', '.join(dict.fromkeys(beside))}" if beside else ""
+    return "; ".join(part for part in (named, beside_text) if part) or "none"
+
+
 def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, Any] | None,
                  units: dict[str, str]) -> str:
     """Markdown lines quoting one run's test figures.
@@ -54,7 +65,7 @@ def case_summary(case: str, test_metrics: dict[str, Any], diagnosis: dict[str, A
     from hybridfmu.evaluation.report import distribution_table, tolerance_text, warning_lines
 
     far = (diagnosis or {}).get("how_far") or {}
-    effects = (", ".join((diagnosis or {}).get("which", {}).get("found_effects", [])) or "none").replace("|", "\\|")
+    effects = model_terms_text((diagnosis or {}).get("which", {})).replace("|", "\\|")
     maneuvers = test_metrics.get("maneuvers", [])
     lines = []
     spread = distribution_table({"test": test_metrics})
