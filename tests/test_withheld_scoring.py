@@ -9,6 +9,7 @@ import math
 import pytest
 
 from hybridfmu_bench.withheld.report import (aggregate, above_limits, code_sentence, code_versions, confusion_matrix,
+                                             settings_sentence, settings_versions,
                                                  detection_limit, detection_limits, split_seeds, summarise)
 from hybridfmu_bench.withheld.scoring import effect_size, rejected_candidates, score_case
 from hybridfmu.evaluation.measured_blocks import replace_block
@@ -435,3 +436,46 @@ def test_the_summaries_name_the_code_of_the_diagnoses_and_warn_when_a_resumed_ru
     for text in summaries(list(cases)):
         assert "WARNING: the cases were diagnosed by 2 versions of the code" in text
         assert f"{'b' * 10}: 2 cases, {'a' * 10}: 1 case)" in text
+
+
+def test_the_summaries_warn_when_the_cases_were_diagnosed_with_different_settings(tmp_path):
+    """Each diagnosis records the digest of the diagnosis section it was asked for; a suite whose cases carry two
+    (a suite resumed after a change of the section, or cases copied from another suite) says so in its summary and
+    in the README's short account, naming each group; records from before the digest are not counted."""
+    from hybridfmu.diagnosis.report import settings_digest
+
+    old, new = {"open_loop": {"window_s": 0.12}, "kernel_s": None}, {"kernel_s": None, "open_loop": {}}
+    assert settings_digest(new) == settings_digest({"open_loop": {}, "kernel_s": None}) != settings_digest(old)
+    assert len(settings_digest(new)) == 12
+    digests = {"x": settings_digest(new), "y": settings_digest(old), "z": settings_digest(new)}
+    groups = settings_versions({case: {"settings_digest": d} for case, d in digests.items()})
+    assert groups == {settings_digest(new): ["x", "z"], settings_digest(old): ["y"]}
+    assert settings_sentence({settings_digest(new): ["x", "z"]}) == ""
+    assert settings_sentence(settings_versions({"x": {"settings_digest": "abc"}, "y": {}})) == ""
+    text = settings_sentence(groups)
+    assert text.startswith("**WARNING: the cases were diagnosed with 2 different diagnosis settings**")
+    assert f"{settings_digest(new)}: 2 cases (e.g. x); {settings_digest(old)}: 1 case (e.g. y)" in text
+    cases = {"s0__single_coulomb_friction__size1": new, "s0__none": new, "s1__single_coulomb_friction__size1": old}
+    paths = {"d": [], "t": [], "w": []}
+    for name, section in cases.items():
+        effects = {} if name.endswith("none") else {"coulomb_friction": dict(COULOMB)}
+        items = [chosen("coulomb(omega)", "omega", coulomb_level=0.04 / J)] if effects else []
+        drawn = {**draw(name, {e: 1.0 for e in effects}, "none" if not effects else "single"),
+                 "seed": int(name.split("__")[0][1:])}
+        for key, data in (("d", {**record(items, {"omega": {"coulomb(omega)": 0.3}}),
+                                 "settings_digest": settings_digest(section)}),
+                          ("t", truth(effects)), ("w", drawn)):
+            paths[key].append(tmp_path / f"{name}.{key}.json")
+            write_json_atomic(paths[key][-1], data)
+
+    def summaries(names):
+        index = [list(cases).index(n) for n in names]
+        summarise(names, *([paths[k][i] for i in index] for k in "dtw"), tmp_path / "summary.csv",
+                  tmp_path / "confusion.png", tmp_path / "detection.png", tmp_path / "summary.md", EXPECTED,
+                  headline_path=tmp_path / "headline.md")
+        return (tmp_path / "summary.md").read_text(), (tmp_path / "headline.md").read_text()
+
+    for text in summaries(list(cases)[:2]):
+        assert "different diagnosis settings" not in text
+    for text in summaries(list(cases)):
+        assert "WARNING: the cases were diagnosed with 2 different diagnosis settings" in text

@@ -171,6 +171,16 @@ def verdict(result: DiagnosisResult) -> str:
     return " ".join(parts)
 
 
+def settings_digest(section: dict[str, Any]) -> str:
+    """A short fingerprint (12 hex digits of SHA-256) of a config's ``diagnosis`` section as written: two diagnoses
+    with the same digest were asked for with the same settings (keys in any order)."""
+    import hashlib
+    import json
+
+    text = json.dumps(json_safe(section), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
 def diagnosis_record(result: DiagnosisResult, config: dict[str, Any]) -> dict[str, Any]:
     """The content of ``diagnosis.json``."""
     problem = result.problem
@@ -181,6 +191,9 @@ def diagnosis_record(result: DiagnosisResult, config: dict[str, Any]) -> dict[st
     record = {
         "case": config.get("case"),
         "code": code_version(),  # which code made this record (a summary over many records names it)
+        # which settings made it: the case config's diagnosis section as written (a summary over many records
+        # that should share them checks that they do)
+        "settings_digest": settings_digest(config.get("diagnosis") or {}),
         "maneuvers": {name: m["role"] for name, m in config["maneuvers"].items()},
         "fit_maneuvers": result.fit_names, "test_maneuvers": result.test_names,
         "calibration": result.calibration, "model_parameters": result.model_parameters,

@@ -472,6 +472,30 @@ def code_versions(records: dict[str, dict[str, Any]]) -> dict[str, int]:
     return dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
 
 
+def settings_versions(records: dict[str, dict[str, Any]]) -> dict[str, list[str]]:
+    """Which diagnosis settings the cases were diagnosed with: ``settings_digest`` of each record
+    (:func:`hybridfmu.diagnosis.report.settings_digest`; ``unrecorded`` for records from before it) -> the cases,
+    most cases first."""
+    groups: dict[str, list[str]] = {}
+    for case, record in records.items():
+        groups.setdefault(str(record.get("settings_digest") or "unrecorded"), []).append(case)
+    return dict(sorted(groups.items(), key=lambda kv: (-len(kv[1]), kv[0])))
+
+
+def settings_sentence(groups: dict[str, list[str]]) -> str:
+    """What :func:`settings_versions` says, for the summaries: nothing when every case shares its settings, else a
+    warning naming each group (a suite resumed after a change of the diagnosis section, or cases copied from another
+    suite, mixes settings, so its figures belong to none of them)."""
+    known = {digest: cases for digest, cases in groups.items() if digest != "unrecorded"}
+    if len(known) <= 1:
+        return ""
+    listed = "; ".join(f"{digest}: {len(cases)} case{'s' if len(cases) != 1 else ''} (e.g. {sorted(cases)[0]})"
+                       for digest, cases in groups.items())
+    return (f"**WARNING: the cases were diagnosed with {len(known)} different diagnosis settings** ({listed}); "
+            "these figures belong to none of them (regenerate the cases' configs, `snakemake -j2 withheld --forcerun "
+            "withheld_case`, and diagnose them again).")
+
+
 def code_sentence(versions: dict[str, int]) -> str:
     """What :func:`code_versions` says, as a sentence for the summaries: one version named, or a warning that a run
     resumed across a code change mixes the cases of several."""
@@ -503,6 +527,8 @@ def headline_markdown(by_split: dict[str, dict[str, Any] | None], settings: dict
                  "the detection limits it is judged by (in sample).")
     if settings.get("code"):
         intro += " " + code_sentence(settings["code"])
+    if settings_sentence(settings.get("diagnosis_settings") or {}):
+        intro += " " + settings_sentence(settings["diagnosis_settings"])
     return "\n".join([intro, "", *_measure_rows(by_split, HEADLINE_MEASURES)])
 
 
@@ -533,6 +559,8 @@ def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any
                  "detection limits are set on the same cases they judge, so every figure below is in sample.")
     if settings.get("code"):
         split += " " + code_sentence(settings["code"])
+    if settings_sentence(settings.get("diagnosis_settings") or {}):
+        split += " " + settings_sentence(settings["diagnosis_settings"])
     lines = [
         f"Withheld-effect check: {len(rows)} cases (seeds {seeds}: {kinds['single']} single, "
         f"{kinds['pair']} pair, {kinds['none']} none), whose bench has effects the FMU lacks (size scale "
@@ -742,6 +770,7 @@ def summarise(names: list[str], diagnosis_paths: list[str | Path], truth_paths: 
                 "size_range": first.get("size_range"),
                 "sizes_per_effect": max((d.get("strata") or 0 for d in draws.values()), default=0) or "–",
                 "offset_scale_range": first.get("offset_scale_range"), "code": code_versions(records),
+                "diagnosis_settings": settings_versions(records),
                 "files": [Path(p).name for p in (csv_path, detection_path, confusion_path)]}
     write_csv(rows, csv_path)
     confusion_figure(rows, confusion_path)
