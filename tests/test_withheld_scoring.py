@@ -405,6 +405,31 @@ def test_effect_size_of_a_calibrated_parameter_comes_from_its_calibration_record
     assert effect_size(rec, ["parameter(J)"]) == 1.0
 
 
+def _three_case_summaries(tmp_path, extras: dict[str, dict]):
+    """Write a three-case suite (two single Coulomb cases on seeds 0 and 1, a none case) whose diagnosis records
+    carry ``extras[case]`` (e.g. their ``code``), and return a function that summarises a list of its cases and
+    gives back (summary.md, headline.md)."""
+    paths = {"d": [], "t": [], "w": []}
+    for name, extra in extras.items():
+        effects = {} if name.endswith("none") else {"coulomb_friction": dict(COULOMB)}
+        items = [chosen("coulomb(omega)", "omega", coulomb_level=0.04 / J)] if effects else []
+        drawn = {**draw(name, {e: 1.0 for e in effects}, "none" if not effects else "single"),
+                 "seed": int(name.split("__")[0][1:])}
+        for key, data in (("d", {**record(items, {"omega": {"coulomb(omega)": 0.3}}), **extra}),
+                          ("t", truth(effects)), ("w", drawn)):
+            paths[key].append(tmp_path / f"{name}.{key}.json")
+            write_json_atomic(paths[key][-1], data)
+
+    def summaries(names):
+        index = [list(extras).index(n) for n in names]
+        summarise(names, *([paths[k][i] for i in index] for k in "dtw"), tmp_path / "summary.csv",
+                  tmp_path / "confusion.png", tmp_path / "detection.png", tmp_path / "summary.md", EXPECTED,
+                  headline_path=tmp_path / "headline.md")
+        return (tmp_path / "summary.md").read_text(), (tmp_path / "headline.md").read_text()
+
+    return summaries
+
+
 def test_the_summaries_name_the_code_of_the_diagnoses_and_warn_when_a_resumed_run_mixes_two(tmp_path):
     """Every case's diagnosis records its code; one version is named, two (a run resumed across a code change) are
     a warning in the summary and in the README's short account."""
@@ -413,23 +438,7 @@ def test_the_summaries_name_the_code_of_the_diagnoses_and_warn_when_a_resumed_ru
     assert code_sentence({"b" * 10: 3}) == f"Every case was diagnosed by the code at {'b' * 10}."
     assert "do not record" in code_sentence(code_versions({"x": {}}))
     cases = {"s0__single_coulomb_friction__size1": new, "s0__none": new, "s1__single_coulomb_friction__size1": old}
-    paths = {"d": [], "t": [], "w": []}
-    for name, code in cases.items():
-        effects = {} if name.endswith("none") else {"coulomb_friction": dict(COULOMB)}
-        items = [chosen("coulomb(omega)", "omega", coulomb_level=0.04 / J)] if effects else []
-        drawn = {**draw(name, {e: 1.0 for e in effects}, "none" if not effects else "single"),
-                 "seed": int(name.split("__")[0][1:])}
-        for key, data in (("d", {**record(items, {"omega": {"coulomb(omega)": 0.3}}), "code": code}),
-                          ("t", truth(effects)), ("w", drawn)):
-            paths[key].append(tmp_path / f"{name}.{key}.json")
-            write_json_atomic(paths[key][-1], data)
-
-    def summaries(names):
-        index = [list(cases).index(n) for n in names]
-        summarise(names, *([paths[k][i] for i in index] for k in "dtw"), tmp_path / "summary.csv",
-                  tmp_path / "confusion.png", tmp_path / "detection.png", tmp_path / "summary.md", EXPECTED,
-                  headline_path=tmp_path / "headline.md")
-        return (tmp_path / "summary.md").read_text(), (tmp_path / "headline.md").read_text()
+    summaries = _three_case_summaries(tmp_path, {name: {"code": code} for name, code in cases.items()})
 
     for text in summaries(list(cases)[:2]):
         assert f"Every case was diagnosed by the code at {'b' * 10}." in text and "WARNING" not in text
@@ -456,24 +465,8 @@ def test_the_summaries_warn_when_the_cases_were_diagnosed_with_different_setting
     assert text.startswith("**WARNING: the cases were diagnosed with 2 different diagnosis settings**")
     assert f"{settings_digest(new)}: 2 cases (e.g. x); {settings_digest(old)}: 1 case (e.g. y)" in text
     cases = {"s0__single_coulomb_friction__size1": new, "s0__none": new, "s1__single_coulomb_friction__size1": old}
-    paths = {"d": [], "t": [], "w": []}
-    for name, section in cases.items():
-        effects = {} if name.endswith("none") else {"coulomb_friction": dict(COULOMB)}
-        items = [chosen("coulomb(omega)", "omega", coulomb_level=0.04 / J)] if effects else []
-        drawn = {**draw(name, {e: 1.0 for e in effects}, "none" if not effects else "single"),
-                 "seed": int(name.split("__")[0][1:])}
-        for key, data in (("d", {**record(items, {"omega": {"coulomb(omega)": 0.3}}),
-                                 "settings_digest": settings_digest(section)}),
-                          ("t", truth(effects)), ("w", drawn)):
-            paths[key].append(tmp_path / f"{name}.{key}.json")
-            write_json_atomic(paths[key][-1], data)
-
-    def summaries(names):
-        index = [list(cases).index(n) for n in names]
-        summarise(names, *([paths[k][i] for i in index] for k in "dtw"), tmp_path / "summary.csv",
-                  tmp_path / "confusion.png", tmp_path / "detection.png", tmp_path / "summary.md", EXPECTED,
-                  headline_path=tmp_path / "headline.md")
-        return (tmp_path / "summary.md").read_text(), (tmp_path / "headline.md").read_text()
+    summaries = _three_case_summaries(tmp_path, {name: {"settings_digest": settings_digest(section)}
+                                                 for name, section in cases.items()})
 
     for text in summaries(list(cases)[:2]):
         assert "different diagnosis settings" not in text

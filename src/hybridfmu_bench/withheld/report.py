@@ -527,8 +527,9 @@ def headline_markdown(by_split: dict[str, dict[str, Any] | None], settings: dict
                  "the detection limits it is judged by (in sample).")
     if settings.get("code"):
         intro += " " + code_sentence(settings["code"])
-    if settings_sentence(settings.get("diagnosis_settings") or {}):
-        intro += " " + settings_sentence(settings["diagnosis_settings"])
+    mixed = settings_sentence(settings.get("diagnosis_settings") or {})
+    if mixed:
+        intro += " " + mixed
     return "\n".join([intro, "", *_measure_rows(by_split, HEADLINE_MEASURES)])
 
 
@@ -559,8 +560,9 @@ def summary_markdown(rows: list[dict[str, Any]], limits: dict[str, dict[str, Any
                  "detection limits are set on the same cases they judge, so every figure below is in sample.")
     if settings.get("code"):
         split += " " + code_sentence(settings["code"])
-    if settings_sentence(settings.get("diagnosis_settings") or {}):
-        split += " " + settings_sentence(settings["diagnosis_settings"])
+    mixed = settings_sentence(settings.get("diagnosis_settings") or {})
+    if mixed:
+        split += " " + mixed
     lines = [
         f"Withheld-effect check: {len(rows)} cases (seeds {seeds}: {kinds['single']} single, "
         f"{kinds['pair']} pair, {kinds['none']} none), whose bench has effects the FMU lacks (size scale "
