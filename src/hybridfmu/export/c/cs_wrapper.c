@@ -1,0 +1,696 @@
+/*
+ * An exported model of the workflow as an FMI 2.0 Co-Simulation FMU.
+ *
+ * The case's Model-Exchange FMU travels unchanged inside this FMU (resources/<inner>.fmu, and the same archive
+ * extracted beside it in resources/<inner>/ so that its binary can be loaded). This wrapper loads that binary,
+ * instantiates it in Model-Exchange mode with the calibrated parameters, and integrates the exported model on
+ * the case's sample grid with the loops of the workflow's own C engine (hybridfmu/fmu/shim.c, included below):
+ *
+ *   - EXPORT_KIND_NEURAL: a neural FMU (or a hybrid) in its fused form, one hf_neural_rollout step per sample,
+ *     with the learned input delays read from an input history by linear interpolation at the positions the
+ *     workflow uses, and the first layer's input term z = u W_u + b computed here;
+ *   - an effect program (effects.c) added to the FMU's derivatives where the model has one (a hybrid's
+ *     physical layer).
+ *
+ * A step k of the model reads inputs up to sample k + EXPORT_LOOKAHEAD (the delays interpolate towards later
+ * samples, RK4's last stage reads sample k + 1). A co-simulation master gives the FMU no future input, so the
+ * FMU integrates step k once it has received sample k + EXPORT_LOOKAHEAD: its outputs lag the model by
+ * EXPORT_LOOKAHEAD samples (the constant output_delay_s). Samples before the first are the first sample (the
+ * workflow holds a record's first input before its start).
+ *
+ * Everything specific to one model (sizes, value references, weights, delays, parameters) comes from the
+ * generated header export_model.h; this file knows no model.
+ */
+#define _GNU_SOURCE
+#include <dlfcn.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi2Functions.h"
+
+#include "shim.c"
+
+#include "export_model.h"
+
+/* ---------------------------------------------------------------- value references of this FMU
+   0 .. NU-1: the inputs; NU .. NU+NX-1: the states (outputs); NU+NX .. NU+2NX-1: the states' start values
+   (parameters); NU+2NX: output_delay_s (constant); then the effect coefficients (tunable parameters). */
+#define VR_INPUT0 0u
+#define VR_STATE0 ((unsigned)EXPORT_NU)
+#define VR_START0 ((unsigned)(EXPORT_NU + EXPORT_NX))
+#define VR_OUTPUT_DELAY ((unsigned)(EXPORT_NU + 2 * EXPORT_NX))
+#define VR_COEFF0 ((unsigned)(EXPORT_NU + 2 * EXPORT_NX + 1))
+#define VR_END ((unsigned)(EXPORT_NU + 2 * EXPORT_NX + 1 + EXPORT_N_COEFFICIENTS))
+
+/* The input history keeps the samples a step can read: EXPORT_LOOKBACK before the step and EXPORT_LOOKAHEAD
+   after it. */
+#define RING (EXPORT_LOOKAHEAD + EXPORT_LOOKBACK + 4)
+
+typedef enum { MODE_INSTANTIATED, MODE_INITIALIZATION, MODE_STEPPING, MODE_TERMINATED, MODE_ERROR } exp_mode;
+
+typedef struct {
+    fmi2Component (*instantiate)(fmi2String, fmi2Type, fmi2String, fmi2String, const fmi2CallbackFunctions *,
+                                 fmi2Boolean, fmi2Boolean);
+    void (*free_instance)(fmi2Component);
+    fmi2Status (*setup_experiment)(fmi2Component, fmi2Boolean, fmi2Real, fmi2Real, fmi2Boolean, fmi2Real);
+    fmi2Status (*enter_initialization_mode)(fmi2Component);
+    fmi2Status (*exit_initialization_mode)(fmi2Component);
+    fmi2Status (*terminate)(fmi2Component);
+    fmi2Status (*reset)(fmi2Component);
+    fmi2Status (*set_real)(fmi2Component, const fmi2ValueReference *, size_t, const fmi2Real *);
+    fmi2Status (*get_real)(fmi2Component, const fmi2ValueReference *, size_t, fmi2Real *);
+    fmi2Status (*new_discrete_states)(fmi2Component, fmi2EventInfo *);
+    fmi2Status (*enter_continuous_time_mode)(fmi2Component);
+    fmi2Status (*set_time)(fmi2Component, fmi2Real);
+    fmi2Status (*set_continuous_states)(fmi2Component, const fmi2Real *, size_t);
+    fmi2Status (*get_derivatives)(fmi2Component, fmi2Real *, size_t);
+    fmi2Status (*get_event_indicators)(fmi2Component, fmi2Real *, size_t);
+    fmi2Status (*completed_integrator_step)(fmi2Component, fmi2Boolean, fmi2Boolean *, fmi2Boolean *);
+    fmi2Status (*get_directional_derivative)(fmi2Component, const fmi2ValueReference *, size_t,
+                                             const fmi2ValueReference *, size_t, const fmi2Real *, fmi2Real *);
+} exp_inner_api;
+
+typedef struct {
+    fmi2CallbackFunctions callbacks;
+    char *instance_name;
+    int logging_on;
+    void *library;
+    exp_inner_api api;
+    fmi2Component inner;
+    hf_model model;
+    exp_mode mode;
+    double time_s;
+    double u_now[EXPORT_NU > 0 ? EXPORT_NU : 1];
+    double x[EXPORT_NX];
+    double x_start[EXPORT_NX];
+    double coefficients[EXPORT_N_COEFFICIENTS > 0 ? EXPORT_N_COEFFICIENTS : 1];
+    double effect_reals[EXPORT_N_EFFECT_REALS > 0 ? EXPORT_N_EFFECT_REALS : 1];
+    double first_sample[EXPORT_NU > 0 ? EXPORT_NU : 1];
+    double history[RING][EXPORT_NU > 0 ? EXPORT_NU : 1];
+    long long n_samples; /* samples received */
+    long long n_steps;   /* model steps done: x is the state at sample n_steps */
+    /* one step's buffers (hf_neural_rollout with batch 1) */
+    double u_grid[2][EXPORT_NU > 0 ? EXPORT_NU : 1];
+    double u_half[EXPORT_NU > 0 ? EXPORT_NU : 1];
+    double z_grid[2][EXPORT_WIDTH0];
+    double z_half[EXPORT_WIDTH0];
+    double states[2][EXPORT_NX];
+    double work[6 * EXPORT_NX + EXPORT_NX + EXPORT_WIDTH_SUM];
+    double effect_out[EXPORT_NX];
+    double effect_work[EXPORT_NU + EXPORT_NX + 1];
+} exp_instance;
+
+static void exp_log(exp_instance *c, fmi2Status status, const char *category, const char *format, ...) {
+    char message[1024];
+    va_list args;
+    if (!c || !c->callbacks.logger) return;
+    if (status == fmi2OK && !c->logging_on) return;
+    va_start(args, format);
+    vsnprintf(message, sizeof message, format, args);
+    va_end(args);
+    c->callbacks.logger(c->callbacks.componentEnvironment, c->instance_name, status, category, "%s", message);
+}
+
+static fmi2Status exp_fail(exp_instance *c, const char *format, const char *detail) {
+    exp_log(c, fmi2Error, "logStatusError", format, detail);
+    return fmi2Error;
+}
+
+/* The file system path of a file:// URI (file:///a/b or file:/a/b); NULL if it is not one. */
+static char *exp_uri_path(const char *uri) {
+    const char *path;
+    char *out;
+    size_t i, j, n;
+    if (!uri) return NULL;
+    if (strncmp(uri, "file://", 7) == 0) {
+        path = uri + 7;
+        if (strncmp(path, "localhost/", 10) == 0) path += 9;
+    } else if (strncmp(uri, "file:", 5) == 0) {
+        path = uri + 5;
+    } else {
+        return NULL;
+    }
+    n = strlen(path);
+    out = (char *)malloc(n + 1);
+    if (!out) return NULL;
+    for (i = 0, j = 0; i < n; ++i) { /* percent-decoding */
+        if (path[i] == '%' && i + 2 < n + 1 && path[i + 1] && path[i + 2]) {
+            char hex[3] = {path[i + 1], path[i + 2], 0};
+            out[j++] = (char)strtol(hex, NULL, 16);
+            i += 2;
+        } else {
+            out[j++] = path[i];
+        }
+    }
+    while (j > 1 && out[j - 1] == '/') --j;
+    out[j] = 0;
+    return out;
+}
+
+static int exp_load_inner(exp_instance *c, const char *resources) {
+    char path[4096];
+    snprintf(path, sizeof path, "%s/%s/binaries/linux64/%s.so", resources, EXPORT_INNER_DIR,
+             EXPORT_INNER_IDENTIFIER);
+    /* RTLD_DEEPBIND: the inner FMU's calls to its own fmi2 functions stay within it, whatever the host loaded */
+    c->library = dlopen(path, RTLD_NOW | RTLD_LOCAL | RTLD_DEEPBIND);
+    if (!c->library) {
+        exp_log(c, fmi2Error, "logStatusError", "cannot load the embedded FMU's binary %s: %s", path, dlerror());
+        return 0;
+    }
+#define EXP_SYMBOL(field, name)                                                                         \
+    do {                                                                                                \
+        *(void **)(&c->api.field) = dlsym(c->library, name);                                            \
+        if (!c->api.field) {                                                                            \
+            exp_log(c, fmi2Error, "logStatusError", "the embedded FMU's binary %s lacks %s", path, name); \
+            return 0;                                                                                   \
+        }                                                                                               \
+    } while (0)
+    EXP_SYMBOL(instantiate, "fmi2Instantiate");
+    EXP_SYMBOL(free_instance, "fmi2FreeInstance");
+    EXP_SYMBOL(setup_experiment, "fmi2SetupExperiment");
+    EXP_SYMBOL(enter_initialization_mode, "fmi2EnterInitializationMode");
+    EXP_SYMBOL(exit_initialization_mode, "fmi2ExitInitializationMode");
+    EXP_SYMBOL(terminate, "fmi2Terminate");
+    EXP_SYMBOL(reset, "fmi2Reset");
+    EXP_SYMBOL(set_real, "fmi2SetReal");
+    EXP_SYMBOL(get_real, "fmi2GetReal");
+    EXP_SYMBOL(new_discrete_states, "fmi2NewDiscreteStates");
+    EXP_SYMBOL(enter_continuous_time_mode, "fmi2EnterContinuousTimeMode");
+    EXP_SYMBOL(set_time, "fmi2SetTime");
+    EXP_SYMBOL(set_continuous_states, "fmi2SetContinuousStates");
+    EXP_SYMBOL(get_derivatives, "fmi2GetDerivatives");
+    EXP_SYMBOL(get_event_indicators, "fmi2GetEventIndicators");
+    EXP_SYMBOL(completed_integrator_step, "fmi2CompletedIntegratorStep");
+#undef EXP_SYMBOL
+    *(void **)(&c->api.get_directional_derivative) = dlsym(c->library, "fmi2GetDirectionalDerivative");
+    return 1;
+}
+
+/* The shim's record of the inner FMU (hybridfmu/fmu/shim.c), as the workflow's bridge fills it. */
+static void exp_setup_model(exp_instance *c) {
+    hf_model *m = &c->model;
+    memset(m, 0, sizeof *m);
+    m->component = c->inner;
+    m->set_time = (hf_set_time_fn)c->api.set_time;
+    m->set_states = (hf_set_states_fn)c->api.set_continuous_states;
+    m->set_real = (hf_set_real_fn)c->api.set_real;
+    m->get_real = (hf_get_real_fn)c->api.get_real;
+    m->get_derivatives = (hf_get_vector_fn)c->api.get_derivatives;
+    m->get_event_indicators = (hf_get_vector_fn)c->api.get_event_indicators;
+    m->get_directional_derivative = (hf_dir_der_fn)c->api.get_directional_derivative;
+    m->completed_integrator_step = (hf_completed_fn)c->api.completed_integrator_step;
+    m->nx = EXPORT_NX;
+    m->nu = EXPORT_NU;
+    m->nz = EXPORT_INNER_NZ;
+    m->vr_u = export_inner_vr_u;
+    m->vr_x = export_inner_vr_x;
+    m->vr_dx = export_inner_vr_dx;
+#if EXPORT_N_EFFECT_CODE > 0
+    m->effect_code = export_effect_code;
+    m->effect_n_code = EXPORT_N_EFFECT_CODE;
+    m->effect_reals = c->effect_reals;
+    m->effect_out = c->effect_out;
+    m->effect_work = c->effect_work;
+    m->effect_sets_inputs = EXPORT_EFFECT_SETS_INPUTS;
+#endif
+}
+
+/* The inner FMU instantiated in Model-Exchange mode with the calibrated parameters set. */
+static int exp_instantiate_inner(exp_instance *c, const char *resources) {
+    char uri[4200];
+    snprintf(uri, sizeof uri, "file://%s/%s/resources", resources, EXPORT_INNER_DIR);
+    c->inner = c->api.instantiate(c->instance_name, fmi2ModelExchange, EXPORT_INNER_GUID, uri, &c->callbacks,
+                                  fmi2False, c->logging_on ? fmi2True : fmi2False);
+    if (!c->inner) {
+        exp_log(c, fmi2Error, "logStatusError", "fmi2Instantiate of the embedded FMU %s failed",
+                EXPORT_INNER_IDENTIFIER);
+        return 0;
+    }
+    return 1;
+}
+
+static fmi2Status exp_set_inner_parameters(exp_instance *c) {
+#if EXPORT_N_PARAMETERS > 0
+    if (c->api.set_real(c->inner, export_parameter_vr, EXPORT_N_PARAMETERS, export_parameter_value) > fmi2Warning)
+        return exp_fail(c, "%s: setting the calibrated parameters failed", EXPORT_INNER_IDENTIFIER);
+#endif
+    return fmi2OK;
+}
+
+/* setupExperiment at 0 s (the workflow's FMU time in the neural rollout), initialisation, the event
+   iteration and continuous-time mode, as the workflow's bridge does it. */
+static fmi2Status exp_initialise_inner(exp_instance *c) {
+    fmi2EventInfo info;
+    int i;
+    if (c->api.setup_experiment(c->inner, fmi2False, 0.0, 0.0, fmi2False, 0.0) > fmi2Warning ||
+        c->api.enter_initialization_mode(c->inner) > fmi2Warning ||
+        c->api.exit_initialization_mode(c->inner) > fmi2Warning)
+        return exp_fail(c, "%s: initialisation of the embedded FMU failed", EXPORT_INNER_IDENTIFIER);
+    for (i = 0; i < 1000; ++i) {
+        memset(&info, 0, sizeof info);
+        if (c->api.new_discrete_states(c->inner, &info) > fmi2Warning)
+            return exp_fail(c, "%s: fmi2NewDiscreteStates failed", EXPORT_INNER_IDENTIFIER);
+        if (info.terminateSimulation)
+            return exp_fail(c, "%s: the embedded FMU asked to terminate during initialisation",
+                            EXPORT_INNER_IDENTIFIER);
+        if (!info.newDiscreteStatesNeeded) break;
+    }
+    if (c->api.enter_continuous_time_mode(c->inner) > fmi2Warning)
+        return exp_fail(c, "%s: fmi2EnterContinuousTimeMode failed", EXPORT_INNER_IDENTIFIER);
+    return fmi2OK;
+}
+
+static void exp_defaults(exp_instance *c) {
+    memcpy(c->x_start, export_x_start, sizeof c->x_start);
+#if EXPORT_NU > 0
+    memcpy(c->u_now, export_u_start, sizeof c->u_now);
+#endif
+#if EXPORT_N_COEFFICIENTS > 0
+    memcpy(c->coefficients, export_coefficient_start, sizeof c->coefficients);
+#endif
+    c->n_samples = 0;
+    c->n_steps = 0;
+    c->time_s = 0.0;
+}
+
+/* The effect program's reals with the current coefficients written at their places. */
+static void exp_effect_reals(exp_instance *c) {
+#if EXPORT_N_EFFECT_REALS > 0
+    size_t i;
+    memcpy(c->effect_reals, export_effect_reals, sizeof c->effect_reals);
+#if EXPORT_N_COEFFICIENTS > 0
+    for (i = 0; i < EXPORT_N_COEFFICIENTS; ++i) c->effect_reals[export_coefficient_index[i]] = c->coefficients[i];
+#else
+    (void)i;
+#endif
+#else
+    (void)c;
+#endif
+}
+
+/* ---------------------------------------------------------------- the model's steps */
+
+/* Sample j of the input history (j < 0: the first sample). */
+static const double *exp_sample(const exp_instance *c, long long j) {
+    if (j <= 0) return c->first_sample;
+    return c->history[j % RING];
+}
+
+/* u(t_k + offset h + dt) for every input: lerp of samples (k + first[i], k + first[i] + 1) with weight frac[i],
+   computed as torch.lerp computes it. */
+static void exp_delayed(const exp_instance *c, long long k, const int *first, const double *frac, double *u) {
+    size_t i;
+    for (i = 0; i < EXPORT_NU; ++i) {
+        const double lower = exp_sample(c, k + first[i])[i], upper = exp_sample(c, k + first[i] + 1)[i];
+        const double w = frac[i];
+        u[i] = fabs(w) < 0.5 ? lower + w * (upper - lower) : upper - (upper - lower) * (1.0 - w);
+    }
+}
+
+/* z = b_first + u W_u (first layer's input term), W_u (NU, H0) row-major. */
+static void exp_input_term(const double *u, double *z) {
+    size_t i, j;
+    for (j = 0; j < EXPORT_WIDTH0; ++j) z[j] = export_b_first[j];
+    for (i = 0; i < EXPORT_NU; ++i)
+        for (j = 0; j < EXPORT_WIDTH0; ++j) z[j] += u[i] * export_w_u[i * EXPORT_WIDTH0 + j];
+}
+
+/* Step k of the model: x (the state at sample k) -> the state at sample k + 1. */
+static fmi2Status exp_step(exp_instance *c, long long k) {
+    size_t done = 0;
+    int status;
+    exp_delayed(c, k, export_grid_first, export_grid_frac, c->u_grid[0]);
+    exp_delayed(c, k + 1, export_grid_first, export_grid_frac, c->u_grid[1]);
+    exp_input_term(c->u_grid[0], c->z_grid[0]);
+    exp_input_term(c->u_grid[1], c->z_grid[1]);
+    if (EXPORT_RK4) {
+        exp_delayed(c, k, export_half_first, export_half_frac, c->u_half);
+        exp_input_term(c->u_half, c->z_half);
+    }
+    status = hf_neural_rollout(&c->model, 1, 1, EXPORT_H_S, EXPORT_RK4, c->x, &c->u_grid[0][0], c->u_half,
+                               &c->z_grid[0][0], c->z_half, EXPORT_N_LAYERS, export_widths, export_params,
+                               EXPORT_I_POS, EXPORT_I_RATE, EXPORT_POS_LOWER, EXPORT_POS_UPPER, &c->states[0][0],
+                               c->work, &done, NULL);
+    if (status) {
+        char detail[256];
+        snprintf(detail, sizeof detail, "step %lld (t = %.9g s): the embedded FMU's function %d failed with status %d",
+                 k, k * EXPORT_H_S, c->model.failed_function, status);
+        return exp_fail(c, "%s", detail);
+    }
+    if (done < 1) {
+        char detail[160];
+        snprintf(detail, sizeof detail, "step %lld (t = %.9g s): a state became non-finite", k, k * EXPORT_H_S);
+        return exp_fail(c, "%s", detail);
+    }
+    memcpy(c->x, c->states[1], sizeof c->x);
+    c->n_steps = k + 1;
+    return fmi2OK;
+}
+
+/* Receive the current inputs as the next sample, then do the step that sample completes. */
+static fmi2Status exp_take_sample(exp_instance *c) {
+    const long long n = c->n_samples;
+    if (n == 0) memcpy(c->first_sample, c->u_now, sizeof c->first_sample);
+    memcpy(c->history[n % RING], c->u_now, sizeof c->history[0]);
+    c->n_samples = n + 1;
+    if (n - EXPORT_LOOKAHEAD >= 0) return exp_step(c, n - EXPORT_LOOKAHEAD);
+    return fmi2OK;
+}
+
+/* ---------------------------------------------------------------- FMI 2.0 Co-Simulation API */
+
+FMI2_Export const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+FMI2_Export const char *fmi2GetVersion(void) { return fmi2Version; }
+
+FMI2_Export fmi2Status fmi2SetDebugLogging(fmi2Component component, fmi2Boolean loggingOn, size_t nCategories,
+                                           const fmi2String categories[]) {
+    exp_instance *c = (exp_instance *)component;
+    (void)nCategories;
+    (void)categories;
+    if (!c) return fmi2Error;
+    c->logging_on = loggingOn ? 1 : 0;
+    return fmi2OK;
+}
+
+FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
+                                          fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
+                                          fmi2Boolean visible, fmi2Boolean loggingOn) {
+    exp_instance *c;
+    char *resources;
+    (void)visible;
+    if (!functions || !functions->allocateMemory || !functions->freeMemory) return NULL;
+    c = (exp_instance *)calloc(1, sizeof(exp_instance));
+    if (!c) return NULL;
+    c->callbacks = *functions;
+    c->logging_on = loggingOn ? 1 : 0;
+    c->instance_name = strdup(instanceName ? instanceName : EXPORT_MODEL_IDENTIFIER);
+    c->mode = MODE_ERROR;
+    if (fmuType != fmi2CoSimulation) {
+        exp_log(c, fmi2Error, "logStatusError", "%s is a Co-Simulation FMU; fmi2Instantiate asked for another type",
+                EXPORT_MODEL_IDENTIFIER);
+        goto fail;
+    }
+    if (!fmuGUID || strcmp(fmuGUID, EXPORT_GUID) != 0) {
+        exp_log(c, fmi2Error, "logStatusError", "GUID %s does not match this FMU's %s", fmuGUID ? fmuGUID : "(null)",
+                EXPORT_GUID);
+        goto fail;
+    }
+    resources = exp_uri_path(fmuResourceLocation);
+    if (!resources) {
+        exp_log(c, fmi2Error, "logStatusError", "fmuResourceLocation %s is not a file URI",
+                fmuResourceLocation ? fmuResourceLocation : "(null)");
+        goto fail;
+    }
+    if (!exp_load_inner(c, resources) || !exp_instantiate_inner(c, resources)) {
+        free(resources);
+        goto fail;
+    }
+    free(resources);
+    if (exp_set_inner_parameters(c) != fmi2OK) goto fail;
+    exp_setup_model(c);
+    exp_defaults(c);
+    c->mode = MODE_INSTANTIATED;
+    return (fmi2Component)c;
+fail:
+    if (c->inner) c->api.free_instance(c->inner);
+    if (c->library) dlclose(c->library);
+    free(c->instance_name);
+    free(c);
+    return NULL;
+}
+
+FMI2_Export void fmi2FreeInstance(fmi2Component component) {
+    exp_instance *c = (exp_instance *)component;
+    if (!c) return;
+    if (c->inner) c->api.free_instance(c->inner);
+    if (c->library) dlclose(c->library);
+    free(c->instance_name);
+    free(c);
+}
+
+FMI2_Export fmi2Status fmi2SetupExperiment(fmi2Component component, fmi2Boolean toleranceDefined, fmi2Real tolerance,
+                                           fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
+    exp_instance *c = (exp_instance *)component;
+    (void)toleranceDefined;
+    (void)tolerance;
+    (void)stopTimeDefined;
+    (void)stopTime;
+    if (!c || c->mode != MODE_INSTANTIATED) return fmi2Error;
+    c->time_s = startTime;
+    return fmi2OK;
+}
+
+FMI2_Export fmi2Status fmi2EnterInitializationMode(fmi2Component component) {
+    exp_instance *c = (exp_instance *)component;
+    if (!c || c->mode != MODE_INSTANTIATED) return fmi2Error;
+    c->mode = MODE_INITIALIZATION;
+    return fmi2OK;
+}
+
+FMI2_Export fmi2Status fmi2ExitInitializationMode(fmi2Component component) {
+    exp_instance *c = (exp_instance *)component;
+    if (!c || c->mode != MODE_INITIALIZATION) return fmi2Error;
+    if (exp_initialise_inner(c) != fmi2OK) {
+        c->mode = MODE_ERROR;
+        return fmi2Error;
+    }
+    exp_effect_reals(c);
+    memcpy(c->x, c->x_start, sizeof c->x);
+    c->n_samples = 0;
+    c->n_steps = 0;
+    c->mode = MODE_STEPPING;
+    return fmi2OK;
+}
+
+FMI2_Export fmi2Status fmi2Terminate(fmi2Component component) {
+    exp_instance *c = (exp_instance *)component;
+    if (!c) return fmi2Error;
+    if (c->mode == MODE_STEPPING) c->api.terminate(c->inner);
+    c->mode = MODE_TERMINATED;
+    return fmi2OK;
+}
+
+FMI2_Export fmi2Status fmi2Reset(fmi2Component component) {
+    exp_instance *c = (exp_instance *)component;
+    if (!c) return fmi2Error;
+    if (c->api.reset(c->inner) > fmi2Warning) return exp_fail(c, "%s: fmi2Reset of the embedded FMU failed",
+                                                              EXPORT_INNER_IDENTIFIER);
+    if (exp_set_inner_parameters(c) != fmi2OK) return fmi2Error;
+    exp_defaults(c);
+    c->mode = MODE_INSTANTIATED;
+    return fmi2OK;
+}
+
+FMI2_Export fmi2Status fmi2GetReal(fmi2Component component, const fmi2ValueReference vr[], size_t nvr,
+                                   fmi2Real value[]) {
+    exp_instance *c = (exp_instance *)component;
+    size_t i;
+    if (!c || (nvr && (!vr || !value))) return fmi2Error;
+    for (i = 0; i < nvr; ++i) {
+        const unsigned r = vr[i];
+        if (r < VR_STATE0) value[i] = c->u_now[r - VR_INPUT0];
+        else if (r < VR_START0) value[i] = c->mode == MODE_STEPPING || c->mode == MODE_TERMINATED
+                                               ? c->x[r - VR_STATE0] : c->x_start[r - VR_STATE0];
+        else if (r < VR_OUTPUT_DELAY) value[i] = c->x_start[r - VR_START0];
+        else if (r == VR_OUTPUT_DELAY) value[i] = EXPORT_LOOKAHEAD * EXPORT_H_S;
+        else if (r < VR_END) value[i] = c->coefficients[r - VR_COEFF0];
+        else {
+            exp_log(c, fmi2Error, "logStatusError", "fmi2GetReal: unknown value reference %u", r);
+            return fmi2Error;
+        }
+    }
+    return fmi2OK;
+}
+
+FMI2_Export fmi2Status fmi2SetReal(fmi2Component component, const fmi2ValueReference vr[], size_t nvr,
+                                   const fmi2Real value[]) {
+    exp_instance *c = (exp_instance *)component;
+    size_t i;
+    if (!c || (nvr && (!vr || !value))) return fmi2Error;
+    for (i = 0; i < nvr; ++i) {
+        const unsigned r = vr[i];
+        if (r < VR_STATE0) {
+            c->u_now[r - VR_INPUT0] = value[i];
+        } else if (r >= VR_START0 && r < VR_OUTPUT_DELAY) {
+            if (c->mode != MODE_INSTANTIATED && c->mode != MODE_INITIALIZATION) {
+                exp_log(c, fmi2Error, "logStatusError", "fmi2SetReal: the start value (value reference %u) is "
+                        "fixed after initialisation", r);
+                return fmi2Error;
+            }
+            c->x_start[r - VR_START0] = value[i];
+        } else if (r >= VR_COEFF0 && r < VR_END) {
+            c->coefficients[r - VR_COEFF0] = value[i];
+            if (c->mode == MODE_STEPPING) exp_effect_reals(c);
+        } else {
+            exp_log(c, fmi2Error, "logStatusError", "fmi2SetReal: value reference %u cannot be set", r);
+            return fmi2Error;
+        }
+    }
+    return fmi2OK;
+}
+
+FMI2_Export fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) {
+    (void)vr;
+    (void)value;
+    return c && nvr == 0 ? fmi2OK : fmi2Error;
+}
+FMI2_Export fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) {
+    (void)vr;
+    (void)value;
+    return c && nvr == 0 ? fmi2OK : fmi2Error;
+}
+FMI2_Export fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) {
+    (void)vr;
+    (void)value;
+    return c && nvr == 0 ? fmi2OK : fmi2Error;
+}
+FMI2_Export fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                      const fmi2Integer value[]) {
+    (void)vr;
+    (void)value;
+    return c && nvr == 0 ? fmi2OK : fmi2Error;
+}
+FMI2_Export fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                      const fmi2Boolean value[]) {
+    (void)vr;
+    (void)value;
+    return c && nvr == 0 ? fmi2OK : fmi2Error;
+}
+FMI2_Export fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                     const fmi2String value[]) {
+    (void)vr;
+    (void)value;
+    return c && nvr == 0 ? fmi2OK : fmi2Error;
+}
+
+/* canGetAndSetFMUstate and canSerializeFMUstate are false */
+FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *state) {
+    (void)c;
+    (void)state;
+    return fmi2Error;
+}
+FMI2_Export fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state) {
+    (void)c;
+    (void)state;
+    return fmi2Error;
+}
+FMI2_Export fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *state) {
+    (void)c;
+    (void)state;
+    return fmi2Error;
+}
+FMI2_Export fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t *size) {
+    (void)c;
+    (void)state;
+    (void)size;
+    return fmi2Error;
+}
+FMI2_Export fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte bytes[], size_t size) {
+    (void)c;
+    (void)state;
+    (void)bytes;
+    (void)size;
+    return fmi2Error;
+}
+FMI2_Export fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t size,
+                                               fmi2FMUstate *state) {
+    (void)c;
+    (void)bytes;
+    (void)size;
+    (void)state;
+    return fmi2Error;
+}
+/* providesDirectionalDerivative is false */
+FMI2_Export fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown[],
+                                                    size_t nUnknown, const fmi2ValueReference vKnown[], size_t nKnown,
+                                                    const fmi2Real dvKnown[], fmi2Real dvUnknown[]) {
+    (void)c;
+    (void)vUnknown;
+    (void)nUnknown;
+    (void)vKnown;
+    (void)nKnown;
+    (void)dvKnown;
+    (void)dvUnknown;
+    return fmi2Error;
+}
+
+/* canInterpolateInputs is false and maxOutputDerivativeOrder 0: input derivatives are ignored */
+FMI2_Export fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                                   const fmi2Integer order[], const fmi2Real value[]) {
+    (void)vr;
+    (void)nvr;
+    (void)order;
+    (void)value;
+    return c ? fmi2OK : fmi2Error;
+}
+FMI2_Export fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                                    const fmi2Integer order[], fmi2Real value[]) {
+    (void)vr;
+    (void)order;
+    (void)value;
+    return c && nvr == 0 ? fmi2OK : fmi2Error;
+}
+
+FMI2_Export fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommunicationPoint,
+                                  fmi2Real communicationStepSize, fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
+    exp_instance *c = (exp_instance *)component;
+    double samples;
+    long long n_sub, j;
+    (void)noSetFMUStatePriorToCurrentPoint;
+    if (!c || c->mode != MODE_STEPPING) return fmi2Error;
+    samples = communicationStepSize / EXPORT_H_S;
+    n_sub = llround(samples);
+    if (n_sub < 1 || fabs(samples - (double)n_sub) > 1e-6 * (samples > 1.0 ? samples : 1.0)) {
+        char detail[200];
+        snprintf(detail, sizeof detail, "fmi2DoStep: the communication step %.9g s is not a multiple of the model's "
+                 "sample period %.9g s", communicationStepSize, EXPORT_H_S);
+        return exp_fail(c, "%s", detail);
+    }
+    for (j = 0; j < n_sub; ++j) {
+        if (exp_take_sample(c) != fmi2OK) {
+            c->mode = MODE_ERROR;
+            return fmi2Error;
+        }
+    }
+    c->time_s = currentCommunicationPoint + communicationStepSize;
+    return fmi2OK;
+}
+
+FMI2_Export fmi2Status fmi2CancelStep(fmi2Component c) {
+    (void)c;
+    return fmi2Error;
+}
+
+FMI2_Export fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
+    (void)s;
+    if (!c || !value) return fmi2Error;
+    *value = fmi2OK;
+    return fmi2OK;
+}
+FMI2_Export fmi2Status fmi2GetRealStatus(fmi2Component component, const fmi2StatusKind s, fmi2Real *value) {
+    exp_instance *c = (exp_instance *)component;
+    if (!c || !value || s != fmi2LastSuccessfulTime) return fmi2Discard;
+    *value = c->time_s;
+    return fmi2OK;
+}
+FMI2_Export fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
+    (void)c;
+    (void)s;
+    (void)value;
+    return fmi2Discard;
+}
+FMI2_Export fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
+    (void)c;
+    (void)s;
+    (void)value;
+    return fmi2Discard;
+}
+FMI2_Export fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
+    (void)c;
+    (void)s;
+    (void)value;
+    return fmi2Discard;
+}

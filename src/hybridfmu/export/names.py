@@ -1,0 +1,30 @@
+"""Names of the exported models and their files (no numerical imports: the Snakefile reads them when it parses).
+
+``<results>/<case>/export/<case>_<model>.fmu``, ``<model>`` one of :data:`EXPORT_MODELS`.
+"""
+
+from __future__ import annotations
+
+import re
+
+#: The trained models a case can export, in report order: the paper's neural FMU, the FMU plus the diagnosed
+#: effects, and the hybrid (FMU + effects + ANN).
+EXPORT_MODELS = ("neural_fmu", "fmu_effects", "hybrid")
+
+#: The models the export can write today (the others are listed in the export's record as not exported).
+EXPORTABLE_MODELS = ("neural_fmu",)
+
+_NOT_IDENTIFIER = re.compile(r"[^A-Za-z0-9_]")
+
+
+def model_identifier(case: str, model: str) -> str:
+    """The exported FMU's modelIdentifier (a C identifier): ``<case>_<model>`` with other characters as ``_``."""
+    if model not in EXPORT_MODELS:
+        raise ValueError(f"export: unknown model {model!r}; expected one of {list(EXPORT_MODELS)}")
+    identifier = _NOT_IDENTIFIER.sub("_", f"{case}_{model}")
+    return identifier if not identifier[0].isdigit() else f"m_{identifier}"
+
+
+def fmu_file_name(case: str, model: str) -> str:
+    """The exported FMU's file name, ``<identifier>.fmu``."""
+    return f"{model_identifier(case, model)}.fmu"
