@@ -319,13 +319,13 @@ def test_snakemake_report(tiny_run):
 ALL_RULES = {"build_fmu", "emulate_bench", "check_bench_spread", "ingest", "select_segments", "calibrate",
              "simulate_baseline", "time_offset", "hpo_prepare", "hpo_plan", "train_rung", "select_rung",
              "select_best", "simulate_best", "evaluate", "plot", "report", "diagnose", "summary",
-             "physical_layer_rollout", "simulate_ceiling", "compare_neural_fmu"}
+             "physical_layer_rollout", "simulate_ceiling", "compare_neural_fmu", "export"}
 FROM_EMULATION = ALL_RULES - {"build_fmu"}
 FROM_INGEST = FROM_EMULATION - {"emulate_bench", "check_bench_spread"}
 FROM_CALIBRATION = FROM_INGEST - {"ingest", "select_segments", "simulate_ceiling"}  # the true plant: no calibration
 # the diagnosis never waits for a search: only the comparison with the neural FMU follows it
 FROM_SEARCH = {"hpo_plan", "train_rung", "select_rung", "select_best", "simulate_best", "evaluate", "plot",
-               "report", "summary", "physical_layer_rollout", "compare_neural_fmu"}
+               "report", "summary", "physical_layer_rollout", "compare_neural_fmu", "export"}
 FROM_SEGMENTS = {"select_segments", "hpo_prepare", "diagnose"} | FROM_SEARCH
 
 
@@ -369,7 +369,8 @@ SECTION_CHANGES = {
     "model": (_set("model", "input_delay", "scale_s", 0.0002), FROM_SEARCH | {"diagnose"}),  # its end stop
     "training": (_set("training", "batch_windows", 3), FROM_SEARCH),
     "hpo": (_set("hpo", "max_resource_s", 0.1), FROM_SEARCH),
-    "evaluation.zoom": (_set("evaluation", "zoom", "length_s", "angle", 0.8), {"evaluate", "plot", "report", "summary"}),
+    "evaluation.zoom": (_set("evaluation", "zoom", "length_s", "angle", 0.8),
+                        {"evaluate", "plot", "report", "summary", "export"}),
     "evaluation.time_offset": (_set("evaluation", "time_offset", "length_s", 0.03),
                                {"time_offset", "plot", "report", "summary"}),
     "evaluation.plot": (_set("evaluation", "plot", "dpi", 61), {"plot", "report"}),
@@ -377,12 +378,13 @@ SECTION_CHANGES = {
     # the diagnosed model is the hybrid's physical layer and a model of the evaluation
     "diagnosis": (_set("diagnosis", "selection", "bootstrap_samples", 21),
                   {"diagnose", "physical_layer_rollout", "train_rung", "select_rung", "select_best", "simulate_best",
-                   "evaluate", "plot", "report", "summary", "compare_neural_fmu"}),
+                   "evaluate", "plot", "report", "summary", "compare_neural_fmu", "export"}),
     # the final choice over whole maneuvers is no part of the plan: the search's trained rungs stay
     "hpo.selection": (_set("hpo", "searches", {"hpo": {"selection": {"maneuvers": ["train", "validation"]}}}),
                       {"score_finalist", "score_finalists", "select_best", "simulate_best", "evaluate", "plot",
-                       "report", "summary", "compare_neural_fmu"}),
+                       "report", "summary", "compare_neural_fmu", "export"}),
     "withheld": (_set("withheld", "duration_s", 5.0), set()),  # the `withheld` target only
+    "export": (_set("export", "check_maneuvers", ["validation"]), {"export"}),
     "bench": (_set("bench", "effects", "inertia_mismatch", "scale", 1.07), FROM_EMULATION),
 }
 

@@ -21,6 +21,7 @@ function is imported on first use: a rule's job loads only its own stage's modul
 | simulate_best, evaluate | ``simulate_best``, ``run_evaluation`` |
 | simulate_closed_loop | ``closed_loop_model``, ``closed_loop_settings``, ``write_closed_loop`` |
 | compare_neural_fmu, plot, report, summary | ``compare_neural_fmu``, ``draw_all``, ``write_report``, ``write_case_summary`` |
+| export | ``export_model`` |
 | robustness_seed, robustness_summary | ``run_seed``, ``seed_wall_times``, ``seed_job_counts``, ``write_summary`` |
 | (helpers the rules share) | ``case_roles``, ``read_json``, ``retry_settings``, ``tracking_uri``, ``bound_http_requests``, ``job_guard`` |
 """
@@ -63,6 +64,7 @@ STAGES: dict[str, str] = {
     "draw_all": "hybridfmu.evaluation.plots",
     "write_report": "hybridfmu.evaluation.report",
     "write_case_summary": "hybridfmu.evaluation.summary",
+    "export_model": "hybridfmu.export.stage",
     "run_seed": "hybridfmu.evaluation.robustness",
     "seed_wall_times": "hybridfmu.evaluation.robustness",
     "seed_job_counts": "hybridfmu.evaluation.robustness",

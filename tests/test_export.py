@@ -1,0 +1,110 @@
+"""The export of a trained model as an FMI 2.0 Co-Simulation FMU (hybridfmu.export), checked with FMPy alone."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from export_checks import declared, problems, replay_deviation
+from hybridfmu.export.content import neural_content
+from hybridfmu.export.package import write_exported_fmu
+from hybridfmu.fmu import FmuRhs, load_fmu
+from hybridfmu.model import NeuralFmu, NeuralFmuSpec
+from hybridfmu.model.spec import EndStop
+from hybridfmu.training.inference import simulate_neural_fmu
+
+STATES = ["i_d", "i_q", "theta", "omega"]
+INPUTS = ["d_a", "d_b", "d_c", "u_dc", "tau_load"]
+STATS = dict(x_mean=[0.0] * 4, x_std=[10.0, 10.0, 3.0, 100.0], u_mean=[0.5, 0.5, 0.5, 12.0, 0.0],
+             u_std=[0.2, 0.2, 0.2, 1.0, 0.05], xdot_mean=[0.0] * 4, xdot_std=[1e4, 1e4, 100.0, 1e3])
+
+
+def motor_inputs(time_s):
+    u = np.empty((len(time_s), 5))
+    u[:, :3] = 0.5 + 0.3 * np.sin(2 * np.pi * 40 * time_s[:, None] + np.array([0.0, 2.1, 4.2]))
+    u[:, 3] = 12.0 + 0.1 * np.sin(50 * time_s)
+    u[:, 4] = 0.05 + 0.02 * np.cos(30 * time_s)
+    return u
+
+
+def random_neural_fmu(fmu, delays_s, solver="rk4", end_stop=(0.0, 60.0)):
+    spec = NeuralFmuSpec(state_names=STATES, input_names=INPUTS, corrected_states=["omega"], ann_states=STATES,
+                         ann_inputs=INPUTS, ann_derivatives=STATES, sample_period_s=1e-4, width=6, depth=2,
+                         gate_opening=0.3, ann_output_init="random", delay_min_s=-3e-4, delay_max_s=3e-4,
+                         delay_init_s=delays_s,
+                         delay_groups={"duties": ["d_a", "d_b", "d_c"], "supply": ["u_dc"], "load": ["tau_load"]},
+                         solver=solver, end_stop=EndStop("theta", "omega", *end_stop) if end_stop else None)
+    torch.manual_seed(1)
+    return NeuralFmu(FmuRhs(fmu), spec, STATS).double().eval()
+
+
+@pytest.mark.parametrize("delays_s, solver, end_stop", [
+    ({"duties": 2.7e-5, "supply": -1.3e-4, "load": 1.7e-4}, "rk4", (0.0, 60.0)),
+    ({"duties": -2.5e-4, "supply": 0.0, "load": 2.9e-4}, "euler", None),
+    # the rotor runs into its end stop at 5.02 rad (the exported step clamps as the workflow's does)
+    ({"duties": 1e-6, "supply": 5e-5, "load": -5e-5}, "rk4", (4.9, 5.02)),
+])
+def test_an_exported_neural_fmu_replays_the_workflow_open_loop(ipbmotor_fmu, tmp_path, delays_s, solver, end_stop):
+    parameters = {"R": 0.031, "J": 2.1e-4}
+    time_s = np.arange(0.0, 0.15, 1e-4)
+    u = motor_inputs(time_s)
+    with load_fmu(ipbmotor_fmu, parameters=parameters) as fmu:
+        model = random_neural_fmu(fmu, delays_s, solver, end_stop)
+        x0 = np.array(fmu.initial_states) + [0.0, 0.0, 4.95, 0.0]
+        reference = simulate_neural_fmu(model, time_s, u, x0)
+        content = neural_content(model, str(ipbmotor_fmu), parameters)
+    if end_stop == (4.9, 5.02):
+        assert np.any(reference[:, 2] == 5.02)  # the end stop is reached
+    fmu_out = write_exported_fmu(content, "motor_neural_fmu", ipbmotor_fmu, tmp_path / "motor_neural_fmu.fmu",
+                                 {"case": "motor", "commit": "0" * 40}, "0.1.0")
+    assert problems(fmu_out) == []
+    info = declared(fmu_out)
+    assert info["co_simulation"] and info["inputs"] == INPUTS and info["outputs"] == STATES
+    assert info["output_delay_s"] == pytest.approx(content.delays.lookahead * 1e-4)
+    assert info["provenance"]["case"] == "motor"
+    assert "resources/IPBMotor.fmu" in info["files"] and "sources/cs_wrapper.c" in info["files"]
+    deviation = replay_deviation(fmu_out, time_s, u, reference)
+    assert np.all(deviation <= 1e-9), deviation
+
+
+def test_a_replay_off_by_more_than_the_tolerance_is_caught(ipbmotor_fmu, tmp_path):
+    """The check is no formality: the same FMU against a trajectory 1e-4 of the range off fails it."""
+    from hybridfmu.export.replay import replay
+
+    time_s = np.arange(0.0, 0.05, 1e-4)
+    u = motor_inputs(time_s)
+    with load_fmu(ipbmotor_fmu) as fmu:
+        model = random_neural_fmu(fmu, {"duties": 2e-5, "supply": 0.0, "load": 0.0})
+        x0 = np.array(fmu.initial_states)
+        reference = simulate_neural_fmu(model, time_s, u, x0)
+        content = neural_content(model, str(ipbmotor_fmu), {})
+    fmu_out = write_exported_fmu(content, "motor_neural_fmu", ipbmotor_fmu, tmp_path / "m.fmu", {}, "0.1.0")
+    good = replay(fmu_out, "test", time_s, u, INPUTS, reference, STATES, content.delays.lookahead)
+    assert good.ok and max(good.deviation.values()) < 1e-9 and good.problems == []
+    off = reference.copy()
+    off[1:, 3] += 1e-4 * np.ptp(reference[:, 3])
+    bad = replay(fmu_out, "test", time_s, u, INPUTS, off, STATES, content.delays.lookahead)
+    assert not bad.ok and bad.deviation["omega"] == pytest.approx(1e-4, rel=0.05)
+
+
+def test_the_exported_fmu_refuses_a_communication_step_off_the_sample_grid(ipbmotor_fmu, tmp_path):
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    with load_fmu(ipbmotor_fmu) as fmu:
+        content = neural_content(random_neural_fmu(fmu, {"duties": 0.0, "supply": 0.0, "load": 0.0}),
+                                 str(ipbmotor_fmu), {})
+    fmu_out = write_exported_fmu(content, "motor_neural_fmu", ipbmotor_fmu, tmp_path / "m.fmu", {}, "0.1.0")
+    description = read_model_description(str(fmu_out))
+    slave = FMU2Slave(guid=description.guid, unzipDirectory=extract(str(fmu_out), unzipdir=str(tmp_path / "x")),
+                      modelIdentifier=description.coSimulation.modelIdentifier)
+    slave.instantiate()
+    slave.setupExperiment(startTime=0.0)
+    slave.enterInitializationMode()
+    slave.exitInitializationMode()
+    slave.doStep(0.0, 1e-3)  # a multiple of the sample period
+    with pytest.raises(Exception, match="fmi2DoStep"):
+        slave.doStep(1e-3, 1.5e-4)
+    slave.terminate()
+    slave.freeInstance()
