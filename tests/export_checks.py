@@ -31,8 +31,10 @@ def declared(fmu: Path) -> dict:
             "co_simulation": description.coSimulation is not None, "files": names}
 
 
-def replay_deviation(fmu: Path, time_s: np.ndarray, u: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """(n_x,) largest |output - reference| / range of the reference, over the samples both cover."""
+def replay_deviation(fmu: Path, time_s: np.ndarray, u: np.ndarray, reference: np.ndarray,
+                     parameters: dict[str, float] | None = None) -> np.ndarray:
+    """(n_x,) largest |output - reference| / range of the reference, over the samples both cover; ``parameters``:
+    further start values (e.g. an effect coefficient)."""
     info = declared(fmu)
     step = float(time_s[1] - time_s[0])
     lag = int(round(info["output_delay_s"] / step))
@@ -42,8 +44,8 @@ def replay_deviation(fmu: Path, time_s: np.ndarray, u: np.ndarray, reference: np
         signals[name] = u[:, column]
     result = simulate_fmu(str(fmu), start_time=0.0, stop_time=float(time_s[-1] - time_s[0]), step_size=step,
                           output_interval=step, input=signals, output=info["outputs"],
-                          start_values={f"{name}_start": float(value) for name, value in
-                                        zip(info["outputs"], reference[0])})
+                          start_values={**{f"{name}_start": float(value) for name, value in
+                                           zip(info["outputs"], reference[0])}, **(parameters or {})})
     outputs = np.stack([result[name] for name in info["outputs"]], axis=1)[:len(time_s)]
     compared = len(time_s) - lag
     spread = np.ptp(reference[:compared], axis=0)

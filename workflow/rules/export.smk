@@ -29,6 +29,7 @@ if EXPORT_CHECK_MANEUVERS:
             trajectories=expand(f"{RESULTS}/evaluation/trajectories/{{maneuver}}.parquet",
                                 maneuver=EXPORT_CHECK_MANEUVERS),
             run=f"{RESULTS}/evaluation/mlflow_run.json",
+            diagnosed=lambda wildcards: [DIAGNOSED_MODEL] if wildcards.model == "hybrid" else [],
         output:
             fmu=f"{EXPORT_DIR}/{fmu_file_name(CASE, 'MODEL').replace('MODEL', '{model}')}",
             record=f"{EXPORT_DIR}/{{model}}.json",

@@ -20,4 +20,5 @@ export_model(
     fmu_out=snakemake.output.fmu,
     record_out=snakemake.output.record,
     run_path=snakemake.input.run,
+    diagnosed_path=snakemake.input.diagnosed[0] if snakemake.input.diagnosed else None,
 )

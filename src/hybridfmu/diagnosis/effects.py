@@ -314,7 +314,8 @@ def parameter_response(model: Any, x: np.ndarray, u: np.ndarray, parameter: str,
 
 def make_input_change(input_index: int | list[int], *, gain: float = 0.0, offset: float = 0.0,
                       shift_s: float = 0.0, lag_s: float = 0.0,
-                      transform: Callable[[np.ndarray, float], np.ndarray] | None = None) -> dict[str, Any]:
+                      transform: Callable[[np.ndarray, float], np.ndarray] | None = None,
+                      form: tuple[str, float, float] | None = None) -> dict[str, Any]:
     """A change of logged input(s) for :meth:`Effect.input_change`.
 
     Args:
@@ -326,9 +327,22 @@ def make_input_change(input_index: int | list[int], *, gain: float = 0.0, offset
             input, like a sensor; T < 0: the plant sees a lagged version, like a slow actuator).
         transform: a change h of the input's samples, ``h(values (N,), dt_s) -> (N,)`` (a static
             nonlinearity such as a dead zone or a saturation, or a dynamic one such as a slow actuator), or None.
+        form: what ``transform`` computes, as ``(kind, a, b)`` with one of the kinds of
+            :data:`TRANSFORM_FORMS` (an exported model evaluates it in C); None: a transform without one.
     """
+    if form is not None and form[0] not in TRANSFORM_FORMS:
+        raise ValueError(f"make_input_change: form {form[0]!r}: expected one of {sorted(TRANSFORM_FORMS)}")
     return {"input": input_index, "gain": float(gain), "offset": float(offset), "shift_s": float(shift_s),
-            "lag_s": float(lag_s), "transform": transform}
+            "lag_s": float(lag_s), "transform": transform,
+            "form": None if form is None else (str(form[0]), float(form[1]), float(form[2]))}
+
+
+#: The transforms of an input change that have a stated form (``make_input_change(form=(kind, a, b))``), with
+#: what they make of the samples v of one input (dt: the sampling interval):
+#: ``shift_mix`` v + a (shift_samples(v, b, dt) - v); ``actuator_lag`` v + a (first_order_lag(v, b, dt) - v);
+#: ``deadzone`` v - a clip(v, -b, b); ``saturation_above`` v + a (-max(v - b, 0));
+#: ``saturation_below`` v + a max(b - v, 0).
+TRANSFORM_FORMS = ("shift_mix", "actuator_lag", "deadzone", "saturation_above", "saturation_below")
 
 
 def smooth_sign(value: np.ndarray, scale: float) -> np.ndarray:

@@ -734,7 +734,8 @@ class TimeOffset(InputEffect):
         scaled difference is what the data asked for, not a shift by c s)."""
         c, shift = float(coef[0]), float(setting["shift_s"])
         return make_input_change(self.columns if len(self.columns) > 1 else self.columns[0],
-                                 transform=lambda v, dt_s: v + c * (shift_samples(v, shift, dt_s) - v))
+                                 transform=lambda v, dt_s: v + c * (shift_samples(v, shift, dt_s) - v),
+                                 form=("shift_mix", c, shift))
 
 
 def time_offset_all(problem, equation, max_offset_s):
@@ -808,7 +809,8 @@ class InputLag(InputEffect):
         tau = float(setting.get("actuator_lag_s", 0.0))
         if tau > 0:
             c = float(coef[0])
-            return make_input_change(self.input, transform=lambda v, dt_s: v + c * (first_order_lag(v, tau, dt_s) - v))
+            return make_input_change(self.input, transform=lambda v, dt_s: v + c * (first_order_lag(v, tau, dt_s) - v),
+                                     form=("actuator_lag", c, tau))
         return make_input_change(self.input, lag_s=float(coef[0]))
 
 
@@ -866,7 +868,7 @@ class InputDeadzone(InputEffect):
 
     def input_change(self, coef, setting):
         c, d = float(coef[0]), float(setting["half_width"])
-        return make_input_change(self.input, transform=lambda v, dt_s: v - c * np.clip(v, -d, d))
+        return make_input_change(self.input, transform=lambda v, dt_s: v - c * np.clip(v, -d, d), form=("deadzone", c, d))
 
 
 class InputSaturation(InputEffect):
@@ -921,7 +923,8 @@ class InputSaturation(InputEffect):
 
     def input_change(self, coef, setting):
         c, level = float(coef[0]), float(setting["level"])
-        return make_input_change(self.input, transform=lambda v, dt_s: v + c * self._change(v, level))
+        return make_input_change(self.input, transform=lambda v, dt_s: v + c * self._change(v, level),
+                                 form=(f"saturation_{self.side}", c, level))
 
 
 # ----------------------------------------------------------------------------- parameters

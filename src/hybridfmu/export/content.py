@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from hybridfmu.export.input_stages import InputStage, column_lookahead
+
 
 @dataclass(frozen=True)
 class InnerFmu:
@@ -77,6 +79,8 @@ class ExportContent:
             layout); w_u: (n_u, H_0) the first layer's input weights; b_first: (H_0,) its bias (pre-processing
             folded in).
         delays: the learned input delays. end_stop: (position index, rate index, lower, upper) or None.
+        input_stages: the diagnosed changes of the logged inputs (:mod:`hybridfmu.export.input_stages`), before
+            the delays read them; empty for none.
         x_start: (n_x,) default start values of the states.
         effect_code, effect_reals: an effect program added to the FMU's derivatives (``effects.c``), empty for none;
         coefficient_names, coefficient_index: the program's tunable coefficients and their places in
@@ -100,11 +104,23 @@ class ExportContent:
     effect_sets_inputs: bool = False
     coefficient_names: tuple[str, ...] = ()
     coefficient_index: tuple[int, ...] = ()
+    input_stages: tuple[InputStage, ...] = ()
+
+    @property
+    def input_lookahead(self) -> int:
+        """Samples the input stages read ahead (the input with the most): the inputs as the model sees them are
+        known that many samples after the logged ones."""
+        return max((column_lookahead(self.input_stages, c) for c in range(len(self.inner.input_names))), default=0)
+
+    @property
+    def lookahead(self) -> int:
+        """The lag of the exported FMU's outputs behind the model, in samples: the input stages' and the delays'."""
+        return self.input_lookahead + self.delays.lookahead
 
     @property
     def output_delay_s(self) -> float:
         """The lag of the exported FMU's outputs behind the model (s)."""
-        return self.delays.lookahead * self.sample_period_s
+        return self.lookahead * self.sample_period_s
 
 
 def inner_fmu(fmu_path: str, parameters: dict[str, float] | None) -> InnerFmu:
@@ -167,39 +183,127 @@ def delayed_inputs(model: Any) -> DelayedInputs:
     return DelayedInputs(firsts[0.0], fractions[0.0], firsts[0.5], fractions[0.5], model.delay_s())
 
 
+def _fused_weights(model: Any) -> tuple[Any, np.ndarray, np.ndarray]:
+    """A neural FMU's fused ANN: (``NeuralWeights``, w_u (n_u, H_0), b_first (H_0,))."""
+    from hybridfmu.fmu.neural import NeuralWeights
+
+    fused = model.fused()
+    as_np = lambda tensor: tensor.detach().numpy().astype(np.float64)  # noqa: E731
+    weights = NeuralWeights.from_arrays(as_np(fused.w_xd_t), [(as_np(w), as_np(b)) for w, b in fused.hidden],
+                                        as_np(fused.w_out), as_np(fused.b_out), as_np(fused.g_fmu))
+    return weights, np.ascontiguousarray(as_np(fused.w_u_t)), np.ascontiguousarray(as_np(fused.b_first))
+
+
+def _end_stop(spec: Any) -> tuple[int, int, float, float] | None:
+    if spec.end_stop is None:
+        return None
+    return (spec.state_names.index(spec.end_stop.state), spec.state_names.index(spec.end_stop.rate_state),
+            float(spec.end_stop.min), float(spec.end_stop.max))
+
+
+def _checked_inner(model: Any, fmu_path: str, parameters: dict[str, float] | None) -> InnerFmu:
+    spec = model.spec
+    inner = inner_fmu(fmu_path, parameters)
+    if list(inner.state_names) != list(spec.state_names) or list(inner.input_names) != list(spec.input_names):
+        raise ValueError(f"{fmu_path}: FMU states {list(inner.state_names)} / inputs {list(inner.input_names)} differ "
+                         f"from the trained model's {spec.state_names} / {spec.input_names}")
+    return inner
+
+
+def _start_states(fmu_path: str, parameters: dict[str, float] | None) -> np.ndarray:
+    from hybridfmu.fmu import load_fmu
+
+    with load_fmu(fmu_path, parameters=parameters or None) as fmu:
+        return np.array(fmu.initial_states, dtype=np.float64)
+
+
 def neural_content(model: Any, fmu_path: str, parameters: dict[str, float] | None, model_kind: str = "neural_fmu",
                    description: str = "") -> ExportContent:
     """The export of a trained neural FMU ``model`` around the FMU at ``fmu_path`` with the calibrated
     ``parameters``.
 
     Raises:
-        ValueError: the model's states or inputs differ from the FMU's, or it is a hybrid (its physical layer is
-            exported by the hybrid's own path).
+        ValueError: the model's states or inputs differ from the FMU's, or it is a hybrid (:func:`hybrid_content`).
     """
-    from hybridfmu.fmu import load_fmu
-    from hybridfmu.fmu.neural import NeuralWeights
-
     spec = model.spec
     if spec.physics_effects is not None:
-        raise ValueError("export: a hybrid's physical layer (diagnosed effects and input changes) has no export yet; "
-                         "neural_content exports the paper's neural FMU")
-    inner = inner_fmu(fmu_path, parameters)
-    if list(inner.state_names) != list(spec.state_names) or list(inner.input_names) != list(spec.input_names):
-        raise ValueError(f"{fmu_path}: FMU states {list(inner.state_names)} / inputs {list(inner.input_names)} differ "
-                         f"from the trained model's {spec.state_names} / {spec.input_names}")
-    fused = model.fused()
-    as_np = lambda tensor: tensor.detach().numpy().astype(np.float64)  # noqa: E731
-    weights = NeuralWeights.from_arrays(as_np(fused.w_xd_t), [(as_np(w), as_np(b)) for w, b in fused.hidden],
-                                        as_np(fused.w_out), as_np(fused.b_out), as_np(fused.g_fmu))
-    end_stop = None
-    if spec.end_stop is not None:
-        end_stop = (spec.state_names.index(spec.end_stop.state), spec.state_names.index(spec.end_stop.rate_state),
-                    float(spec.end_stop.min), float(spec.end_stop.max))
-    with load_fmu(fmu_path, parameters=parameters or None) as fmu:
-        x_start = np.array(fmu.initial_states, dtype=np.float64)
+        raise ValueError("export: the model is a hybrid (its spec names physics_effects); export it with "
+                         "hybrid_content, which carries its physical layer")
+    inner = _checked_inner(model, fmu_path, parameters)
+    weights, w_u, b_first = _fused_weights(model)
     return ExportContent(
         model=model_kind, description=description or "neural FMU: the FMU under an ANN that corrects "
         f"{', '.join(spec.corrected_states)}", inner=inner, sample_period_s=float(spec.sample_period_s),
-        solver=spec.solver, widths=weights.widths, params=weights.params, w_u=np.ascontiguousarray(as_np(fused.w_u_t)),
-        b_first=np.ascontiguousarray(as_np(fused.b_first)), delays=delayed_inputs(model), end_stop=end_stop,
-        x_start=x_start)
+        solver=spec.solver, widths=weights.widths, params=weights.params, w_u=w_u, b_first=b_first,
+        delays=delayed_inputs(model), end_stop=_end_stop(spec), x_start=_start_states(fmu_path, parameters))
+
+
+def _coefficient_places(corrected: Any, coefficients: np.ndarray, reals: np.ndarray) -> list[int]:
+    """Per additive coefficient, its place in the effect program's reals: the one real that takes a new value of
+    it unchanged (found by setting each coefficient to a marker in turn); -1 where no single real does."""
+    arrays = [array for _, array in corrected.row_coefficients]
+    places = []
+    flat = [(array, i) for array in arrays for i in range(array.size)]
+    for array, i in flat:
+        original = float(array[i])
+        marker = original * 1.375 + 0.0625 if original != 0 else 0.0625
+        array[i] = marker
+        try:
+            changed = np.asarray(corrected.effect_program().reals, dtype=float)
+        finally:
+            array[i] = original
+        moved = np.flatnonzero(changed != reals)
+        places.append(int(moved[0]) if moved.size == 1 and changed[moved[0]] == marker else -1)
+    return places
+
+
+def hybrid_content(model: Any, fmu_path: str, parameters: dict[str, float] | None,
+                   description: str = "") -> ExportContent:
+    """The export of a trained hybrid ``model`` (FMU + diagnosed effects + ANN) around the FMU at ``fmu_path``
+    with the calibrated ``parameters``: its physical layer's parameters on top of them, its additive effect terms
+    as an effect program (their trained coefficients tunable), its input changes as input stages.
+
+    Raises:
+        ValueError: not a hybrid; an effect term or input change without a C form (naming it); a hybrid that is
+            its physical layer (its evaluation simulates the FMU + effects with the FMU's events, which the export
+            does not reproduce yet).
+    """
+    from hybridfmu.diagnosis.derivatives import odd_window
+    from hybridfmu.diagnosis.effects import DEFAULT_LAG_DERIVATIVE_SAMPLES
+    from hybridfmu.export.input_stages import input_stages
+    from hybridfmu.training.inference import is_its_physical_layer, physical_layer
+
+    spec = model.spec
+    physics = physical_layer(model)
+    if spec.physics_effects is None or physics is None:
+        raise ValueError("export: hybrid_content needs a hybrid (a neural FMU around the FMU + diagnosed effects)")
+    if is_its_physical_layer(model):
+        raise ValueError("export: this hybrid is its physical layer (ANN at zero), which the evaluation simulates as "
+                         "the FMU + diagnosed effects with the FMU's events; that model has no export yet")
+    model.fmu.apply_coefficients()  # the trained coefficients onto the physical layer
+    corrected = physics.corrected
+    program = corrected.effect_program() if corrected.has_correction else None
+    if corrected.has_correction and program is None:
+        raise ValueError(f"export: a term of the hybrid's physical layer ({', '.join(physics.effects)}) has no C form "
+                         "(hybridfmu.fmu.effect_program); it cannot be exported")
+    all_parameters = {**dict(parameters or {}), **physics.parameters}
+    inner = _checked_inner(model, fmu_path, all_parameters)
+    weights, w_u, b_first = _fused_weights(model)
+    h = float(spec.sample_period_s)
+    window = (DEFAULT_LAG_DERIVATIVE_SAMPLES if corrected.lag_window_s is None
+              else odd_window(float(corrected.lag_window_s), h, minimum=3))
+    stages = input_stages(corrected.input_changes, list(spec.input_names), h, window)
+    code, reals, names, places = (), (), (), ()
+    if program is not None:
+        code, reals = tuple(int(c) for c in program.code), tuple(float(r) for r in program.reals)
+        found = _coefficient_places(corrected, physics.coefficients, np.asarray(reals))
+        pairs = [(name, place) for name, place in zip(physics.coefficient_names, found) if place >= 0]
+        names, places = tuple(name for name, _ in pairs), tuple(place for _, place in pairs)
+    return ExportContent(
+        model="hybrid", description=description or "hybrid: the FMU plus the diagnosed effects "
+        f"({', '.join(physics.effects)}) under an ANN that corrects {', '.join(spec.corrected_states)}",
+        inner=inner, sample_period_s=h, solver=spec.solver, widths=weights.widths, params=weights.params, w_u=w_u,
+        b_first=b_first, delays=delayed_inputs(model), end_stop=_end_stop(spec),
+        x_start=_start_states(fmu_path, all_parameters), effect_code=code, effect_reals=reals,
+        effect_sets_inputs=bool(program is not None and program.evaluates_model), coefficient_names=names,
+        coefficient_index=places, input_stages=tuple(stages))

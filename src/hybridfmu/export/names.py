@@ -12,7 +12,7 @@ import re
 EXPORT_MODELS = ("neural_fmu", "fmu_effects", "hybrid")
 
 #: The models the export can write today (the others are listed in the export's record as not exported).
-EXPORTABLE_MODELS = ("neural_fmu",)
+EXPORTABLE_MODELS = ("neural_fmu", "hybrid")
 
 _NOT_IDENTIFIER = re.compile(r"[^A-Za-z0-9_]")
 

@@ -19,7 +19,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from hybridfmu.export.content import ExportContent, neural_content
+from hybridfmu.export.content import ExportContent, hybrid_content, neural_content
 from hybridfmu.export.names import EXPORTABLE_MODELS, model_identifier
 from hybridfmu.export.package import write_exported_fmu
 from hybridfmu.export.replay import REPLAY_TOLERANCE, replay
@@ -38,12 +38,14 @@ def config_digest(config: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
-def model_content(model: str, best_path: str | Path, fmu_path: str | Path,
-                  calibration_path: str | Path) -> ExportContent:
-    """What the exported FMU of ``model`` carries, from the search's ``best.json`` and the calibration.
+def model_content(model: str, best_path: str | Path, fmu_path: str | Path, calibration_path: str | Path,
+                  diagnosed_path: str | Path | None = None) -> ExportContent:
+    """What the exported FMU of ``model`` carries, from the search's ``best.json``, the calibration and (a hybrid)
+    the diagnosed model.
 
     Raises:
-        ValueError: a model the export cannot write yet (``hybridfmu.export.names.EXPORTABLE_MODELS``).
+        ValueError: a model the export cannot write (``hybridfmu.export.names.EXPORTABLE_MODELS``), or a hybrid
+            without the diagnosed model.
     """
     from hybridfmu.training.inference import load_trained_neural_fmu
     from hybridfmu.training.measured import load_calibration
@@ -51,7 +53,9 @@ def model_content(model: str, best_path: str | Path, fmu_path: str | Path,
     if model not in EXPORTABLE_MODELS:
         raise ValueError(f"export: model {model!r} cannot be exported yet; the export writes {list(EXPORTABLE_MODELS)}")
     parameters = dict(load_calibration(calibration_path).parameters)
-    trained = load_trained_neural_fmu(best_path, fmu_path, parameters or None)
+    trained = load_trained_neural_fmu(best_path, fmu_path, parameters or None, diagnosed_path)
+    if model == "hybrid":
+        return hybrid_content(trained, str(fmu_path), parameters)
     return neural_content(trained, str(fmu_path), parameters, model_kind=model)
 
 
@@ -71,11 +75,11 @@ def _reference(trajectory_path: str | Path, model: str, state_names: Sequence[st
 def export_model(model: str, case: str, config: dict[str, Any], best_path: str | Path, fmu_path: str | Path,
                  calibration_path: str | Path, check_maneuvers: Sequence[str], data_paths: Sequence[str | Path],
                  trajectory_paths: Sequence[str | Path], roles: Any, fmu_out: str | Path, record_out: str | Path,
-                 run_path: str | Path | None = None, mlflow_run_id: str | None = None) -> dict[str, Any]:
+                 run_path: str | Path | None = None, diagnosed_path: str | Path | None = None) -> dict[str, Any]:
     """Export ``model`` of ``case`` and check it (module docstring).
 
     Args:
-        model: ``neural_fmu`` (see :data:`hybridfmu.export.names.EXPORTABLE_MODELS`).
+        model: ``neural_fmu`` or ``hybrid`` (:data:`hybridfmu.export.names.EXPORTABLE_MODELS`).
         case, config: the case's name and its validated config (for the provenance's digest).
         best_path, fmu_path, calibration_path: the search's ``best.json``, the case's FMU, ``calibration.json``.
         check_maneuvers, data_paths, trajectory_paths: the maneuvers replayed, their ingested data and the
@@ -83,7 +87,7 @@ def export_model(model: str, case: str, config: dict[str, Any], best_path: str |
         roles: the case's roles (``hybridfmu.data.roles.CaseRoles``).
         fmu_out, record_out: the FMU and the JSON record to write.
         run_path: the evaluation's ``mlflow_run.json`` (the FMU becomes an artifact of that run), or None.
-        mlflow_run_id: the training run of the model (for the provenance), or None.
+        diagnosed_path: the diagnosed model (``diagnosis/diagnosed_model.pkl``; a hybrid's physical layer).
 
     Returns:
         The record written to ``record_out``.
@@ -98,13 +102,14 @@ def export_model(model: str, case: str, config: dict[str, Any], best_path: str |
     if not (len(check_maneuvers) == len(data_paths) == len(trajectory_paths)):
         raise ValueError(f"export: {len(check_maneuvers)} check maneuvers, {len(data_paths)} data files and "
                          f"{len(trajectory_paths)} trajectories")
-    content = model_content(model, best_path, fmu_path, calibration_path)
+    content = model_content(model, best_path, fmu_path, calibration_path, diagnosed_path)
+    best = read_json(best_path)
     identifier = model_identifier(case, model)
     code = code_version()
     provenance = {"project": "hybridfmu", "version": __version__, "commit": code.get("commit"),
                   "modified": code.get("modified"), "case": case, "model": model,
-                  "config_digest": config_digest(config), "mlflow_run_id": mlflow_run_id,
-                  "trial": read_json(best_path).get("trial_id")}
+                  "config_digest": config_digest(config), "mlflow_run_id": best.get("mlflow_run_id"),
+                  "trial": best.get("trial_id")}
     fmu_out, record_out = Path(fmu_out), Path(record_out)
     with atomic_path(fmu_out, suffix=".fmu") as tmp_fmu:
         write_exported_fmu(content, identifier, fmu_path, tmp_fmu, provenance, __version__)
@@ -117,7 +122,7 @@ def export_model(model: str, case: str, config: dict[str, Any], best_path: str |
                 raise ValueError(f"{trajectory_path}: its time grid differs from {data_path}'s; rerun simulate_best")
             LOG.info("%s: replaying %s (%d samples) with FMPy ...", identifier, maneuver, time_s.size)
             result = replay(tmp_fmu, maneuver, time_s, measured.u, list(content.inner.input_names), reference,
-                            state_names, content.delays.lookahead)
+                            state_names, content.lookahead)
             LOG.info("%s: %s replayed in %.1f s wall time, largest deviation %.3g of a state's range (%s)",
                      identifier, maneuver, result.wall_s, max(result.deviation.values()),
                      "ok" if result.ok else f"above the tolerance {REPLAY_TOLERANCE:g}")

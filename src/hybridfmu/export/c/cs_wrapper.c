@@ -10,10 +10,12 @@
  *     with the learned input delays read from an input history by linear interpolation at the positions the
  *     workflow uses, and the first layer's input term z = u W_u + b computed here;
  *   - an effect program (effects.c) added to the FMU's derivatives where the model has one (a hybrid's
- *     physical layer).
+ *     physical layer), and the diagnosed changes of the logged inputs as stages applied to each new sample
+ *     (time shifts, lags, dead zones, saturations, gains, offsets: hybridfmu/export/input_stages.py), before the
+ *     delays read them.
  *
- * A step k of the model reads inputs up to sample k + EXPORT_LOOKAHEAD (the delays interpolate towards later
- * samples, RK4's last stage reads sample k + 1). A co-simulation master gives the FMU no future input, so the
+ * A step k of the model reads inputs up to sample k + EXPORT_LOOKAHEAD (the input stages and the delays
+ * interpolate towards later samples, RK4's last stage reads sample k + 1). A co-simulation master gives the FMU no future input, so the
  * FMU integrates step k once it has received sample k + EXPORT_LOOKAHEAD: its outputs lag the model by
  * EXPORT_LOOKAHEAD samples (the constant output_delay_s). Samples before the first are the first sample (the
  * workflow holds a record's first input before its start).
@@ -46,8 +48,10 @@
 #define VR_END ((unsigned)(EXPORT_NU + 2 * EXPORT_NX + 1 + EXPORT_N_COEFFICIENTS))
 
 /* The input history keeps the samples a step can read: EXPORT_LOOKBACK before the step and EXPORT_LOOKAHEAD
-   after it. */
+   after it; each input stage's ring the samples the next stage reads. */
 #define RING (EXPORT_LOOKAHEAD + EXPORT_LOOKBACK + 4)
+#define STAGE_RING (EXPORT_STAGE_REACH + 4)
+#define N_SEQUENCES (EXPORT_NU + EXPORT_N_STAGES > 0 ? EXPORT_NU + EXPORT_N_STAGES : 1)
 
 typedef enum { MODE_INSTANTIATED, MODE_INITIALIZATION, MODE_STEPPING, MODE_TERMINATED, MODE_ERROR } exp_mode;
 
@@ -89,8 +93,13 @@ typedef struct {
     double coefficients[EXPORT_N_COEFFICIENTS > 0 ? EXPORT_N_COEFFICIENTS : 1];
     double effect_reals[EXPORT_N_EFFECT_REALS > 0 ? EXPORT_N_EFFECT_REALS : 1];
     double first_sample[EXPORT_NU > 0 ? EXPORT_NU : 1];
-    double history[RING][EXPORT_NU > 0 ? EXPORT_NU : 1];
-    long long n_samples; /* samples received */
+    double history[RING][EXPORT_NU > 0 ? EXPORT_NU : 1]; /* the inputs as the model sees them (after the stages) */
+    /* the input stages: sequence c < NU is input c as logged, sequence NU + s the output of stage s */
+    double sequence[N_SEQUENCES][STAGE_RING];
+    double sequence_first[N_SEQUENCES];
+    double lag_state[EXPORT_N_STAGES > 0 ? EXPORT_N_STAGES : 1][2]; /* actuator_lag: the filter's output, input */
+    long long n_raw;     /* logged samples received */
+    long long n_samples; /* samples of the inputs as the model sees them */
     long long n_steps;   /* model steps done: x is the state at sample n_steps */
     /* one step's buffers (hf_neural_rollout with batch 1) */
     double u_grid[2][EXPORT_NU > 0 ? EXPORT_NU : 1];
@@ -271,6 +280,7 @@ static void exp_defaults(exp_instance *c) {
 #if EXPORT_N_COEFFICIENTS > 0
     memcpy(c->coefficients, export_coefficient_start, sizeof c->coefficients);
 #endif
+    c->n_raw = 0;
     c->n_samples = 0;
     c->n_steps = 0;
     c->time_s = 0.0;
@@ -350,14 +360,94 @@ static fmi2Status exp_step(exp_instance *c, long long k) {
     return fmi2OK;
 }
 
-/* Receive the current inputs as the next sample, then do the step that sample completes. */
-static fmi2Status exp_take_sample(exp_instance *c) {
+/* Sample i of sequence q (i < 0: its first sample). */
+static double exp_sequence_value(const exp_instance *c, int q, long long i) {
+    if (i <= 0) return c->sequence_first[q];
+    return c->sequence[q][i % STAGE_RING];
+}
+
+static void exp_sequence_store(exp_instance *c, int q, long long i, double value) {
+    if (i == 0) c->sequence_first[q] = value;
+    c->sequence[q][i % STAGE_RING] = value;
+}
+
+/* v at the fractional index i + offset, as hybridfmu.diagnosis.effects.shift_samples interpolates it: lower =
+   max(floor(i + offset), 0), upper = lower + 1, weight = the index's fraction. */
+static double exp_shifted(const exp_instance *c, int q, long long i, double offset) {
+    const double index = (double)i + offset, base = floor(index), frac = index - base;
+    const long long lower = base < 0.0 ? 0 : (long long)base;
+    return (1.0 - frac) * exp_sequence_value(c, q, lower) + frac * exp_sequence_value(c, q, lower + 1);
+}
+
+/* Output i of input stage s, reading sequence q (its input). */
+static double exp_stage_value(exp_instance *c, int s, int q, long long i) {
+    const double *r = export_stage_reals[s];
+    const double v = exp_sequence_value(c, q, i);
+    switch (export_stage_kind[s]) {
+    case 1: /* shift */
+        return exp_shifted(c, q, i, r[0]);
+    case 2: /* shift_mix */
+        return v + r[0] * (exp_shifted(c, q, i, r[1]) - v);
+    case 3: { /* actuator_lag: z[0] = v[0], z[i] = (1 - a) v[i-1] + a z[i-1] (scipy's lfilter with zi = v[0]) */
+        double z;
+        if (i == 0) z = v;
+        else z = r[3] * c->lag_state[s][1] - (-r[1]) * c->lag_state[s][0];
+        c->lag_state[s][0] = z;
+        c->lag_state[s][1] = v;
+        return v + r[0] * ((v + (z - v) * r[2] * r[3]) - v);
+    }
+    case 4: /* lag */
+        return v + r[0] * ((exp_sequence_value(c, q, i + 1) - v) / r[1]);
+    case 5: /* deadzone */
+        return v - r[0] * fmin(fmax(v, -r[1]), r[1]);
+    case 6: /* saturation_above */
+        return v + r[0] * -fmax(v - r[1], 0.0);
+    case 7: /* saturation_below */
+        return v + r[0] * fmax(r[1] - v, 0.0);
+    case 8: /* gain */
+        return (1.0 + r[0]) * v;
+    case 9: /* offset */
+        return v + r[0];
+    default:
+        return NAN;
+    }
+}
+
+/* Step k of the model, once the inputs as the model sees them reach sample k + EXPORT_LOOKAHEAD. */
+static fmi2Status exp_take_model_sample(exp_instance *c, const double *u) {
     const long long n = c->n_samples;
-    if (n == 0) memcpy(c->first_sample, c->u_now, sizeof c->first_sample);
-    memcpy(c->history[n % RING], c->u_now, sizeof c->history[0]);
+    if (n == 0) memcpy(c->first_sample, u, sizeof c->first_sample);
+    memcpy(c->history[n % RING], u, sizeof c->history[0]);
     c->n_samples = n + 1;
     if (n - EXPORT_LOOKAHEAD >= 0) return exp_step(c, n - EXPORT_LOOKAHEAD);
     return fmi2OK;
+}
+
+/* Receive the current inputs as the next logged sample: run it through the input stages (each stage computes
+   its sample as soon as the samples it reads ahead have arrived) and pass the inputs as the model sees them on,
+   EXPORT_INPUT_LOOKAHEAD samples later. */
+static fmi2Status exp_take_sample(exp_instance *c) {
+    const long long n = c->n_raw;
+    double u[EXPORT_NU > 0 ? EXPORT_NU : 1];
+    size_t column;
+    int s;
+    c->n_raw = n + 1;
+    for (column = 0; column < EXPORT_NU; ++column) {
+        long long index = n;
+        int q = (int)column;
+        exp_sequence_store(c, q, n, c->u_now[column]);
+        for (s = 0; s < EXPORT_N_STAGES; ++s) {
+            if (export_stage_column[s] != (int)column) continue;
+            index -= export_stage_lookahead[s];
+            if (index < 0) break;
+            exp_sequence_store(c, EXPORT_NU + s, index, exp_stage_value(c, s, q, index));
+            q = EXPORT_NU + s;
+        }
+    }
+    if (n - EXPORT_INPUT_LOOKAHEAD < 0) return fmi2OK;
+    for (column = 0; column < EXPORT_NU; ++column)
+        u[column] = exp_sequence_value(c, export_final_sequence[column], n - EXPORT_INPUT_LOOKAHEAD);
+    return exp_take_model_sample(c, u);
 }
 
 /* ---------------------------------------------------------------- FMI 2.0 Co-Simulation API */
@@ -459,6 +549,7 @@ FMI2_Export fmi2Status fmi2ExitInitializationMode(fmi2Component component) {
     }
     exp_effect_reals(c);
     memcpy(c->x, c->x_start, sizeof c->x);
+    c->n_raw = 0;
     c->n_samples = 0;
     c->n_steps = 0;
     c->mode = MODE_STEPPING;
@@ -495,7 +586,7 @@ FMI2_Export fmi2Status fmi2GetReal(fmi2Component component, const fmi2ValueRefer
         else if (r < VR_START0) value[i] = c->mode == MODE_STEPPING || c->mode == MODE_TERMINATED
                                                ? c->x[r - VR_STATE0] : c->x_start[r - VR_STATE0];
         else if (r < VR_OUTPUT_DELAY) value[i] = c->x_start[r - VR_START0];
-        else if (r == VR_OUTPUT_DELAY) value[i] = EXPORT_LOOKAHEAD * EXPORT_H_S;
+        else if (r == VR_OUTPUT_DELAY) value[i] = (EXPORT_LOOKAHEAD + EXPORT_INPUT_LOOKAHEAD) * EXPORT_H_S;
         else if (r < VR_END) value[i] = c->coefficients[r - VR_COEFF0];
         else {
             exp_log(c, fmi2Error, "logStatusError", "fmi2GetReal: unknown value reference %u", r);
