@@ -1,6 +1,6 @@
 # The trained models leave the workflow: each as an FMI 2.0 Co-Simulation FMU that embeds the case's FMU
 # (rule export, one job per model; hybridfmu.export), replayed with FMPy against the evaluation's trajectories.
-from hybridfmu.export.names import EXPORTABLE_MODELS, fmu_file_name
+from hybridfmu.export.names import EXPORTABLE_MODELS, fmu_file_name, fmu_file_pattern
 
 EXPORT_DIR = f"{RESULTS}/export"
 EXPORT_MODELS = [model for model in EXPORTABLE_MODELS if model != "hybrid" or HYBRID]
@@ -31,7 +31,7 @@ if EXPORT_CHECK_MANEUVERS:
             run=f"{RESULTS}/evaluation/mlflow_run.json",
             diagnosed=lambda wildcards: [DIAGNOSED_MODEL] if wildcards.model == "hybrid" else [],
         output:
-            fmu=f"{EXPORT_DIR}/{fmu_file_name(CASE, 'MODEL').replace('MODEL', '{model}')}",
+            fmu=f"{EXPORT_DIR}/{fmu_file_pattern(CASE)}",
             record=f"{EXPORT_DIR}/{{model}}.json",
         params:
             case=CASE,

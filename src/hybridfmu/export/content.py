@@ -307,3 +307,17 @@ def hybrid_content(model: Any, fmu_path: str, parameters: dict[str, float] | Non
         x_start=_start_states(fmu_path, all_parameters), effect_code=code, effect_reals=reals,
         effect_sets_inputs=bool(program is not None and program.evaluates_model), coefficient_names=names,
         coefficient_index=places, input_stages=tuple(stages))
+
+
+def plain_content(reference: ExportContent) -> ExportContent:
+    """The case's FMU alone, stepped the way ``reference`` steps it (its grid, solver, input stages none, delays
+    zero, calibrated parameters, end stop): an ANN of one neuron with zero weights and the FMU's gate at 1, so that
+    the exported model's derivative is the FMU's. The baseline of ``benchmarks/export_realtime.py``."""
+    n_x, n_u = len(reference.inner.state_names), len(reference.inner.input_names)
+    params = np.zeros(2 * n_x + n_x + 2 * n_x)  # W_xd (2 n_x, 1), W_out (1, n_x), b_out (n_x,), g (n_x,)
+    params[-n_x:] = 1.0
+    still = DelayedInputs((0,) * n_u, (0.0,) * n_u, (0,) * n_u, (0.0,) * n_u, {})
+    return ExportContent(model="fmu", description=f"the FMU {reference.inner.identifier} alone on the model's grid",
+                         inner=reference.inner, sample_period_s=reference.sample_period_s, solver=reference.solver,
+                         widths=(1,), params=params, w_u=np.zeros((n_u, 1)), b_first=np.zeros(1), delays=still,
+                         end_stop=reference.end_stop, x_start=reference.x_start)
