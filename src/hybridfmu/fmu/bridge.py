@@ -452,6 +452,10 @@ class FmuModel:
             address("fmi2GetDirectionalDerivative") if self.provides_directional_derivative else None
         )
         m.completed_integrator_step = address("fmi2CompletedIntegratorStep")
+        m.enter_event_mode = address("fmi2EnterEventMode")
+        m.new_discrete_states = address("fmi2NewDiscreteStates")
+        m.enter_continuous_time_mode = address("fmi2EnterContinuousTimeMode")
+        m.get_continuous_states = address("fmi2GetContinuousStates")
         m.nx, m.nu, m.nz = self.n_states, self.n_inputs, self.n_event_indicators
         m.vr_u = self._vr_u.ctypes.data_as(ctypes.POINTER(ctypes.c_uint))
         m.vr_x = self._vr_x.ctypes.data_as(ctypes.POINTER(ctypes.c_uint))

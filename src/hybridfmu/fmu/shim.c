@@ -15,6 +15,7 @@
  * (fmi2Component = void*, fmi2ValueReference = unsigned int, fmi2Real = double,
  * fmi2Boolean = int, fmi2Status = int enum).
  */
+#include <float.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -38,6 +39,19 @@ typedef hf_status (*hf_dir_der_fn)(hf_component, const hf_vr *, size_t, const hf
 typedef hf_status (*hf_completed_fn)(hf_component, int, int *, int *);
 typedef int (*hf_correction_fn)(void);
 
+/* fmi2EventInfo restated (five fmi2Boolean, then fmi2Real). */
+typedef struct {
+    int new_discrete_states_needed;
+    int terminate_simulation;
+    int nominals_changed;
+    int values_changed;
+    int next_event_time_defined;
+    double next_event_time;
+} hf_event_info;
+
+typedef hf_status (*hf_mode_fn)(hf_component);
+typedef hf_status (*hf_new_discrete_states_fn)(hf_component, hf_event_info *);
+
 /* Codes of the FMI function that failed (mirrored in shim.py). */
 enum {
     HF_FN_NONE = 0,
@@ -51,7 +65,11 @@ enum {
     HF_FN_COMPLETED_STEP = 8,
     HF_FN_CORRECTION = 9,
     HF_FN_MALLOC = 10,
-    HF_FN_EFFECTS = 11
+    HF_FN_EFFECTS = 11,
+    HF_FN_ENTER_EVENT_MODE = 12,
+    HF_FN_NEW_DISCRETE_STATES = 13,
+    HF_FN_ENTER_CONTINUOUS_TIME_MODE = 14,
+    HF_FN_GET_CONTINUOUS_STATES = 15
 };
 
 /* Negative return codes that are not FMI statuses. */
@@ -105,6 +123,11 @@ typedef struct {
     long long failed_index; /* for HF_ERR_NOT_FINITE: the first state whose derivative is not finite */
     double failed_time;     /* for HF_ERR_NOT_FINITE: the time of the evaluation, s */
     double failed_value;    /* for HF_ERR_NOT_FINITE: that derivative's value (NaN or +-inf) */
+    /* the event mode's functions (hf_run_grid); NULL where only the batch functions are used */
+    hf_mode_fn enter_event_mode;
+    hf_new_discrete_states_fn new_discrete_states;
+    hf_mode_fn enter_continuous_time_mode;
+    hf_get_vector_fn get_continuous_states;
 } hf_model;
 
 #define HF_FAIL(m, fn, row, st)         \
@@ -523,6 +546,290 @@ int hf_simulate(hf_model *m, size_t T, const double *time, const double *u, size
     }
     result[0] = HF_SIM_DONE;
     result[1] = (long long)(T ? T - 1 : 0);
+    return 0;
+}
+
+/* ---------------------------------------------------------------- events
+
+The event handling of an open-loop simulation (hybridfmu.fmu.simulate): hf_simulate integrates until an event
+needs handling, and hf_run_grid handles it and goes on, so that the whole grid runs in C. State events are located
+by bisection on the step fraction (RK4 over the partial step) to the event tolerance, the FMU is integrated just
+past the crossing and the event is handled in event mode (fmi2EnterEventMode, fmi2NewDiscreteStates until no new
+discrete states, the states read back if the FMU changed them, fmi2EnterContinuousTimeMode); time events
+(nextEventTime), input events (new inputs move an indicator across zero) and step events
+(fmi2CompletedIntegratorStep) likewise. Every event handled is appended to the log of the hf_events record; a
+terminate request, too many events within one sample interval, a time event announced in the past, non-finite
+states after an event or an event iteration that does not settle end the run with the outcome recorded there. */
+
+/* What happened: the event kinds of the log (mirrored in simulate.py). */
+enum {
+    HF_EV_SETTLE = 0,     /* the event iteration at the start (logged only if the states changed) */
+    HF_EV_INPUT = 1,
+    HF_EV_STATE = 2,
+    HF_EV_TIME = 3,
+    HF_EV_STEP = 4
+};
+
+/* How hf_run_grid ended (hf_events.outcome; mirrored in simulate.py). */
+enum {
+    HF_OUT_DONE = 0,
+    HF_OUT_PAUSE = 1,             /* the log is nearly full: read it, empty it and call again from *k_out */
+    HF_OUT_TERMINATE = 2,         /* the FMU asked to terminate (terminate_source, outcome_time, outcome_x) */
+    HF_OUT_TOO_MANY_EVENTS = 3,   /* more than max_events within the interval ending at outcome_value */
+    HF_OUT_TIME_EVENT_PAST = 4,   /* nextEventTime outcome_value is not after the current time outcome_time */
+    HF_OUT_NONFINITE_STATES = 5,  /* the FMU set non-finite states (outcome_x) at the event at outcome_time */
+    HF_OUT_NO_CONVERGENCE = 6     /* the event iteration at outcome_time did not settle in max_iterations */
+};
+
+/* Which function asked to terminate. */
+enum { HF_TERM_NEW_DISCRETE_STATES = 1, HF_TERM_COMPLETED_STEP = 2 };
+
+/* Returned by the event functions below when they stopped with an outcome (not an FMI failure). */
+#define HF_STOP (-10)
+
+typedef struct {
+    double tolerance_s;       /* width of the bracket that locates a state event */
+    long long max_events;     /* the most events handled within one sample interval */
+    long long max_iterations; /* the most fmi2NewDiscreteStates calls of one event iteration */
+    double next_time_event;   /* the FMU's next time event (INFINITY if none); kept current */
+    /* log: count entries written (at most capacity); total counts every event handled */
+    size_t capacity, count;
+    long long total;
+    double *log_time;
+    int *log_kind;
+    int *log_reinit;              /* the FMU changed the states at the event */
+    unsigned char *log_crossed;   /* (capacity, nz): the indicators that changed sign (input and state events) */
+    /* outcome */
+    int outcome;
+    int terminate_source;
+    int terminate_kind;           /* the event kind whose iteration asked to terminate (or -1) */
+    int terminate_reinit;
+    double outcome_time;
+    double outcome_value;
+    double *outcome_x;            /* (nx,) */
+} hf_events;
+
+static void hf_ev_log(hf_events *ev, size_t nz, int kind, double t, int reinit, const double *z_a,
+                      const double *z_b) {
+    ev->total += 1;
+    if (ev->count < ev->capacity) {
+        size_t i = ev->count++, j;
+        ev->log_time[i] = t;
+        ev->log_kind[i] = kind;
+        ev->log_reinit[i] = reinit;
+        for (j = 0; j < nz; ++j) ev->log_crossed[i * nz + j] = z_a && z_b ? ((z_a[j] > 0.0) != (z_b[j] > 0.0)) : 0;
+    }
+}
+
+static int hf_ev_stop(hf_events *ev, int outcome, double t, double value, const double *x, size_t nx) {
+    ev->outcome = outcome;
+    ev->outcome_time = t;
+    ev->outcome_value = value;
+    if (x && ev->outcome_x) memcpy(ev->outcome_x, x, nx * sizeof(double));
+    return HF_STOP;
+}
+
+/* Event mode at (t, x, u): x (nx) becomes the states after the event, z_out (nz) the indicators there. kind and the
+   indicators before/after the crossing (z_a, z_b; NULL: none) go to the log (HF_EV_SETTLE only if the FMU changed
+   the states). */
+static int hf_handle_event(hf_model *m, hf_events *ev, double t, double *x, const double *u, int kind,
+                           const double *z_a, const double *z_b, double *z_out) {
+    hf_event_info info;
+    long long it;
+    int changed = 0, reinit, st;
+    size_t i;
+    if ((st = hf_event_indicators(m, 1, &t, 0, x, u, z_out))) return st; /* sets time, states and inputs */
+    HF_CHECK(m, m->enter_event_mode(m->component), HF_FN_ENTER_EVENT_MODE, -1);
+    memset(&info, 0, sizeof info);
+    for (it = 0; it < ev->max_iterations; ++it) {
+        memset(&info, 0, sizeof info);
+        HF_CHECK(m, m->new_discrete_states(m->component, &info), HF_FN_NEW_DISCRETE_STATES, -1);
+        changed = changed || info.values_changed;
+        if (info.terminate_simulation || !info.new_discrete_states_needed) break;
+    }
+    if (it == ev->max_iterations) return hf_ev_stop(ev, HF_OUT_NO_CONVERGENCE, t, 0.0, NULL, 0);
+    reinit = changed && m->nx;
+    if (reinit) {
+        HF_CHECK(m, m->get_continuous_states(m->component, x, m->nx), HF_FN_GET_CONTINUOUS_STATES, -1);
+        for (i = 0; i < m->nx; ++i)
+            if (!isfinite(x[i])) return hf_ev_stop(ev, HF_OUT_NONFINITE_STATES, t, 0.0, x, m->nx);
+    }
+    if (kind != HF_EV_SETTLE || reinit) hf_ev_log(ev, m->nz, kind, t, reinit, z_a, z_b);
+    if (info.terminate_simulation) {
+        ev->terminate_source = HF_TERM_NEW_DISCRETE_STATES;
+        ev->terminate_kind = kind;
+        ev->terminate_reinit = reinit;
+        return hf_ev_stop(ev, HF_OUT_TERMINATE, t, 0.0, x, m->nx);
+    }
+    ev->next_time_event = info.next_event_time_defined ? info.next_event_time : INFINITY;
+    HF_CHECK(m, m->enter_continuous_time_mode(m->component), HF_FN_ENTER_CONTINUOUS_TIME_MODE, -1);
+    return hf_event_indicators(m, 1, &t, 0, x, u, z_out);
+}
+
+/* fmi2CompletedIntegratorStep at the accepted point (t, x); a step event if the FMU asks for one. */
+static int hf_accept_step(hf_model *m, hf_events *ev, double t, double *x, const double *u, double *z) {
+    int flags[2] = {0, 0};
+    HF_CHECK(m, m->completed_integrator_step(m->component, 1, flags, flags + 1), HF_FN_COMPLETED_STEP, -1);
+    if (flags[1]) {
+        ev->terminate_source = HF_TERM_COMPLETED_STEP;
+        ev->terminate_kind = -1;
+        return hf_ev_stop(ev, HF_OUT_TERMINATE, t, 0.0, x, m->nx);
+    }
+    if (flags[0]) return hf_handle_event(m, ev, t, x, u, HF_EV_STEP, NULL, NULL, z);
+    return 0;
+}
+
+/* One RK4 step from (t_a, x) towards t_stop, cut short at the first state event, which is then handled: x and z
+   become the states and indicators where the step ended (*t_end); *handled = an event was handled.
+   work: 11 nx + 4 nz doubles. */
+static int hf_event_step(hf_model *m, hf_events *ev, double t_a, double *x, double t_stop, const double *u,
+                         double *z, double *t_end, int *handled, double *work) {
+    const size_t nx = m->nx, nz = m->nz;
+    double *x_b = work, *x_m = x_b + nx, *x_hi = x_m + nx, *rk = x_hi + nx;
+    double *z_b = rk + 5 * nx, *z_m = z_b + nz, *z_hi = z_m + nz, *z_a = z_hi + nz;
+    const double span = t_stop - t_a;
+    const long long before = ev->total;
+    double lo = 0.0, hi = 1.0, t_b, tol, t_e;
+    int st, flags[2] = {0, 0};
+    if ((st = hf_rk4_step(m, t_a, span, x, u, x_b, z_b, rk))) return st;
+    if (!nz || !hf_crossed(z, z_b, nz)) {
+        memcpy(x, x_b, nx * sizeof(double));
+        if (nz) memcpy(z, z_b, nz * sizeof(double));
+        if ((st = hf_accept_step(m, ev, t_stop, x, u, z))) return st;
+        *t_end = t_stop;
+        *handled = ev->total > before;
+        return 0;
+    }
+    /* bisection on the step's fraction for the first point where an indicator left its domain at t_a */
+    memcpy(x_hi, x_b, nx * sizeof(double));
+    memcpy(z_hi, z_b, nz * sizeof(double));
+    t_b = t_a + span;
+    tol = fmax(ev->tolerance_s, 4.0 * DBL_EPSILON * fmax(1.0, fabs(t_b)));
+    while ((hi - lo) * span > tol) {
+        const double mid = 0.5 * (lo + hi);
+        if ((st = hf_rk4_step(m, t_a, mid * span, x, u, x_m, z_m, rk))) return st;
+        if (hf_crossed(z, z_m, nz)) {
+            hi = mid;
+            memcpy(x_hi, x_m, nx * sizeof(double));
+            memcpy(z_hi, z_m, nz * sizeof(double));
+        } else {
+            lo = mid;
+        }
+    }
+    t_e = hi < 1.0 ? t_a + hi * span : t_b;
+    if ((st = hf_event_indicators(m, 1, &t_e, 0, x_hi, u, z_m))) return st; /* the FMU at the accepted point */
+    /* event mode follows anyway: of fmi2CompletedIntegratorStep only a terminate request matters */
+    HF_CHECK(m, m->completed_integrator_step(m->component, 1, flags, flags + 1), HF_FN_COMPLETED_STEP, -1);
+    if (flags[1]) {
+        ev->terminate_source = HF_TERM_COMPLETED_STEP;
+        ev->terminate_kind = -1;
+        return hf_ev_stop(ev, HF_OUT_TERMINATE, t_e, 0.0, x_hi, nx);
+    }
+    memcpy(z_a, z, nz * sizeof(double));
+    memcpy(x, x_hi, nx * sizeof(double));
+    if ((st = hf_handle_event(m, ev, t_e, x, u, HF_EV_STATE, z_a, z_hi, z))) return st;
+    *t_end = t_e;
+    *handled = 1;
+    return 0;
+}
+
+/* Integrate from (t_a, x) to t_b with the inputs u held, handling in time order every time event and state event
+   on the way and a time event due at t_b: x and z become the states and indicators at t_b. */
+static int hf_integrate_interval(hf_model *m, hf_events *ev, double t_a, double *x, double t_b, const double *u,
+                                 double *z, double *work) {
+    long long events = 0;
+    int st, handled;
+    for (;;) {
+        if (ev->next_time_event <= t_a) {
+            if (events >= ev->max_events) return hf_ev_stop(ev, HF_OUT_TOO_MANY_EVENTS, t_a, t_b, NULL, 0);
+            events += 1;
+            if ((st = hf_handle_event(m, ev, t_a, x, u, HF_EV_TIME, NULL, NULL, z))) return st;
+            if (ev->next_time_event <= t_a)
+                return hf_ev_stop(ev, HF_OUT_TIME_EVENT_PAST, t_a, ev->next_time_event, NULL, 0);
+            continue;
+        }
+        if (t_b - t_a <= 4.0 * DBL_EPSILON * fmax(1.0, fabs(t_b))) return 0;
+        {
+            double t_end = t_a;
+            handled = 0;
+            if ((st = hf_event_step(m, ev, t_a, x, fmin(ev->next_time_event, t_b), u, z, &t_end, &handled, work)))
+                return st;
+            t_a = t_end;
+        }
+        if (handled) {
+            if (events >= ev->max_events) return hf_ev_stop(ev, HF_OUT_TOO_MANY_EVENTS, t_a, t_b, NULL, 0);
+            events += 1;
+        }
+    }
+}
+
+/* The event iteration at the start (t0, x (nx), u0): x and z (nz) become the states and indicators after it
+   (logged only if the FMU changed the states). */
+int hf_settle(hf_model *m, hf_events *ev, double t0, double *x, const double *u0, double *z) {
+    m->failed_function = HF_FN_NONE;
+    ev->outcome = HF_OUT_DONE;
+    return hf_handle_event(m, ev, t0, x, u0, HF_EV_SETTLE, NULL, NULL, z);
+}
+
+/* The open-loop simulation on the grid time (T,) with the inputs u (T, nu) held per sample, from step k_start
+   (X (T, nx) valid up to row k_start, z_prev (nz) the indicators there), handling every event (see above).
+   Returns 0 with ev->outcome set (HF_OUT_DONE: X complete; HF_OUT_PAUSE: the log is nearly full, X valid up to
+   row *k_out, call again from there after reading it; the others: the run ended, see hf_events), or an FMI
+   status / HF_ERR_* code. work: 16 nx + 6 nz + 1 doubles. */
+int hf_run_grid(hf_model *m, hf_events *ev, size_t T, const double *time, const double *u, size_t k_start,
+                double *X, double *z_prev, double *work, long long *k_out) {
+    const size_t nx = m->nx, nu = m->nu, nz = m->nz;
+    double *sim_work = work, *z_new = work + 5 * nx, *step_work = z_new + nz + 1;
+    long long result[2];
+    size_t k = k_start;
+    int st;
+    m->failed_function = HF_FN_NONE;
+    ev->outcome = HF_OUT_DONE;
+    while (k + 1 < T) {
+        if (ev->capacity - ev->count < (size_t)ev->max_events + 2) {
+            ev->outcome = HF_OUT_PAUSE;
+            *k_out = (long long)k;
+            return 0;
+        }
+        if ((st = hf_simulate(m, T, time, u, k, ev->next_time_event, X, z_prev, sim_work, result))) return st;
+        k = (size_t)result[1];
+        switch ((int)result[0]) {
+        case HF_SIM_DONE:
+            *k_out = (long long)(T - 1);
+            return 0;
+        case HF_SIM_INPUT_EVENT:
+            if ((st = hf_event_indicators(m, 1, &time[k], 0, X + k * nx, u + k * nu, z_new))) return st;
+            {
+                double *z_before = step_work + 11 * nx + 4 * nz; /* a copy: hf_handle_event writes z_prev */
+                memcpy(z_before, z_prev, nz * sizeof(double));
+                st = hf_handle_event(m, ev, time[k], X + k * nx, u + k * nu, HF_EV_INPUT, z_before, z_new, z_prev);
+            }
+            break;
+        case HF_SIM_STATE_EVENT:
+        case HF_SIM_TIME_EVENT:
+            memcpy(X + (k + 1) * nx, X + k * nx, nx * sizeof(double));
+            st = hf_integrate_interval(m, ev, time[k], X + (k + 1) * nx, time[k + 1], u + k * nu, z_prev, step_work);
+            k += 1;
+            break;
+        case HF_SIM_STEP_EVENT:
+            st = hf_handle_event(m, ev, time[k + 1], X + (k + 1) * nx, u + k * nu, HF_EV_STEP, NULL, NULL, z_prev);
+            k += 1;
+            break;
+        case HF_SIM_TERMINATE:
+            ev->terminate_source = HF_TERM_COMPLETED_STEP;
+            ev->terminate_kind = -1;
+            st = hf_ev_stop(ev, HF_OUT_TERMINATE, time[k + 1], 0.0, X + (k + 1) * nx, nx);
+            break;
+        default:
+            return HF_ERR_CALLBACK;
+        }
+        if (st == HF_STOP) {
+            *k_out = (long long)k;
+            return 0;
+        }
+        if (st) return st;
+    }
+    *k_out = (long long)(T ? T - 1 : 0);
     return 0;
 }
 

@@ -42,6 +42,10 @@ FUNCTION_NAMES = {
     9: "the correction callback",
     10: "memory allocation",
     11: "the diagnosed effects' program",
+    12: "fmi2EnterEventMode",
+    13: "fmi2NewDiscreteStates",
+    14: "fmi2EnterContinuousTimeMode",
+    15: "fmi2GetContinuousStates",
 }
 ERR_CALLBACK = -1
 ERR_NO_MEMORY = -2
@@ -55,6 +59,12 @@ SIM_INPUT_EVENT = 2
 SIM_TIME_EVENT = 3
 SIM_STEP_EVENT = 4
 SIM_TERMINATE = 5
+
+# The event log's kinds and hf_run_grid's outcomes (mirror of shim.c).
+EV_SETTLE, EV_INPUT, EV_STATE, EV_TIME, EV_STEP = 0, 1, 2, 3, 4
+OUT_DONE, OUT_PAUSE, OUT_TERMINATE, OUT_TOO_MANY_EVENTS, OUT_TIME_EVENT_PAST, OUT_NONFINITE_STATES, \
+    OUT_NO_CONVERGENCE = range(7)
+TERM_NEW_DISCRETE_STATES, TERM_COMPLETED_STEP = 1, 2
 
 CORRECTION_FN = ctypes.CFUNCTYPE(c_int)
 _DOUBLE_P = POINTER(c_double)
@@ -96,6 +106,35 @@ class ShimModel(ctypes.Structure):
         ("failed_index", c_longlong),
         ("failed_time", c_double),
         ("failed_value", c_double),
+        ("enter_event_mode", c_void_p),
+        ("new_discrete_states", c_void_p),
+        ("enter_continuous_time_mode", c_void_p),
+        ("get_continuous_states", c_void_p),
+    ]
+
+
+class ShimEvents(ctypes.Structure):
+    """Mirror of ``hf_events`` in shim.c: the event handling's settings, its log and how the run ended."""
+
+    _fields_ = [
+        ("tolerance_s", c_double),
+        ("max_events", c_longlong),
+        ("max_iterations", c_longlong),
+        ("next_time_event", c_double),
+        ("capacity", c_size_t),
+        ("count", c_size_t),
+        ("total", c_longlong),
+        ("log_time", c_void_p),
+        ("log_kind", c_void_p),
+        ("log_reinit", c_void_p),
+        ("log_crossed", c_void_p),
+        ("outcome", c_int),
+        ("terminate_source", c_int),
+        ("terminate_kind", c_int),
+        ("terminate_reinit", c_int),
+        ("outcome_time", c_double),
+        ("outcome_value", c_double),
+        ("outcome_x", c_void_p),
     ]
 
 
@@ -194,6 +233,8 @@ def _declare(lib: ctypes.CDLL) -> None:
         "hf_completed_step": (c_int, [ptr, ptr]),
         "hf_effects_add": (c_int, [ptr, c_size_t, ptr, c_size_t, c_size_t, ptr, ptr, ptr, ptr, ptr, ptr, ptr]),
         "hf_simulate": (c_int, [ptr, c_size_t, ptr, ptr, c_size_t, c_double, ptr, ptr, ptr, ptr]),
+        "hf_settle": (c_int, [ptr, ptr, c_double, ptr, ptr, ptr]),
+        "hf_run_grid": (c_int, [ptr, ptr, c_size_t, ptr, ptr, c_size_t, ptr, ptr, ptr, ptr]),
         "hf_neural_rollout": (c_int, [ptr, c_size_t, c_size_t, c_double, c_int, ptr, ptr, ptr, ptr, ptr, c_size_t,
                                       ptr, ptr, c_longlong, c_longlong, c_double, c_double, ptr, ptr, ptr, ptr]),
         "hf_neural_forward_record": (c_int, [ptr, c_size_t, c_size_t, c_double, c_int, ptr, ptr, ptr, ptr, ptr,

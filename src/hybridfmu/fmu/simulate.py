@@ -1,8 +1,9 @@
 """Open-loop simulation of an FMU on the sample grid of its inputs.
 
 Fixed-step classical Runge-Kutta (RK4), one step per input sample, inputs held between samples
-(zero-order hold). The step loop runs in the C shim and returns to Python only when an event
-needs handling:
+(zero-order hold). The whole grid runs in the C shim (``hf_run_grid``), events included (an exported
+model steps with the same functions), and returns to Python only to hand over its event log or when
+the run ends:
 
 - state events: an event indicator changes its domain (z > 0 versus z <= 0) within a step; the
   crossing is located by bisection on the step fraction (RK4 over the partial step) to
@@ -38,10 +39,13 @@ from typing import Callable
 import numpy as np
 
 from hybridfmu.fmu import shim as _shim
-from hybridfmu.fmu.bridge import FmuError, FmuModel, FmuTerminated
+from hybridfmu.fmu.bridge import MAX_EVENT_ITERATIONS, FmuError, FmuModel, FmuTerminated
 from hybridfmu.fmu.effect_program import EffectProgram
 
 Correction = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+#: hf_settle's return code when it stopped with an outcome (HF_STOP in shim.c)
+_STOP = -10
 
 
 @dataclass
@@ -119,11 +123,6 @@ def simulate_open_loop(
     return result if allow_termination else result.require_full_horizon()
 
 
-def _crossed(z_a: np.ndarray, z_b: np.ndarray) -> np.ndarray:
-    """Indices of the event indicators whose domain (z > 0 or z <= 0) differs between a and b."""
-    return np.flatnonzero((z_a > 0.0) != (z_b > 0.0))
-
-
 class _Session:
     """One simulation run: validated arguments, shim buffers and the event handling."""
 
@@ -149,12 +148,6 @@ class _Session:
         if int(max_events_per_step) < 1:
             raise ValueError(f"max_events_per_step: expected at least 1, got {max_events_per_step}")
         self.max_events = int(max_events_per_step)
-        nx, nz = model.n_states, model.n_event_indicators
-        self.work = np.empty(5 * nx + nz + 1)
-        self.x_new = np.empty(nx)
-        self.z_new = np.empty(max(nz, 1))
-        self.flags = np.zeros(2, dtype=np.intc)
-        self.result = np.zeros(2, dtype=np.int64)
         self.events: list[tuple[float, str]] = []
         self.callback_errors: list[BaseException] = []
 
@@ -185,141 +178,75 @@ class _Session:
             raise type(error)(f"correction failed during {what}: {error}") from error
         self.model._raise_shim_error(status, what, row_label="step")
 
-    def _rk4_step(self, t: float, h: float, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    # ------------------------------------------------------------------ events (in C: shim.c, hf_run_grid)
+
+    def _event_record(self) -> _shim.ShimEvents:
+        """The C loop's event settings, log buffers and outcome."""
         m = self.model
-        status = m._lib.hf_rk4_step(m._m, t, h, x.ctypes.data, m._data(u) or m._empty.ctypes.data,
-                                    self.x_new.ctypes.data, self.z_new.ctypes.data, self.work.ctypes.data)
-        self._check(status, f"an RK4 step at t = {t} s")
-        return self.x_new.copy(), self.z_new[: m.n_event_indicators].copy()
+        nz = max(m.n_event_indicators, 1)
+        capacity = max(256, 4 * (self.max_events + 2))
+        self.log_time = np.zeros(capacity)
+        self.log_kind = np.zeros(capacity, dtype=np.intc)
+        self.log_reinit = np.zeros(capacity, dtype=np.intc)
+        self.log_crossed = np.zeros((capacity, nz), dtype=np.uint8)
+        self.outcome_x = np.zeros(max(m.n_states, 1))
+        ev = _shim.ShimEvents()
+        ev.tolerance_s, ev.max_events, ev.max_iterations = self.tol, self.max_events, MAX_EVENT_ITERATIONS
+        ev.next_time_event = float(self.next_time_event)
+        ev.capacity, ev.count = capacity, 0
+        ev.log_time, ev.log_kind = self.log_time.ctypes.data, self.log_kind.ctypes.data
+        ev.log_reinit, ev.log_crossed = self.log_reinit.ctypes.data, self.log_crossed.ctypes.data
+        ev.outcome_x = self.outcome_x.ctypes.data
+        return ev
 
-    def _indicators(self, t: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Event indicators at (t, x, u); also leaves the FMU at that point."""
-        m = self.model
-        z = np.empty(max(m.n_event_indicators, 1))
-        status = m._lib.hf_event_indicators(m._m, 1, np.array([t]).ctypes.data, 0, x.ctypes.data,
-                                            m._data(u) or m._empty.ctypes.data, z.ctypes.data)
-        self._check(status, f"event indicators at t = {t} s")
-        return z[: m.n_event_indicators]
+    def _description(self, kind: int, reinit: bool, crossed: np.ndarray) -> str | None:
+        """The words of one logged event (None: the start's event iteration without a change of the states)."""
+        indicators = np.flatnonzero(crossed[: self.model.n_event_indicators]).tolist()
+        text = {_shim.EV_SETTLE: None,
+                _shim.EV_INPUT: f"input event: event indicator(s) {indicators} changed sign with the new inputs",
+                _shim.EV_STATE: f"state event: event indicator(s) {indicators} changed sign",
+                _shim.EV_TIME: "time event",
+                _shim.EV_STEP: "step event (fmi2CompletedIntegratorStep)"}[kind]
+        if reinit:
+            text = (text or "event iteration") + "; states re-initialised"
+        return text
 
-    def _completed_step(self, t: float) -> tuple[bool, bool]:
-        m = self.model
-        status = m._lib.hf_completed_step(m._m, self.flags.ctypes.data)
-        self._check(status, f"fmi2CompletedIntegratorStep at t = {t} s")
-        return bool(self.flags[0]), bool(self.flags[1])
+    def _drain(self, ev: _shim.ShimEvents) -> str | None:
+        """Move the C loop's log into ``events``; the description of the last entry logged (or None)."""
+        last = None
+        for i in range(int(ev.count)):
+            last = self._description(int(self.log_kind[i]), bool(self.log_reinit[i]), self.log_crossed[i])
+            if last is not None:
+                self.events.append((float(self.log_time[i]), last))
+        ev.count = 0
+        return last
 
-    # ------------------------------------------------------------------ events
-
-    def _handle_event(self, t: float, x: np.ndarray, u: np.ndarray, description: str | None):
-        """Event mode at (t, x, u); return the states (n_x,) and event indicators after the event.
-
-        The event is recorded under ``description``; with None it is recorded only if the FMU
-        changed the states. A terminate request raises _TerminationRequest with the states then."""
-        m = self.model
-        self._indicators(t, x, u)  # sets time, states and inputs
-        m._fmi("enterEventMode")
-        update = m._event_iteration(t)
-        if update.states_changed and m.n_states:
-            x = self._read_states(t)
-            description = (description or "event iteration") + "; states re-initialised"
-        if description is not None:
-            self.events.append((float(t), description))
-        if update.terminate:
-            raise _TerminationRequest(t, x, f"fmi2NewDiscreteStates at the {description or 'event'} at t = {t} s")
-        self.next_time_event = update.next_time_event_s
-        m._fmi("enterContinuousTimeMode")
-        return x, self._indicators(t, x, u)
-
-    def _read_states(self, t: float) -> np.ndarray:
-        """The FMU's continuous states (n_x,) after an event at t (s); FmuError if not finite."""
-        m = self.model
-        x = np.empty(m.n_states)
-        m._fmi("getContinuousStates", x.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), m.n_states)
-        if not np.isfinite(x).all():
-            bad = [name for name, value in zip(m.state_names, x) if not np.isfinite(value)]
+    def _finish(self, ev: _shim.ShimEvents, last: str | None) -> None:
+        """Raise what ended the C loop early: a terminate request (with the states then) or an error."""
+        m, t = self.model, float(ev.outcome_time)
+        outcome = int(ev.outcome)
+        if outcome == _shim.OUT_TERMINATE:
+            x = self.outcome_x[: m.n_states].copy()
+            if ev.terminate_source == _shim.TERM_COMPLETED_STEP:
+                raise _TerminationRequest(t, x, f"fmi2CompletedIntegratorStep after the step to t = {t} s")
+            raise _TerminationRequest(t, x, f"fmi2NewDiscreteStates at the {last or 'event'} at t = {t} s")
+        if outcome == _shim.OUT_TOO_MANY_EVENTS:
+            raise FmuError(f"{m.path}: more than {self.max_events} events within one step ending at "
+                           f"t = {float(ev.outcome_value)} s (at t = {t} s; chattering? raise max_events_per_step "
+                           "if expected)", m.log_messages())
+        if outcome == _shim.OUT_TIME_EVENT_PAST:
+            raise FmuError(f"{m.path}: the FMU announced its next time event (nextEventTime) at t = "
+                           f"{float(ev.outcome_value)} s, expected a time after the current time {t} s",
+                           m.log_messages())
+        if outcome == _shim.OUT_NONFINITE_STATES:
+            bad = [name for name, value in zip(m.state_names, self.outcome_x) if not np.isfinite(value)]
             raise FmuError(f"{m.path}: the FMU set non-finite values of the states {bad} at the event at t = {t} s "
                            "(expected finite states)", m.log_messages())
-        return x
-
-    def _accept_step(self, t: float, x: np.ndarray, u: np.ndarray, z: np.ndarray):
-        """fmi2CompletedIntegratorStep at the accepted point (t, x); handle a step event if the FMU
-        asks for one. Returns the states and event indicators to continue from."""
-        enter, terminate = self._completed_step(t)
-        if terminate:
-            raise _TerminationRequest(t, x, f"fmi2CompletedIntegratorStep after the step to t = {t} s")
-        if enter:
-            return self._handle_event(t, x, u, "step event (fmi2CompletedIntegratorStep)")
-        return x, z
-
-    def _locate_state_event(self, t_a: float, x_a: np.ndarray, span: float, u: np.ndarray,
-                            z_a: np.ndarray, x_b: np.ndarray, z_b: np.ndarray):
-        """Bisection on the fraction of the step (t_a, t_a + span] for the first point where an
-        event indicator has left its domain at t_a, to within the event tolerance. Returns the
-        time (s), the states and event indicators just past the crossing."""
-        lo, hi, x_hi, z_hi = 0.0, 1.0, x_b, z_b
-        t_b = t_a + span
-        tol = max(self.tol, 4.0 * np.finfo(float).eps * max(1.0, abs(t_b)))
-        while (hi - lo) * span > tol:
-            mid = 0.5 * (lo + hi)
-            x_m, z_m = self._rk4_step(t_a, mid * span, x_a, u)
-            if _crossed(z_a, z_m).size:
-                hi, x_hi, z_hi = mid, x_m, z_m
-            else:
-                lo = mid
-        t_e = t_a + hi * span if hi < 1.0 else t_b
-        self._indicators(t_e, x_hi, u)  # leave the FMU at the accepted point
-        return t_e, x_hi, z_hi
-
-    def _step(self, t_a: float, x_a: np.ndarray, t_stop: float, u: np.ndarray, z_a: np.ndarray):
-        """One RK4 step from (t_a, x_a) towards t_stop (s), cut short at the first state event,
-        which is then handled. Returns (t, x, z, event): where the step ended, the states and event
-        indicators there, and whether an event (state or step event) was handled."""
-        x_b, z_b = self._rk4_step(t_a, t_stop - t_a, x_a, u)
-        crossed = _crossed(z_a, z_b)
-        if crossed.size == 0:
-            events_before = len(self.events)
-            x_b, z_b = self._accept_step(t_stop, x_b, u, z_b)
-            return t_stop, x_b, z_b, len(self.events) > events_before
-        t_e, x_e, z_e = self._locate_state_event(t_a, x_a, t_stop - t_a, u, z_a, x_b, z_b)
-        crossed = _crossed(z_a, z_e)
-        # event mode follows anyway: of fmi2CompletedIntegratorStep only a terminate request matters
-        _, terminate = self._completed_step(t_e)
-        if terminate:
-            raise _TerminationRequest(t_e, x_e, f"fmi2CompletedIntegratorStep after the step to t = {t_e} s")
-        x_e, z_e = self._handle_event(t_e, x_e, u, f"state event: event indicator(s) {crossed.tolist()} changed sign")
-        return t_e, x_e, z_e, True
-
-    def _handle_time_event(self, t: float, x: np.ndarray, u: np.ndarray):
-        """The time event due at t (s); FmuError if the FMU then announces one that is not later."""
-        x, z = self._handle_event(t, x, u, "time event")
-        if self.next_time_event <= t:
-            raise FmuError(f"{self.model.path}: the FMU announced its next time event (nextEventTime) at t = "
-                           f"{self.next_time_event} s, expected a time after the current time {t} s",
-                           self.model.log_messages())
-        return x, z
-
-    def _integrate_interval(self, t_a: float, x: np.ndarray, t_b: float, u: np.ndarray, z: np.ndarray):
-        """Integrate from (t_a, x) to t_b (s) with the inputs u held, handling in time order every
-        time event (the FMU's nextEventTime) and state event on the way, and a time event due at t_b.
-        Returns the states (n_x,) and event indicators (n_z,) at t_b."""
-        events = 0
-        while True:
-            if self.next_time_event <= t_a:
-                events = self._count_event(events, t_a, t_b)
-                x, z = self._handle_time_event(t_a, x, u)
-                continue
-            if t_b - t_a <= 4.0 * np.finfo(float).eps * max(1.0, abs(t_b)):
-                return x, z
-            t_a, x, z, handled = self._step(t_a, x, min(self.next_time_event, t_b), u, z)
-            if handled:
-                events = self._count_event(events, t_a, t_b)
-
-    def _count_event(self, events: int, t: float, t_b: float) -> int:
-        """events + 1; FmuError if that is more than max_events_per_step within the interval ending at t_b."""
-        if events >= self.max_events:
-            raise FmuError(f"{self.model.path}: more than {self.max_events} events within one step ending at "
-                           f"t = {t_b} s (at t = {t} s; chattering? raise max_events_per_step if expected)",
-                           self.model.log_messages())
-        return events + 1
+        if outcome == _shim.OUT_NO_CONVERGENCE:
+            raise FmuError(f"{m.path}: event iteration at t = {t} s did not converge in {MAX_EVENT_ITERATIONS} "
+                           "iterations (newDiscreteStatesNeeded stayed true)", m.log_messages())
+        if outcome != _shim.OUT_DONE:
+            raise FmuError(f"{m.path}: the simulation loop ended with an unknown outcome {outcome}")
 
     # ------------------------------------------------------------------ main loop
 
@@ -370,46 +297,38 @@ class _Session:
                                 path=str(m.path))
 
     def _run_grid(self, states: np.ndarray) -> None:
-        """Fill states (T, n_x) sample by sample: the C step loop runs until an event needs
-        handling, which is done here, and then resumes."""
+        """Fill states (T, n_x) sample by sample in the C loop (events handled there), reading its event log
+        whenever it fills up."""
         m = self.model
         time, u = self.time, self.u
-        n_samples, nz = time.size, m.n_event_indicators
-        # the FMU initialised from its start values; settle its discrete state at x0
-        x, z = self._handle_event(time[0], self.x0.copy(), u[0], None)
-        states[0] = x
-        z_prev = np.ascontiguousarray(z, dtype=np.float64).copy() if nz else np.empty(1)
-        k = 0
+        nz = m.n_event_indicators
+        ev = self._event_record()
         u_ptr = m._data(u) or m._empty.ctypes.data
-        while k < n_samples - 1:
-            status = m._lib.hf_simulate(m._m, n_samples, time.ctypes.data, u_ptr, k,
-                                        self.next_time_event, states.ctypes.data, z_prev.ctypes.data,
-                                        self.work.ctypes.data, self.result.ctypes.data)
+        z_prev = np.zeros(max(nz, 1))
+        # the FMU initialised from its start values; settle its discrete state at x0
+        x = self.x0.copy()
+        status = m._lib.hf_settle(m._m, ctypes.addressof(ev), float(time[0]), x.ctypes.data, u_ptr,
+                                  z_prev.ctypes.data)
+        if status != _STOP:
+            self._check(status, f"the event iteration at t = {time[0]} s")
+        last = self._drain(ev)
+        if status == _STOP:
+            self._finish(ev, last)
+        states[0] = x
+        work = np.empty(16 * m.n_states + 6 * nz + 1)
+        k_out = np.zeros(1, dtype=np.int64)
+        k = 0
+        while True:
+            status = m._lib.hf_run_grid(m._m, ctypes.addressof(ev), time.size, time.ctypes.data, u_ptr, k,
+                                        states.ctypes.data, z_prev.ctypes.data, work.ctypes.data, k_out.ctypes.data)
+            last = self._drain(ev)
             self._check(status, "simulation")
-            reason, k = int(self.result[0]), int(self.result[1])
-            if reason == _shim.SIM_DONE:
-                break
-            if reason == _shim.SIM_INPUT_EVENT:
-                crossed = _crossed(z_prev[:nz], self._indicators(time[k], states[k], u[k])).tolist()
-                x, z = self._handle_event(time[k], states[k].copy(), u[k],
-                                          f"input event: event indicator(s) {crossed} changed sign with the new inputs")
-                states[k] = x
-            elif reason in (_shim.SIM_STATE_EVENT, _shim.SIM_TIME_EVENT):
-                x, z = self._integrate_interval(time[k], states[k].copy(), time[k + 1], u[k], z_prev[:nz].copy())
-                states[k + 1] = x
-                k += 1
-            elif reason == _shim.SIM_STEP_EVENT:
-                x, z = self._handle_event(time[k + 1], states[k + 1].copy(), u[k],
-                                          "step event (fmi2CompletedIntegratorStep)")
-                states[k + 1] = x
-                k += 1
-            elif reason == _shim.SIM_TERMINATE:
-                raise _TerminationRequest(time[k + 1], states[k + 1],
-                                          f"fmi2CompletedIntegratorStep after the step to t = {time[k + 1]} s")
-            else:
-                raise FmuError(f"{m.path}: the simulation loop returned an unknown reason {reason}")
-            if nz:
-                z_prev[:nz] = z
+            if ev.outcome == _shim.OUT_PAUSE:
+                k = int(k_out[0])
+                continue
+            self.next_time_event = float(ev.next_time_event)
+            self._finish(ev, last)
+            return
 
     # ------------------------------------------------------------------ correction callback
 
