@@ -188,3 +188,39 @@ def test_an_exported_hybrid_replays_the_workflow_open_loop(ipbmotor_fmu, tmp_pat
     deviation = replay_deviation(fmu_out, time_s, u, reference_changed,
                                  {content.coefficient_names[0]: float(changed[0])})
     assert np.all(deviation <= 1e-9), deviation
+
+
+@pytest.mark.parametrize("linear", [False, True])
+def test_an_exported_fmu_with_diagnosed_effects_replays_the_open_loop_with_its_events(ipbmotor_fmu, tmp_path, linear):
+    """The FMU + diagnosed effects (every kind of input change, additive terms, a parameter correction), stepped as
+    the evaluation simulates it: RK4 with the inputs held and the FMU's end-stop events handled. With a ``linear``
+    supply voltage the exported FMU takes the sampled signal and holds the mean of each step itself."""
+    from test_effect_program import MotorProblem
+
+    from hybridfmu.data.between_samples import held_values
+    from hybridfmu.diagnosis.export import DiagnosedModel, save_diagnosed
+    from hybridfmu.evaluation.evaluate import simulate_diagnosed
+    from hybridfmu.export.content import effects_content
+
+    problem = MotorProblem()
+    terms = hybrid_terms(problem)
+    diagnosed_path = save_diagnosed(DiagnosedModel(terms, {"R": 0.0315}, problem, [t.effect.name for t in terms]),
+                                    tmp_path / "diagnosed_model.pkl")
+    calibrated = {"J": 2.1e-4}
+    rate_hz = 10000.0
+    time_s = 0.0 + np.arange(1500, dtype=np.float64) / rate_hz  # as ingest writes a grid
+    sampled = motor_inputs(time_s)
+    sampled[:, 3] = 12.0 + 0.3 * np.sin(40 * time_s)
+    sampled[:, 4] = 0.05 + 0.02 * np.sin(60 * time_s)
+    conventions = ["hold", "hold", "hold", "linear" if linear else "hold", "hold"]
+    u = held_values(sampled, conventions)  # what every simulation of the workflow holds
+    with load_fmu(ipbmotor_fmu) as fmu:
+        x0 = np.array(fmu.initial_states) + [0.0, 0.0, 0.02, 0.0]  # near the lower end stop
+    reference, _ = simulate_diagnosed(diagnosed_path, ipbmotor_fmu, calibrated, time_s, u, x0, "test")
+    assert np.any(reference[:, 2] <= 1e-9)  # it runs into the end stop (state events)
+    content = effects_content(str(diagnosed_path), str(ipbmotor_fmu), calibrated, rate_hz, conventions)
+    assert content.events and content.coefficient_names and content.inner.parameters["R"][1] == 0.0315
+    fmu_out = write_exported_fmu(content, "motor_fmu_effects", ipbmotor_fmu, tmp_path / "e.fmu", {}, "0.1.0")
+    assert problems(fmu_out) == []
+    deviation = replay_deviation(fmu_out, time_s, sampled, reference)
+    assert np.all(deviation <= 1e-9), deviation

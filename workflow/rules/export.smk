@@ -4,6 +4,8 @@ from hybridfmu.export.names import EXPORTABLE_MODELS, fmu_file_name, fmu_file_pa
 
 EXPORT_DIR = f"{RESULTS}/export"
 EXPORT_MODELS = [model for model in EXPORTABLE_MODELS if model != "hybrid" or HYBRID]
+# the model each export stands for, and the search whose best.json names it (the FMU + effects: the diagnosis)
+EXPORT_BEST = {"neural_fmu": [f"{RESULTS}/hpo/best.json"], "hybrid": [f"{RESULTS}/hybrid/best.json"], "fmu_effects": []}
 # the maneuvers each exported FMU replays: config export.check_maneuvers, else the first test maneuver (the first
 # validation maneuver without one); evaluated maneuvers only (their trajectories are the reference)
 EXPORT_CHECK_MANEUVERS = list((config.get("export") or {}).get("check_maneuvers") or [
@@ -21,15 +23,16 @@ if EXPORT_CHECK_MANEUVERS:
 
     rule export:
         input:
-            best=lambda wildcards: {"neural_fmu": f"{RESULTS}/hpo/best.json",
-                                    "hybrid": f"{RESULTS}/hybrid/best.json"}[wildcards.model],
+            best=lambda wildcards: EXPORT_BEST[wildcards.model],
             fmu=fmu_path(),
             calibration=CALIBRATION_JSON,
             data=expand(f"{RESULTS}/data/{{maneuver}}.parquet", maneuver=EXPORT_CHECK_MANEUVERS),
             trajectories=expand(f"{RESULTS}/evaluation/trajectories/{{maneuver}}.parquet",
                                 maneuver=EXPORT_CHECK_MANEUVERS),
             run=f"{RESULTS}/evaluation/mlflow_run.json",
-            diagnosed=lambda wildcards: [DIAGNOSED_MODEL] if wildcards.model == "hybrid" else [],
+            diagnosed=lambda wildcards: [DIAGNOSED_MODEL] if wildcards.model != "neural_fmu" else [],
+            diagnosis=lambda wildcards: [f"{DIAGNOSIS}/diagnosis.json"] if wildcards.model == "fmu_effects" else [],
+            grid=GRID_CHOICE,
         output:
             fmu=f"{EXPORT_DIR}/{fmu_file_pattern(CASE)}",
             record=f"{EXPORT_DIR}/{{model}}.json",

@@ -10,7 +10,7 @@ export_model(
     model=snakemake.wildcards.model,
     case=snakemake.params.case,
     config=snakemake.config,  # for the provenance's digest only (not a param: a change of it reruns nothing)
-    best_path=snakemake.input.best,
+    best_path=snakemake.input.best[0] if snakemake.input.best else None,
     fmu_path=snakemake.input.fmu,
     calibration_path=snakemake.input.calibration,
     check_maneuvers=snakemake.params.check_maneuvers,
@@ -21,4 +21,6 @@ export_model(
     record_out=snakemake.output.record,
     run_path=snakemake.input.run,
     diagnosed_path=snakemake.input.diagnosed[0] if snakemake.input.diagnosed else None,
+    grid_path=snakemake.input.grid[0] if snakemake.input.grid else None,
+    diagnosis_path=snakemake.input.diagnosis[0] if snakemake.input.diagnosis else None,
 )

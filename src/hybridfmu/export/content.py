@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
-from hybridfmu.export.input_stages import InputStage, column_lookahead
+from hybridfmu.export.input_stages import InputStage, column_lookahead, input_stages
 
 
 @dataclass(frozen=True)
@@ -29,6 +29,8 @@ class InnerFmu:
         input_start: (n_u,) the inputs' start values (0 where none is declared).
         parameters: parameter name -> (value reference, value) set before its initialisation (the calibrated ones).
         platforms: the binary platforms it ships (only ``linux64`` can be loaded by the exported binary built here).
+        state_start_settable: (n_x,) whether a state takes a start value before the initialisation (its variable's
+            initial is exact or approx, or it has a start value and no initial), as the workflow's open loop sets it.
     """
 
     identifier: str
@@ -42,6 +44,7 @@ class InnerFmu:
     input_start: tuple[float, ...]
     parameters: dict[str, tuple[int, float]] = field(default_factory=dict)
     platforms: tuple[str, ...] = ()
+    state_start_settable: tuple[bool, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -81,6 +84,10 @@ class ExportContent:
         delays: the learned input delays. end_stop: (position index, rate index, lower, upper) or None.
         input_stages: the diagnosed changes of the logged inputs (:mod:`hybridfmu.export.input_stages`), before
             the delays read them; empty for none.
+        events: step as the workflow's open loop of the FMU (+ effects) does, with the FMU's events handled
+            (``hybridfmu.fmu.simulate``), instead of the neural rollout (then the ANN fields are unused);
+        rate_hz: the grid's rate (its times are start + k / rate, as ingest writes them); event_tolerance_s,
+            max_events: the open loop's event settings.
         x_start: (n_x,) default start values of the states.
         effect_code, effect_reals: an effect program added to the FMU's derivatives (``effects.c``), empty for none;
         coefficient_names, coefficient_index: the program's tunable coefficients and their places in
@@ -105,6 +112,10 @@ class ExportContent:
     coefficient_names: tuple[str, ...] = ()
     coefficient_index: tuple[int, ...] = ()
     input_stages: tuple[InputStage, ...] = ()
+    events: bool = False
+    rate_hz: float | None = None
+    event_tolerance_s: float = 1e-10
+    max_events: int = 100
 
     @property
     def input_lookahead(self) -> int:
@@ -113,9 +124,15 @@ class ExportContent:
         return max((column_lookahead(self.input_stages, c) for c in range(len(self.inner.input_names))), default=0)
 
     @property
+    def model_lookahead(self) -> int:
+        """Samples after step k's start (of the inputs as the model sees them) that step k reads: the delays' and
+        RK4's interpolation for a neural rollout, none for the open loop with the inputs held."""
+        return 0 if self.events else self.delays.lookahead
+
+    @property
     def lookahead(self) -> int:
-        """The lag of the exported FMU's outputs behind the model, in samples: the input stages' and the delays'."""
-        return self.input_lookahead + self.delays.lookahead
+        """The lag of the exported FMU's outputs behind the model, in samples: the input stages' and the model's."""
+        return self.input_lookahead + self.model_lookahead
 
     @property
     def output_delay_s(self) -> float:
@@ -156,7 +173,9 @@ def inner_fmu(fmu_path: str, parameters: dict[str, float] | None) -> InnerFmu:
         vr_inputs=tuple(int(v.valueReference) for v in inputs),
         n_event_indicators=int(description.numberOfEventIndicators or 0),
         input_start=tuple(float(v.start) if v.start not in (None, "") else 0.0 for v in inputs),
-        parameters=chosen, platforms=tuple(platforms))
+        parameters=chosen, platforms=tuple(platforms),
+        state_start_settable=tuple(state.initial in ("exact", "approx") or (state.initial is None and state.start
+                                                                           is not None) for state in states))
 
 
 def delayed_inputs(model: Any) -> DelayedInputs:
@@ -218,9 +237,10 @@ def _start_states(fmu_path: str, parameters: dict[str, float] | None) -> np.ndar
 
 
 def neural_content(model: Any, fmu_path: str, parameters: dict[str, float] | None, model_kind: str = "neural_fmu",
-                   description: str = "") -> ExportContent:
+                   description: str = "", conventions: Sequence[str] | None = None) -> ExportContent:
     """The export of a trained neural FMU ``model`` around the FMU at ``fmu_path`` with the calibrated
-    ``parameters``.
+    ``parameters``; ``conventions``: each input's convention between samples (``hybridfmu.data.between_samples``;
+    None: all held).
 
     Raises:
         ValueError: the model's states or inputs differ from the FMU's, or it is a hybrid (:func:`hybrid_content`).
@@ -235,10 +255,11 @@ def neural_content(model: Any, fmu_path: str, parameters: dict[str, float] | Non
         model=model_kind, description=description or "neural FMU: the FMU under an ANN that corrects "
         f"{', '.join(spec.corrected_states)}", inner=inner, sample_period_s=float(spec.sample_period_s),
         solver=spec.solver, widths=weights.widths, params=weights.params, w_u=w_u, b_first=b_first,
-        delays=delayed_inputs(model), end_stop=_end_stop(spec), x_start=_start_states(fmu_path, parameters))
+        delays=delayed_inputs(model), end_stop=_end_stop(spec), x_start=_start_states(fmu_path, parameters),
+        input_stages=tuple(input_stages({}, list(spec.input_names), float(spec.sample_period_s), 3, conventions)))
 
 
-def _coefficient_places(corrected: Any, coefficients: np.ndarray, reals: np.ndarray) -> list[int]:
+def _coefficient_places(corrected: Any, reals: np.ndarray) -> list[int]:
     """Per additive coefficient, its place in the effect program's reals: the one real that takes a new value of
     it unchanged (found by setting each coefficient to a marker in turn); -1 where no single real does."""
     arrays = [array for _, array in corrected.row_coefficients]
@@ -258,19 +279,17 @@ def _coefficient_places(corrected: Any, coefficients: np.ndarray, reals: np.ndar
 
 
 def hybrid_content(model: Any, fmu_path: str, parameters: dict[str, float] | None,
-                   description: str = "") -> ExportContent:
+                   description: str = "", conventions: Sequence[str] | None = None) -> ExportContent:
     """The export of a trained hybrid ``model`` (FMU + diagnosed effects + ANN) around the FMU at ``fmu_path``
     with the calibrated ``parameters``: its physical layer's parameters on top of them, its additive effect terms
-    as an effect program (their trained coefficients tunable), its input changes as input stages.
+    as an effect program (their trained coefficients tunable), its input changes as input stages (after each
+    input's ``conventions`` between samples, as in :func:`neural_content`).
 
     Raises:
         ValueError: not a hybrid; an effect term or input change without a C form (naming it); a hybrid that is
             its physical layer (its evaluation simulates the FMU + effects with the FMU's events, which the export
             does not reproduce yet).
     """
-    from hybridfmu.diagnosis.derivatives import odd_window
-    from hybridfmu.diagnosis.effects import DEFAULT_LAG_DERIVATIVE_SAMPLES
-    from hybridfmu.export.input_stages import input_stages
     from hybridfmu.training.inference import is_its_physical_layer, physical_layer
 
     spec = model.spec
@@ -279,7 +298,7 @@ def hybrid_content(model: Any, fmu_path: str, parameters: dict[str, float] | Non
         raise ValueError("export: hybrid_content needs a hybrid (a neural FMU around the FMU + diagnosed effects)")
     if is_its_physical_layer(model):
         raise ValueError("export: this hybrid is its physical layer (ANN at zero), which the evaluation simulates as "
-                         "the FMU + diagnosed effects with the FMU's events; that model has no export yet")
+                         "the FMU + diagnosed effects with the FMU's events: export it with effects_content")
     model.fmu.apply_coefficients()  # the trained coefficients onto the physical layer
     corrected = physics.corrected
     program = corrected.effect_program() if corrected.has_correction else None
@@ -290,15 +309,8 @@ def hybrid_content(model: Any, fmu_path: str, parameters: dict[str, float] | Non
     inner = _checked_inner(model, fmu_path, all_parameters)
     weights, w_u, b_first = _fused_weights(model)
     h = float(spec.sample_period_s)
-    window = (DEFAULT_LAG_DERIVATIVE_SAMPLES if corrected.lag_window_s is None
-              else odd_window(float(corrected.lag_window_s), h, minimum=3))
-    stages = input_stages(corrected.input_changes, list(spec.input_names), h, window)
-    code, reals, names, places = (), (), (), ()
-    if program is not None:
-        code, reals = tuple(int(c) for c in program.code), tuple(float(r) for r in program.reals)
-        found = _coefficient_places(corrected, physics.coefficients, np.asarray(reals))
-        pairs = [(name, place) for name, place in zip(physics.coefficient_names, found) if place >= 0]
-        names, places = tuple(name for name, _ in pairs), tuple(place for _, place in pairs)
+    stages = input_stages(corrected.input_changes, list(spec.input_names), h, _lag_window(corrected, h), conventions)
+    code, reals, names, places = _program_parts(corrected, program, physics.coefficient_names)
     return ExportContent(
         model="hybrid", description=description or "hybrid: the FMU plus the diagnosed effects "
         f"({', '.join(physics.effects)}) under an ANN that corrects {', '.join(spec.corrected_states)}",
@@ -307,6 +319,69 @@ def hybrid_content(model: Any, fmu_path: str, parameters: dict[str, float] | Non
         x_start=_start_states(fmu_path, all_parameters), effect_code=code, effect_reals=reals,
         effect_sets_inputs=bool(program is not None and program.evaluates_model), coefficient_names=names,
         coefficient_index=places, input_stages=tuple(stages))
+
+
+def _lag_window(corrected: Any, dt_s: float) -> int:
+    """The smoothing window (samples) of the corrected model's input lags (``input_derivative``'s choice)."""
+    from hybridfmu.diagnosis.derivatives import odd_window
+    from hybridfmu.diagnosis.effects import DEFAULT_LAG_DERIVATIVE_SAMPLES
+
+    if corrected.lag_window_s is None:
+        return DEFAULT_LAG_DERIVATIVE_SAMPLES
+    return odd_window(float(corrected.lag_window_s), dt_s, minimum=3)
+
+
+def _program_parts(corrected: Any, program: Any, coefficient_names: Sequence[str]):
+    """(code, reals, tunable coefficient names, their places in reals) of an effect program (all empty for None)."""
+    if program is None:
+        return (), (), (), ()
+    code, reals = tuple(int(c) for c in program.code), tuple(float(r) for r in program.reals)
+    found = _coefficient_places(corrected, np.asarray(reals))
+    pairs = [(name, place) for name, place in zip(coefficient_names, found) if place >= 0]
+    return code, reals, tuple(name for name, _ in pairs), tuple(place for _, place in pairs)
+
+
+def effects_content(diagnosed_path: str, fmu_path: str, parameters: dict[str, float] | None, rate_hz: float,
+                    conventions: Sequence[str] | None = None, description: str = "", effects: list[str] | None = None,
+                    model_kind: str = "fmu_effects") -> ExportContent:
+    """The export of the FMU plus the diagnosed effects (``diagnosis/diagnosed_model.pkl``) around the FMU at
+    ``fmu_path`` with the calibrated ``parameters``, stepped as the evaluation simulates it
+    (``DiagnosedModel.simulate``): the diagnosed parameters on top of the calibrated ones, the input changes as
+    input stages, the additive terms as an effect program (their coefficients tunable), RK4 on the grid of
+    ``rate_hz`` with the inputs held and the FMU's events handled. ``effects``: only these of the diagnosed model's
+    effects (None: all; a hybrid that is its physical layer carries its own selection), ``model_kind`` the name in
+    the record.
+
+    Raises:
+        ValueError: an effect term or input change without a C form (naming it).
+    """
+    from hybridfmu.diagnosis.export import load_diagnosed
+    from hybridfmu.fmu import load_fmu
+
+    diagnosed = load_diagnosed(diagnosed_path).selected(effects)
+    with load_fmu(fmu_path, parameters=parameters or None) as helper:
+        corrected = diagnosed.corrected(helper)
+        program = corrected.effect_program() if corrected.has_correction else None
+        if corrected.has_correction and program is None:
+            raise ValueError(f"export: a term of the FMU + diagnosed effects ({', '.join(diagnosed.effects)}) has no "
+                             "C form (hybridfmu.fmu.effect_program); it cannot be exported")
+        coefficient_names = [f"{name}[{i}]" for name, array in corrected.row_coefficients for i in range(array.size)]
+        all_parameters = {**dict(parameters or {}), **diagnosed.parameters, **corrected.parameters}
+        h = 1.0 / float(rate_hz)
+        inner = inner_fmu(fmu_path, all_parameters)
+        stages = input_stages(corrected.input_changes, list(inner.input_names), h, _lag_window(corrected, h),
+                              conventions)
+        code, reals, names, places = _program_parts(corrected, program, coefficient_names)
+    n_x, n_u = len(inner.state_names), len(inner.input_names)
+    still = DelayedInputs((0,) * n_u, (0.0,) * n_u, (0,) * n_u, (0.0,) * n_u, {})
+    terms = ", ".join(diagnosed.effects) or "parameters only"
+    return ExportContent(
+        model=model_kind, description=description or f"the FMU plus the diagnosed effects ({terms})", inner=inner,
+        sample_period_s=h, solver="rk4", widths=(1,), params=np.zeros(5 * n_x), w_u=np.zeros((n_u, 1)),
+        b_first=np.zeros(1), delays=still, end_stop=None, x_start=_start_states(fmu_path, all_parameters),
+        effect_code=code, effect_reals=reals,
+        effect_sets_inputs=bool(program is not None and program.evaluates_model), coefficient_names=names,
+        coefficient_index=places, input_stages=tuple(stages), events=True, rate_hz=float(rate_hz))
 
 
 def plain_content(reference: ExportContent) -> ExportContent:

@@ -10,6 +10,7 @@ from typing import Iterable
 
 from hybridfmu.export.content import ExportContent
 from hybridfmu.export.input_stages import STAGE_CODES
+from hybridfmu.fmu.bridge import MAX_EVENT_ITERATIONS
 
 
 def _c_string(text: str) -> str:
@@ -66,7 +67,7 @@ def render_header(content: ExportContent, identifier: str, guid: str, inner_dir:
         f"#define EXPORT_NU {nu}",
         f"#define EXPORT_H_S {_double(content.sample_period_s)}",
         f"#define EXPORT_RK4 {1 if content.solver == 'rk4' else 0}",
-        f"#define EXPORT_LOOKAHEAD {content.delays.lookahead}",
+        f"#define EXPORT_LOOKAHEAD {content.model_lookahead}",
         f"#define EXPORT_LOOKBACK {content.delays.lookback}",
         f"#define EXPORT_N_PARAMETERS {len(parameters)}",
         f"#define EXPORT_N_LAYERS {len(content.widths)}",
@@ -81,6 +82,12 @@ def render_header(content: ExportContent, identifier: str, guid: str, inner_dir:
         f"#define EXPORT_EFFECT_SETS_INPUTS {1 if content.effect_sets_inputs else 0}",
         f"#define EXPORT_N_COEFFICIENTS {len(content.coefficient_names)}",
         f"#define EXPORT_N_STAGES {len(stages)}",
+        f"#define EXPORT_EVENTS {1 if content.events else 0}",
+        f"#define EXPORT_RATE_HZ {_double(1.0 / content.sample_period_s if content.rate_hz is None else content.rate_hz)}",
+        f"#define EXPORT_EVENT_TOLERANCE_S {_double(content.event_tolerance_s)}",
+        f"#define EXPORT_MAX_EVENTS {int(content.max_events)}",
+        f"#define EXPORT_MAX_EVENT_ITERATIONS {int(MAX_EVENT_ITERATIONS)}",
+        f"#define EXPORT_LOG_CAPACITY {4 * (int(content.max_events) + 2)}",
         f"#define EXPORT_INPUT_LOOKAHEAD {content.input_lookahead}",
         f"#define EXPORT_STAGE_REACH {reach}",
         _array("hf_vr", "export_inner_vr_x", _integers(inner.vr_states), nx),
@@ -110,6 +117,7 @@ def render_header(content: ExportContent, identifier: str, guid: str, inner_dir:
         f"static const double export_stage_reals[{max(len(stages), 1)}][4] = {{"
         + (", ".join("{" + _doubles(stage.reals) + "}" for stage in stages) or "{0.0, 0.0, 0.0, 0.0}") + "};",
         _array("int", "export_final_sequence", _integers(final), nu),
+        _array("int", "export_state_start_settable", _integers(int(flag) for flag in inner.state_start_settable), nx),
         "#endif",
         "",
     ]

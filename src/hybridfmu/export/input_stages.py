@@ -22,8 +22,10 @@ from typing import Any, Sequence
 #: ``lag`` (r0 = T, r1 = dt): v + T (v[k+1] - v[k]) / dt (the rate over the interval, no smoothing);
 #: ``deadzone`` (c, d): v - c clip(v, -d, d); ``saturation_above`` (c, level): v - c max(v - level, 0);
 #: ``saturation_below`` (c, level): v + c max(level - v, 0); ``gain`` (g): (1 + g) v; ``offset`` (o): v + o.
+#: ``linear``: (v[k] + v[k+1]) / 2, the value a step holds of an input sampled from a continuous signal
+#: (``hybridfmu.data.between_samples``; it comes first, before the diagnosed changes).
 STAGE_CODES = {"shift": 1, "shift_mix": 2, "actuator_lag": 3, "lag": 4, "deadzone": 5, "saturation_above": 6,
-               "saturation_below": 7, "gain": 8, "offset": 9}
+               "saturation_below": 7, "gain": 8, "offset": 9, "linear": 10}
 
 
 @dataclass(frozen=True)
@@ -62,20 +64,25 @@ def _transform_stage(column: int, form: tuple[str, float, float], dt_s: float) -
 
 
 def input_stages(input_changes: dict[int, list[tuple[str, dict[str, Any]]]], input_names: Sequence[str],
-                 dt_s: float, lag_window_samples: int) -> list[InputStage]:
-    """The stages of ``input_changes`` (``CorrectedModel.input_changes``: column -> [(effect kind, change)]), in
-    the order :meth:`CorrectedModel.inputs` applies them, columns in ascending order.
+                 dt_s: float, lag_window_samples: int, conventions: Sequence[str] | None = None) -> list[InputStage]:
+    """The stages of the inputs as a model sees them: per input, the value a step holds by its convention between
+    samples (``linear``), then the diagnosed ``input_changes`` (``CorrectedModel.input_changes``: column ->
+    [(effect kind, change)]) in the order :meth:`CorrectedModel.inputs` applies them; columns in ascending order.
 
     Args:
         input_names: the inputs' names (for messages); dt_s: the sampling interval (s).
         lag_window_samples: the smoothing window of a lag's input rate (samples; only 3, no smoothing, has a C form).
+        conventions: each input's convention between samples (``hold`` or ``linear``, FMU order); None: all held.
 
     Raises:
         ValueError: a change without a C form, naming the input and the effect.
     """
     stages: list[InputStage] = []
-    for column, changes in sorted(input_changes.items()):
+    for column in range(len(input_names)):
         name = input_names[column]
+        if conventions is not None and conventions[column] == "linear":
+            stages.append(_stage(column, "linear", lookahead=1))
+        changes = input_changes.get(column, [])
         for _, change in changes:
             if change.get("shift_s", 0.0):
                 offset = change["shift_s"] / dt_s  # shift_inputs' index: k + offset_s / dt_s

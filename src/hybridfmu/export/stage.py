@@ -19,7 +19,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from hybridfmu.export.content import ExportContent, hybrid_content, neural_content
+from hybridfmu.export.content import ExportContent, effects_content, hybrid_content, neural_content
 from hybridfmu.export.names import EXPORTABLE_MODELS, model_identifier
 from hybridfmu.export.package import write_exported_fmu
 from hybridfmu.export.replay import REPLAY_TOLERANCE, replay
@@ -38,25 +38,41 @@ def config_digest(config: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
-def model_content(model: str, best_path: str | Path, fmu_path: str | Path, calibration_path: str | Path,
-                  diagnosed_path: str | Path | None = None) -> ExportContent:
-    """What the exported FMU of ``model`` carries, from the search's ``best.json``, the calibration and (a hybrid)
-    the diagnosed model.
+def model_content(model: str, best_path: str | Path | None, fmu_path: str | Path, calibration_path: str | Path,
+                  diagnosed_path: str | Path | None = None, rate_hz: float | None = None,
+                  conventions: Sequence[str] | None = None) -> ExportContent:
+    """What the exported FMU of ``model`` carries: a neural FMU or hybrid from its search's ``best.json``, the FMU +
+    diagnosed effects from the diagnosed model; the calibration's parameters; ``rate_hz`` the case's grid rate (the
+    FMU + effects' grid); ``conventions`` each input's convention between samples. A hybrid that is its physical
+    layer (ANN at zero) is exported as the evaluation simulates it: as the FMU + its diagnosed effects.
 
     Raises:
-        ValueError: a model the export cannot write (``hybridfmu.export.names.EXPORTABLE_MODELS``), or a hybrid
-            without the diagnosed model.
+        ValueError: an unknown model, or an input it needs missing.
     """
-    from hybridfmu.training.inference import load_trained_neural_fmu
+    from hybridfmu.training.inference import is_its_physical_layer, load_trained_neural_fmu
     from hybridfmu.training.measured import load_calibration
 
     if model not in EXPORTABLE_MODELS:
-        raise ValueError(f"export: model {model!r} cannot be exported yet; the export writes {list(EXPORTABLE_MODELS)}")
+        raise ValueError(f"export: model {model!r} cannot be exported; the export writes {list(EXPORTABLE_MODELS)}")
     parameters = dict(load_calibration(calibration_path).parameters)
+    if model in ("fmu_effects", "hybrid") and diagnosed_path is None:
+        raise ValueError(f"export: the {model} needs the diagnosed model (diagnosis/diagnosed_model.pkl)")
+    if model == "fmu_effects":
+        if rate_hz is None:
+            raise ValueError("export: the FMU + diagnosed effects needs the case's grid rate")
+        return effects_content(str(diagnosed_path), str(fmu_path), parameters, rate_hz, conventions)
+    if best_path is None:
+        raise ValueError(f"export: the {model} needs its search's best.json")
     trained = load_trained_neural_fmu(best_path, fmu_path, parameters or None, diagnosed_path)
     if model == "hybrid":
-        return hybrid_content(trained, str(fmu_path), parameters)
-    return neural_content(trained, str(fmu_path), parameters, model_kind=model)
+        if is_its_physical_layer(trained):
+            return effects_content(str(diagnosed_path), str(fmu_path), parameters, 1.0 / trained.spec.sample_period_s
+                                   if rate_hz is None else rate_hz, conventions,
+                                   description="hybrid: its physical layer, the FMU plus the diagnosed effects "
+                                   "(the search chose the ANN at zero)", effects=trained.spec.physics_effects,
+                                   model_kind="hybrid")
+        return hybrid_content(trained, str(fmu_path), parameters, conventions=conventions)
+    return neural_content(trained, str(fmu_path), parameters, model_kind=model, conventions=conventions)
 
 
 def _reference(trajectory_path: str | Path, model: str, state_names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -72,22 +88,26 @@ def _reference(trajectory_path: str | Path, model: str, state_names: Sequence[st
     return frame["time_s"].to_numpy(dtype=float), frame[columns].to_numpy(dtype=float)
 
 
-def export_model(model: str, case: str, config: dict[str, Any], best_path: str | Path, fmu_path: str | Path,
+def export_model(model: str, case: str, config: dict[str, Any], best_path: str | Path | None, fmu_path: str | Path,
                  calibration_path: str | Path, check_maneuvers: Sequence[str], data_paths: Sequence[str | Path],
                  trajectory_paths: Sequence[str | Path], roles: Any, fmu_out: str | Path, record_out: str | Path,
-                 run_path: str | Path | None = None, diagnosed_path: str | Path | None = None) -> dict[str, Any]:
+                 run_path: str | Path | None = None, diagnosed_path: str | Path | None = None,
+                 grid_path: str | Path | None = None, diagnosis_path: str | Path | None = None) -> dict[str, Any]:
     """Export ``model`` of ``case`` and check it (module docstring).
 
     Args:
-        model: ``neural_fmu`` or ``hybrid`` (:data:`hybridfmu.export.names.EXPORTABLE_MODELS`).
-        case, config: the case's name and its validated config (for the provenance's digest).
-        best_path, fmu_path, calibration_path: the search's ``best.json``, the case's FMU, ``calibration.json``.
+        model: ``neural_fmu``, ``fmu_effects`` or ``hybrid`` (:data:`hybridfmu.export.names.EXPORTABLE_MODELS`).
+        case, config: the case's name and its validated config (for the provenance's digest and the grid's rate).
+        best_path, fmu_path, calibration_path: the search's ``best.json`` (None for ``fmu_effects``), the case's
+            FMU, ``calibration.json``.
         check_maneuvers, data_paths, trajectory_paths: the maneuvers replayed, their ingested data and the
             evaluation's trajectories, in the same order.
         roles: the case's roles (``hybridfmu.data.roles.CaseRoles``).
         fmu_out, record_out: the FMU and the JSON record to write.
         run_path: the evaluation's ``mlflow_run.json`` (the FMU becomes an artifact of that run), or None.
-        diagnosed_path: the diagnosed model (``diagnosis/diagnosed_model.pkl``; a hybrid's physical layer).
+        diagnosed_path: the diagnosed model (``diagnosis/diagnosed_model.pkl``: the FMU + effects, a hybrid's
+            physical layer). grid_path: ``data/grid.json`` where the grid's rate was chosen from the logs.
+        diagnosis_path: ``diagnosis/diagnosis.json`` (the FMU + effects' MLflow run, for the provenance).
 
     Returns:
         The record written to ``record_out``.
@@ -95,33 +115,45 @@ def export_model(model: str, case: str, config: dict[str, Any], best_path: str |
     Raises:
         ExportCheckError: a validation message, or a replay deviation above the tolerance (nothing is written).
     """
+    import pandas as pd
+
     from hybridfmu import __version__
+    from hybridfmu.data.between_samples import frame_conventions
+    from hybridfmu.data.grid import grid_rate_hz
+    from hybridfmu.data.signals import signal_array
     from hybridfmu.tracking.provenance import code_version
-    from hybridfmu.training.measured import read_measured
 
     if not (len(check_maneuvers) == len(data_paths) == len(trajectory_paths)):
         raise ValueError(f"export: {len(check_maneuvers)} check maneuvers, {len(data_paths)} data files and "
                          f"{len(trajectory_paths)} trajectories")
-    content = model_content(model, best_path, fmu_path, calibration_path, diagnosed_path)
-    best = read_json(best_path)
+    frames = [pd.read_parquet(path) for path in data_paths]
+    conventions = frame_conventions(frames[0], roles.input_names) if frames else None
+    rate_hz = grid_rate_hz(config, grid_path) if model == "fmu_effects" else None
+    content = model_content(model, best_path, fmu_path, calibration_path, diagnosed_path, rate_hz, conventions)
+    source = read_json(best_path) if best_path is not None else read_json(diagnosis_path) if diagnosis_path else {}
     identifier = model_identifier(case, model)
     code = code_version()
     provenance = {"project": "hybridfmu", "version": __version__, "commit": code.get("commit"),
                   "modified": code.get("modified"), "case": case, "model": model,
-                  "config_digest": config_digest(config), "mlflow_run_id": best.get("mlflow_run_id"),
-                  "trial": best.get("trial_id")}
+                  "config_digest": config_digest(config), "mlflow_run_id": source.get("mlflow_run_id"),
+                  "trial": source.get("trial_id")}
     fmu_out, record_out = Path(fmu_out), Path(record_out)
     with atomic_path(fmu_out, suffix=".fmu") as tmp_fmu:
         write_exported_fmu(content, identifier, fmu_path, tmp_fmu, provenance, __version__)
         state_names = list(content.inner.state_names)
         checks = []
-        for maneuver, data_path, trajectory_path in zip(check_maneuvers, data_paths, trajectory_paths):
-            measured = read_measured(data_path, roles)
+        for maneuver, data_path, frame, trajectory_path in zip(check_maneuvers, data_paths, frames, trajectory_paths):
             time_s, reference = _reference(trajectory_path, model, state_names)
-            if time_s.shape != measured.time_s.shape or not np.allclose(time_s, measured.time_s, rtol=0, atol=1e-9):
+            data_time_s = frame["time_s"].to_numpy(dtype=float)
+            if time_s.shape != data_time_s.shape or not np.allclose(time_s, data_time_s, rtol=0, atol=1e-9):
                 raise ValueError(f"{trajectory_path}: its time grid differs from {data_path}'s; rerun simulate_best")
+            if frame_conventions(frame, roles.input_names) != conventions:
+                raise ValueError(f"{data_path}: its inputs' conventions between samples differ from "
+                                 f"{data_paths[0]}'s; rerun ingest")
+            # the inputs as sampled: the exported FMU holds each step's value by the input's convention itself
+            sampled = signal_array(frame, roles.input_signals)
             LOG.info("%s: replaying %s (%d samples) with FMPy ...", identifier, maneuver, time_s.size)
-            result = replay(tmp_fmu, maneuver, time_s, measured.u, list(content.inner.input_names), reference,
+            result = replay(tmp_fmu, maneuver, time_s, sampled, list(content.inner.input_names), reference,
                             state_names, content.lookahead)
             LOG.info("%s: %s replayed in %.1f s wall time, largest deviation %.3g of a state's range (%s)",
                      identifier, maneuver, result.wall_s, max(result.deviation.values()),
@@ -139,7 +171,9 @@ def export_model(model: str, case: str, config: dict[str, Any], best_path: str |
               "output_delay_s": content.output_delay_s, "sample_period_s": content.sample_period_s,
               "delays_s": content.delays.delays_s, "inner_fmu": content.inner.identifier,
               "inputs": list(content.inner.input_names), "states": state_names,
-              "coefficients": list(content.coefficient_names), "provenance": provenance, "checks": checks}
+              "coefficients": list(content.coefficient_names), "conventions": conventions,
+              "input_stages": [stage.kind for stage in content.input_stages], "events": content.events,
+              "provenance": provenance, "checks": checks}
     if run_path is not None:
         record["mlflow_artifact"] = _log_artifact(run_path, fmu_out)
     write_json_atomic(record_out, record)

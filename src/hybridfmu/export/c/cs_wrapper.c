@@ -6,9 +6,12 @@
  * instantiates it in Model-Exchange mode with the calibrated parameters, and integrates the exported model on
  * the case's sample grid with the loops of the workflow's own C engine (hybridfmu/fmu/shim.c, included below):
  *
- *   - EXPORT_KIND_NEURAL: a neural FMU (or a hybrid) in its fused form, one hf_neural_rollout step per sample,
+ *   - EXPORT_EVENTS 0, a neural FMU (or a hybrid) in its fused form: one hf_neural_rollout step per sample,
  *     with the learned input delays read from an input history by linear interpolation at the positions the
  *     workflow uses, and the first layer's input term z = u W_u + b computed here;
+ *   - EXPORT_EVENTS 1, the FMU (+ diagnosed effects) as the workflow's open loop simulates it: RK4 per sample
+ *     with the inputs held, the FMU's state, time, input and step events handled (hf_settle, hf_run_grid), the
+ *     FMU initialised at the first sample with the start states and inputs, as hybridfmu.fmu.simulate does;
  *   - an effect program (effects.c) added to the FMU's derivatives where the model has one (a hybrid's
  *     physical layer), and the diagnosed changes of the logged inputs as stages applied to each new sample
  *     (time shifts, lags, dead zones, saturations, gains, offsets: hybridfmu/export/input_stages.py), before the
@@ -68,6 +71,8 @@ typedef struct {
     fmi2Status (*get_real)(fmi2Component, const fmi2ValueReference *, size_t, fmi2Real *);
     fmi2Status (*new_discrete_states)(fmi2Component, fmi2EventInfo *);
     fmi2Status (*enter_continuous_time_mode)(fmi2Component);
+    fmi2Status (*enter_event_mode)(fmi2Component);
+    fmi2Status (*get_continuous_states)(fmi2Component, fmi2Real *, size_t);
     fmi2Status (*set_time)(fmi2Component, fmi2Real);
     fmi2Status (*set_continuous_states)(fmi2Component, const fmi2Real *, size_t);
     fmi2Status (*get_derivatives)(fmi2Component, fmi2Real *, size_t);
@@ -87,6 +92,8 @@ typedef struct {
     hf_model model;
     exp_mode mode;
     double time_s;
+    double start_time_s; /* setupExperiment's start time */
+    int terminated;      /* the embedded FMU asked to end the run */
     double u_now[EXPORT_NU > 0 ? EXPORT_NU : 1];
     double x[EXPORT_NX];
     double x_start[EXPORT_NX];
@@ -110,6 +117,20 @@ typedef struct {
     double work[6 * EXPORT_NX + EXPORT_NX + EXPORT_WIDTH_SUM];
     double effect_out[EXPORT_NX];
     double effect_work[EXPORT_NU + EXPORT_NX + 1];
+#if EXPORT_EVENTS
+    /* the open loop with events (hf_run_grid on one sample interval at a time) */
+    hf_events events;
+    double z_prev[EXPORT_INNER_NZ > 0 ? EXPORT_INNER_NZ : 1];
+    double grid_time[2];
+    double grid_u[2][EXPORT_NU > 0 ? EXPORT_NU : 1];
+    double grid_x[2][EXPORT_NX];
+    double event_work[16 * EXPORT_NX + 6 * (EXPORT_INNER_NZ > 0 ? EXPORT_INNER_NZ : 1) + 1];
+    double log_time[EXPORT_LOG_CAPACITY];
+    int log_kind[EXPORT_LOG_CAPACITY];
+    int log_reinit[EXPORT_LOG_CAPACITY];
+    unsigned char log_crossed[EXPORT_LOG_CAPACITY * (EXPORT_INNER_NZ > 0 ? EXPORT_INNER_NZ : 1)];
+    double outcome_x[EXPORT_NX];
+#endif
 } exp_instance;
 
 static void exp_log(exp_instance *c, fmi2Status status, const char *category, const char *format, ...) {
@@ -188,6 +209,8 @@ static int exp_load_inner(exp_instance *c, const char *resources) {
     EXP_SYMBOL(get_real, "fmi2GetReal");
     EXP_SYMBOL(new_discrete_states, "fmi2NewDiscreteStates");
     EXP_SYMBOL(enter_continuous_time_mode, "fmi2EnterContinuousTimeMode");
+    EXP_SYMBOL(enter_event_mode, "fmi2EnterEventMode");
+    EXP_SYMBOL(get_continuous_states, "fmi2GetContinuousStates");
     EXP_SYMBOL(set_time, "fmi2SetTime");
     EXP_SYMBOL(set_continuous_states, "fmi2SetContinuousStates");
     EXP_SYMBOL(get_derivatives, "fmi2GetDerivatives");
@@ -211,12 +234,29 @@ static void exp_setup_model(exp_instance *c) {
     m->get_event_indicators = (hf_get_vector_fn)c->api.get_event_indicators;
     m->get_directional_derivative = (hf_dir_der_fn)c->api.get_directional_derivative;
     m->completed_integrator_step = (hf_completed_fn)c->api.completed_integrator_step;
+    m->enter_event_mode = (hf_mode_fn)c->api.enter_event_mode;
+    m->new_discrete_states = (hf_new_discrete_states_fn)c->api.new_discrete_states;
+    m->enter_continuous_time_mode = (hf_mode_fn)c->api.enter_continuous_time_mode;
+    m->get_continuous_states = (hf_get_vector_fn)c->api.get_continuous_states;
     m->nx = EXPORT_NX;
     m->nu = EXPORT_NU;
     m->nz = EXPORT_INNER_NZ;
     m->vr_u = export_inner_vr_u;
     m->vr_x = export_inner_vr_x;
     m->vr_dx = export_inner_vr_dx;
+#if EXPORT_EVENTS
+    memset(&c->events, 0, sizeof c->events);
+    c->events.tolerance_s = EXPORT_EVENT_TOLERANCE_S;
+    c->events.max_events = EXPORT_MAX_EVENTS;
+    c->events.max_iterations = EXPORT_MAX_EVENT_ITERATIONS;
+    c->events.next_time_event = INFINITY;
+    c->events.capacity = EXPORT_LOG_CAPACITY;
+    c->events.log_time = c->log_time;
+    c->events.log_kind = c->log_kind;
+    c->events.log_reinit = c->log_reinit;
+    c->events.log_crossed = c->log_crossed;
+    c->events.outcome_x = c->outcome_x;
+#endif
 #if EXPORT_N_EFFECT_CODE > 0
     m->effect_code = export_effect_code;
     m->effect_n_code = EXPORT_N_EFFECT_CODE;
@@ -284,6 +324,7 @@ static void exp_defaults(exp_instance *c) {
     c->n_samples = 0;
     c->n_steps = 0;
     c->time_s = 0.0;
+    c->terminated = 0;
 }
 
 /* The effect program's reals with the current coefficients written at their places. */
@@ -328,10 +369,96 @@ static void exp_input_term(const double *u, double *z) {
         for (j = 0; j < EXPORT_WIDTH0; ++j) z[j] += u[i] * export_w_u[i * EXPORT_WIDTH0 + j];
 }
 
+#if EXPORT_EVENTS
+/* The embedded FMU initialised as hybridfmu.fmu.simulate initialises it at the start of an open loop: the start
+   states (those it accepts as start values) and the first inputs set, setupExperiment at the start time,
+   initialisation, the event iteration, continuous-time mode; then the event iteration at the start state. */
+static fmi2Status exp_events_start(exp_instance *c, const double *u) {
+    fmi2EventInfo info;
+    size_t i;
+    int status;
+    for (i = 0; i < EXPORT_NX; ++i)
+        if (export_state_start_settable[i] &&
+            c->api.set_real(c->inner, &export_inner_vr_x[i], 1, &c->x_start[i]) > fmi2Warning)
+            return exp_fail(c, "%s: setting a start state failed", EXPORT_INNER_IDENTIFIER);
+    if (EXPORT_NU && c->api.set_real(c->inner, export_inner_vr_u, EXPORT_NU, u) > fmi2Warning)
+        return exp_fail(c, "%s: setting the first inputs failed", EXPORT_INNER_IDENTIFIER);
+    if (c->api.setup_experiment(c->inner, fmi2False, 0.0, c->start_time_s, fmi2False, 0.0) > fmi2Warning ||
+        c->api.enter_initialization_mode(c->inner) > fmi2Warning ||
+        c->api.exit_initialization_mode(c->inner) > fmi2Warning)
+        return exp_fail(c, "%s: initialisation of the embedded FMU failed", EXPORT_INNER_IDENTIFIER);
+    c->events.next_time_event = INFINITY;
+    for (i = 0; i < EXPORT_MAX_EVENT_ITERATIONS; ++i) {
+        memset(&info, 0, sizeof info);
+        if (c->api.new_discrete_states(c->inner, &info) > fmi2Warning)
+            return exp_fail(c, "%s: fmi2NewDiscreteStates failed", EXPORT_INNER_IDENTIFIER);
+        if (info.terminateSimulation)
+            return exp_fail(c, "%s: the embedded FMU asked to terminate during initialisation",
+                            EXPORT_INNER_IDENTIFIER);
+        if (!info.newDiscreteStatesNeeded) {
+            c->events.next_time_event = info.nextEventTimeDefined ? info.nextEventTime : INFINITY;
+            break;
+        }
+    }
+    if (i == EXPORT_MAX_EVENT_ITERATIONS)
+        return exp_fail(c, "%s: the event iteration of the initialisation did not settle", EXPORT_INNER_IDENTIFIER);
+    if (c->api.enter_continuous_time_mode(c->inner) > fmi2Warning)
+        return exp_fail(c, "%s: fmi2EnterContinuousTimeMode failed", EXPORT_INNER_IDENTIFIER);
+    c->events.count = 0;
+    status = hf_settle(&c->model, &c->events, c->start_time_s, c->x, u, c->z_prev);
+    c->events.count = 0;
+    if (status == HF_STOP) return exp_fail(c, "%s", "the embedded FMU ended the run at its start");
+    if (status) return exp_fail(c, "%s", "the event iteration at the start failed");
+    return fmi2OK;
+}
+
+/* Step k of the FMU (+ effects) with the inputs u held: the state at sample k -> the state at sample k + 1. */
+static fmi2Status exp_events_step(exp_instance *c, long long k, const double *u) {
+    long long k_out = 0;
+    int status;
+    if (k == 0 && exp_events_start(c, u) != fmi2OK) return fmi2Error;
+    c->grid_time[0] = c->start_time_s + (double)k / EXPORT_RATE_HZ;
+    c->grid_time[1] = c->start_time_s + (double)(k + 1) / EXPORT_RATE_HZ;
+    memcpy(c->grid_u[0], u, sizeof c->grid_u[0]);
+    memcpy(c->grid_u[1], u, sizeof c->grid_u[1]);
+    memcpy(c->grid_x[0], c->x, sizeof c->x);
+    c->events.count = 0;
+    status = hf_run_grid(&c->model, &c->events, 2, c->grid_time, &c->grid_u[0][0], 0, &c->grid_x[0][0], c->z_prev,
+                         c->event_work, &k_out);
+    c->events.count = 0;
+    if (status) {
+        char detail[200];
+        snprintf(detail, sizeof detail, "step %lld (t = %.9g s): the embedded FMU's function %d failed with status %d",
+                 k, c->grid_time[0], c->model.failed_function, status);
+        return exp_fail(c, "%s", detail);
+    }
+    if (c->events.outcome == HF_OUT_TERMINATE) {
+        exp_log(c, fmi2Discard, "logStatusDiscard", "the embedded FMU asked to terminate at t = %.9g s",
+                c->events.outcome_time);
+        memcpy(c->x, c->outcome_x, sizeof c->x);
+        c->terminated = 1;
+        return fmi2Discard;
+    }
+    if (c->events.outcome != HF_OUT_DONE) {
+        char detail[200];
+        snprintf(detail, sizeof detail, "step %lld: the event handling stopped (outcome %d at t = %.9g s: too many "
+                 "events, a time event in the past, non-finite states or an event iteration that does not settle)",
+                 k, c->events.outcome, c->events.outcome_time);
+        return exp_fail(c, "%s", detail);
+    }
+    memcpy(c->x, c->grid_x[1], sizeof c->x);
+    c->n_steps = k + 1;
+    return fmi2OK;
+}
+#endif
+
 /* Step k of the model: x (the state at sample k) -> the state at sample k + 1. */
 static fmi2Status exp_step(exp_instance *c, long long k) {
     size_t done = 0;
     int status;
+#if EXPORT_EVENTS
+    return exp_events_step(c, k, exp_sample(c, k));
+#endif
     exp_delayed(c, k, export_grid_first, export_grid_frac, c->u_grid[0]);
     exp_delayed(c, k + 1, export_grid_first, export_grid_frac, c->u_grid[1]);
     exp_input_term(c->u_grid[0], c->z_grid[0]);
@@ -408,6 +535,8 @@ static double exp_stage_value(exp_instance *c, int s, int q, long long i) {
         return (1.0 + r[0]) * v;
     case 9: /* offset */
         return v + r[0];
+    case 10: /* linear: the mean over the step of the line through the samples */
+        return 0.5 * (v + exp_sequence_value(c, q, i + 1));
     default:
         return NAN;
     }
@@ -530,6 +659,7 @@ FMI2_Export fmi2Status fmi2SetupExperiment(fmi2Component component, fmi2Boolean 
     (void)stopTime;
     if (!c || c->mode != MODE_INSTANTIATED) return fmi2Error;
     c->time_s = startTime;
+    c->start_time_s = startTime;
     return fmi2OK;
 }
 
@@ -543,7 +673,7 @@ FMI2_Export fmi2Status fmi2EnterInitializationMode(fmi2Component component) {
 FMI2_Export fmi2Status fmi2ExitInitializationMode(fmi2Component component) {
     exp_instance *c = (exp_instance *)component;
     if (!c || c->mode != MODE_INITIALIZATION) return fmi2Error;
-    if (exp_initialise_inner(c) != fmi2OK) {
+    if (!EXPORT_EVENTS && exp_initialise_inner(c) != fmi2OK) { /* with events: at the first sample */
         c->mode = MODE_ERROR;
         return fmi2Error;
     }
@@ -732,6 +862,7 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommu
     long long n_sub, j;
     (void)noSetFMUStatePriorToCurrentPoint;
     if (!c || c->mode != MODE_STEPPING) return fmi2Error;
+    if (c->terminated) return fmi2Discard;
     samples = communicationStepSize / EXPORT_H_S;
     n_sub = llround(samples);
     if (n_sub < 1 || fabs(samples - (double)n_sub) > 1e-6 * (samples > 1.0 ? samples : 1.0)) {
@@ -741,7 +872,9 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component component, fmi2Real currentCommu
         return exp_fail(c, "%s", detail);
     }
     for (j = 0; j < n_sub; ++j) {
-        if (exp_take_sample(c) != fmi2OK) {
+        const fmi2Status status = exp_take_sample(c);
+        if (status == fmi2Discard) return fmi2Discard;
+        if (status != fmi2OK) {
             c->mode = MODE_ERROR;
             return fmi2Error;
         }
@@ -773,11 +906,11 @@ FMI2_Export fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKin
     (void)value;
     return fmi2Discard;
 }
-FMI2_Export fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
-    (void)c;
-    (void)s;
-    (void)value;
-    return fmi2Discard;
+FMI2_Export fmi2Status fmi2GetBooleanStatus(fmi2Component component, const fmi2StatusKind s, fmi2Boolean *value) {
+    exp_instance *c = (exp_instance *)component;
+    if (!c || !value || s != fmi2Terminated) return fmi2Discard;
+    *value = c->terminated ? fmi2True : fmi2False;
+    return fmi2OK;
 }
 FMI2_Export fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
     (void)c;
