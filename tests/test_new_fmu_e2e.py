@@ -168,3 +168,23 @@ def test_the_diagnosis_finds_the_friction_the_fmu_lacks(mass_spring_run):
     report = (mass_spring_run / "diagnosis" / "report.md").read_text()
     section = report.split("### 1. `coulomb(v)`", 1)[1].split("###", 1)[0]
     assert f"× {MASS_KG} kg |" in section and " N |" in section
+
+
+def test_the_models_of_the_new_fmu_leave_the_workflow_as_fmus(mass_spring_run):
+    """Every trained model of a case no code of the package knows, exported as a Co-Simulation FMU around the
+    user's FMU: valid for FMPy, and replayed with FMPy alone it reproduces the evaluation's test trajectory."""
+    from export_checks import declared, problems, replay_deviation
+
+    results = mass_spring_run
+    frame = pd.read_parquet(results / "data" / "test.parquet")
+    trajectories = pd.read_parquet(results / "evaluation" / "trajectories" / "test.parquet")
+    for model in ("neural_fmu", "fmu_effects"):
+        fmu = results / "export" / f"massspring_{model}.fmu"
+        assert problems(fmu) == [], model
+        info = declared(fmu)
+        assert info["inputs"] == ["force"] and info["outputs"] == ["x", "v"]
+        assert "resources/MassSpring.fmu" in info["files"]
+        reference = trajectories[[f"{model}_state_{name}" for name in ("x", "v")]].to_numpy(dtype=float)
+        deviation = replay_deviation(fmu, frame["time_s"].to_numpy(dtype=float), frame[["force"]].to_numpy(dtype=float),
+                                     reference)
+        assert np.all(deviation <= 1e-6), (model, deviation)

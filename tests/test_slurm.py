@@ -40,7 +40,7 @@ pytestmark = [
 TINY_RULES = {"build_fmu", "emulate_bench", "check_bench_spread", "ingest", "select_segments", "calibrate",
               "simulate_baseline", "time_offset", "hpo_prepare", "hpo_plan", "train_rung", "select_rung",
               "select_best", "simulate_best", "evaluate", "plot", "report", "diagnose", "summary",
-              "simulate_ceiling", "compare_neural_fmu"}
+              "simulate_ceiling", "compare_neural_fmu", "export"}
 SUBMITTED = re.compile(r"Job \d+ has been submitted with SLURM jobid (\d+) \(log: (\S+)\)")
 
 

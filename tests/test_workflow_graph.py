@@ -21,7 +21,8 @@ DEMO = REPO / "config" / "config.yaml"
 #: Rules that may read a held-out maneuver's files: the bench (the emulated world and its own spread check), the
 #: data preparation of every maneuver, and the evaluation after the models are chosen.
 EVALUATION_SIDE = {"emulate_bench", "check_bench_spread", "ingest", "select_segments", "simulate_baseline",
-                   "simulate_ceiling", "simulate_best", "simulate_closed_loop", "evaluate", "plot", "report", "summary", "all"}
+                   "simulate_ceiling", "simulate_best", "simulate_closed_loop", "evaluate", "plot", "report", "summary", "export",
+                   "all"}
 
 
 def dry_run_inputs(workdir: Path) -> list[tuple[str, list[str]]]:
