@@ -26,7 +26,8 @@ Functions:
 - :func:`simulate_fmu`: the FMU open loop over a frame's logged inputs;
 - :func:`diagnose`: the diagnosis of the sim-to-real gap on frames in memory;
 - :func:`load_run`: what a workflow run wrote for a case (metrics, best models, calibration) (:class:`Run`);
-- :func:`simulate_trained`: a run's trained neural FMU or hybrid open loop over a frame.
+- :func:`simulate_trained`: a run's trained neural FMU or hybrid open loop over a frame;
+- :func:`export_fmu`: a run's trained model as an FMI 2.0 Co-Simulation FMU (what rule ``export`` writes).
 """
 
 from __future__ import annotations
@@ -306,6 +307,49 @@ def simulate_trained(case: Case, frame: pd.DataFrame, search: str = "hpo", maneu
         x0 = physical_layer(model).diagnosed.initial_state(x0, maneuver or "")
     states = np.asarray(simulate_neural_fmu(model, measured.time_s, measured.u, x0), dtype=float)
     return _states_frame(measured.time_s, states, case.roles.state_names)
+
+
+def export_fmu(case: Case, model: str, path: str | Path, run: Run | None = None) -> Path:
+    """A run's trained model as an FMI 2.0 Co-Simulation FMU at ``path``, as rule ``export`` writes it (without the
+    rule's replay check; ``docs/export.md``).
+
+    Args:
+        case: the case; model: ``neural_fmu``, ``fmu_effects`` or ``hybrid``.
+        path: the ``.fmu`` to write (atomically).
+        run: the run (:func:`load_run`); None: the case's own results folder.
+
+    Raises:
+        FileNotFoundError: the run lacks what the model needs (its search's best model, the diagnosed model, the
+            calibration, an ingested maneuver).
+        ValueError: an unknown model, or a part of it without a C form (the message names it).
+    """
+    from hybridfmu import __version__
+    from hybridfmu.data.between_samples import frame_conventions
+    from hybridfmu.data.grid import grid_rate_hz
+    from hybridfmu.export.names import model_identifier
+    from hybridfmu.export.package import write_exported_fmu
+    from hybridfmu.export.stage import export_provenance, model_content
+    from hybridfmu.io import read_json
+
+    run = run or load_run(case)
+    search = {"neural_fmu": "hpo", "hybrid": "hybrid"}.get(model)
+    if search is not None and search not in run.best:
+        raise FileNotFoundError(f"{run.results_dir / search / 'best.json'}: the run has no chosen model of search "
+                                f"{search!r}")
+    if run.calibration_path is None:
+        raise FileNotFoundError(f"{run.results_dir / 'calibration'}: the run has no calibration")
+    data = sorted((run.results_dir / "data").glob("*.parquet"))
+    if not data:
+        raise FileNotFoundError(f"{run.results_dir / 'data'}: the run has no ingested maneuver")
+    grid = run.results_dir / "data" / "grid.json"
+    best = run.results_dir / search / "best.json" if search else None
+    diagnosis = run.results_dir / "diagnosis" / "diagnosis.json"
+    content = model_content(model, best, fmu_file(case), run.calibration_path, run.diagnosed_path,
+                            grid_rate_hz(case.config, grid if grid.is_file() else None),
+                            frame_conventions(pd.read_parquet(data[0]), case.roles.input_names))
+    source = read_json(best) if best else read_json(diagnosis) if diagnosis.is_file() else {}
+    return write_exported_fmu(content, model_identifier(case.name, model), fmu_file(case), path,
+                              export_provenance(case.name, model, case.config, source), __version__)
 
 
 def _maneuver(case: Case, maneuver: str) -> dict[str, Any]:

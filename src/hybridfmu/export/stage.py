@@ -38,6 +38,19 @@ def config_digest(config: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
+def export_provenance(case: str, model: str, config: dict[str, Any], source: dict[str, Any]) -> dict[str, Any]:
+    """What an exported FMU records of where it comes from: the project's version and commit, the case, the model,
+    the config's digest, and the MLflow run and trial of ``source`` (the search's ``best.json``, or for the FMU +
+    effects the diagnosis' ``diagnosis.json``)."""
+    from hybridfmu import __version__
+    from hybridfmu.tracking.provenance import code_version
+
+    code = code_version()
+    return {"project": "hybridfmu", "version": __version__, "commit": code.get("commit"),
+            "modified": code.get("modified"), "case": case, "model": model, "config_digest": config_digest(config),
+            "mlflow_run_id": source.get("mlflow_run_id"), "trial": source.get("trial_id")}
+
+
 def model_content(model: str, best_path: str | Path | None, fmu_path: str | Path, calibration_path: str | Path,
                   diagnosed_path: str | Path | None = None, rate_hz: float | None = None,
                   conventions: Sequence[str] | None = None) -> ExportContent:
@@ -121,7 +134,6 @@ def export_model(model: str, case: str, config: dict[str, Any], best_path: str |
     from hybridfmu.data.between_samples import frame_conventions
     from hybridfmu.data.grid import grid_rate_hz
     from hybridfmu.data.signals import signal_array
-    from hybridfmu.tracking.provenance import code_version
 
     if not (len(check_maneuvers) == len(data_paths) == len(trajectory_paths)):
         raise ValueError(f"export: {len(check_maneuvers)} check maneuvers, {len(data_paths)} data files and "
@@ -132,11 +144,7 @@ def export_model(model: str, case: str, config: dict[str, Any], best_path: str |
     content = model_content(model, best_path, fmu_path, calibration_path, diagnosed_path, rate_hz, conventions)
     source = read_json(best_path) if best_path is not None else read_json(diagnosis_path) if diagnosis_path else {}
     identifier = model_identifier(case, model)
-    code = code_version()
-    provenance = {"project": "hybridfmu", "version": __version__, "commit": code.get("commit"),
-                  "modified": code.get("modified"), "case": case, "model": model,
-                  "config_digest": config_digest(config), "mlflow_run_id": source.get("mlflow_run_id"),
-                  "trial": source.get("trial_id")}
+    provenance = export_provenance(case, model, config, source)
     fmu_out, record_out = Path(fmu_out), Path(record_out)
     with atomic_path(fmu_out, suffix=".fmu") as tmp_fmu:
         write_exported_fmu(content, identifier, fmu_path, tmp_fmu, provenance, __version__)

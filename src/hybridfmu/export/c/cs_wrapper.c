@@ -298,7 +298,7 @@ static fmi2Status exp_initialise_inner(exp_instance *c) {
         c->api.enter_initialization_mode(c->inner) > fmi2Warning ||
         c->api.exit_initialization_mode(c->inner) > fmi2Warning)
         return exp_fail(c, "%s: initialisation of the embedded FMU failed", EXPORT_INNER_IDENTIFIER);
-    for (i = 0; i < 1000; ++i) {
+    for (i = 0; i < EXPORT_MAX_EVENT_ITERATIONS; ++i) {
         memset(&info, 0, sizeof info);
         if (c->api.new_discrete_states(c->inner, &info) > fmi2Warning)
             return exp_fail(c, "%s: fmi2NewDiscreteStates failed", EXPORT_INNER_IDENTIFIER);
