@@ -47,10 +47,13 @@ def validation_problems(fmu_path: str | Path) -> list[str]:
 
 
 def simulate_exported(fmu_path: str | Path, time_s: np.ndarray, u: np.ndarray, input_names: Sequence[str],
-                      x0: np.ndarray, state_names: Sequence[str]) -> np.ndarray:
+                      x0: np.ndarray, state_names: Sequence[str], label: str = "replay") -> np.ndarray:
     """The exported FMU's outputs (T, n_x) at the samples ``time_s`` (T,), driven by ``u`` (T, n_u), from the start
-    values ``x0`` (n_x,), in FMPy's co-simulation loop with the communication step ``time_s[1] - time_s[0]``."""
+    values ``x0`` (n_x,), in FMPy's co-simulation loop with the communication step ``time_s[1] - time_s[0]``;
+    progress lines (simulated seconds, rate, time left) under ``label``."""
     from fmpy import simulate_fmu
+
+    from hybridfmu.progress import Progress
 
     time_s = np.asarray(time_s, dtype=float)
     step_s = float(time_s[1] - time_s[0])
@@ -58,9 +61,19 @@ def simulate_exported(fmu_path: str | Path, time_s: np.ndarray, u: np.ndarray, i
     signals["time"] = time_s - time_s[0]
     for column, name in enumerate(input_names):
         signals[name] = u[:, column]
+    progress = Progress(float(time_s[-1] - time_s[0]), label, unit="simulated s", interval_s=10.0)
+    reached = [0.0]
+
+    def step_finished(time: float, recorder) -> bool:
+        progress.update(time - reached[0])
+        reached[0] = time
+        return True
+
     result = simulate_fmu(str(fmu_path), start_time=0.0, stop_time=float(time_s[-1] - time_s[0]), step_size=step_s,
                           output_interval=step_s, input=signals, output=list(state_names),
-                          start_values={f"{name}_start": float(value) for name, value in zip(state_names, x0)})
+                          start_values={f"{name}_start": float(value) for name, value in zip(state_names, x0)},
+                          step_finished=step_finished)
+    progress.finish()
     states = np.stack([np.asarray(result[name], dtype=float) for name in state_names], axis=1)
     if states.shape[0] < time_s.size:
         raise RuntimeError(f"{fmu_path}: FMPy returned {states.shape[0]} samples, expected {time_s.size}")
@@ -74,7 +87,7 @@ def replay(fmu_path: str | Path, maneuver: str, time_s: np.ndarray, u: np.ndarra
     model, whose first row is the start state."""
     reference = np.asarray(reference, dtype=float)
     start = time.perf_counter()
-    outputs = simulate_exported(fmu_path, time_s, u, input_names, reference[0], state_names)
+    outputs = simulate_exported(fmu_path, time_s, u, input_names, reference[0], state_names, f"replay of {maneuver}")
     wall_s = time.perf_counter() - start
     lag = int(output_delay_samples)
     compared = reference.shape[0] - lag

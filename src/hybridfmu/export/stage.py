@@ -1,7 +1,8 @@
 """Rule ``export``: one trained model of a case as an FMI 2.0 Co-Simulation FMU, checked against the workflow.
 
-:func:`export_model` reads the model the evaluation simulated (the search's ``best.json``, the calibration),
-writes ``export/<case>_<model>.fmu`` (:mod:`hybridfmu.export.package`), validates it and replays the check
+:func:`export_model` reads the model the evaluation simulated (the search's ``best.json`` or, for the FMU +
+diagnosed effects, the diagnosed model; the calibration), writes ``export/<case>_<model>.fmu``
+(:mod:`hybridfmu.export.package`), validates it and replays the check
 maneuvers with FMPy alone (:mod:`hybridfmu.export.replay`), and writes the record ``export/<model>.json``:
 the file, its provenance, the output delay, and per maneuver the replay's deviation from the evaluation's
 trajectory. The FMU is added to the evaluation's MLflow run (``evaluation/mlflow_run.json``) as an artifact under
