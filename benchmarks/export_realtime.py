@@ -1,10 +1,11 @@
 """Simulation speed of the exported FMUs in FMPy's co-simulation loop, against real time.
 
-For each exported model of a finished run (``--results``, e.g. ``results/ipb``: the records ``export/<model>.json``
-of rule ``export``) and, beside them, the case's FMU alone exported the same way (the same wrapper, grid and
-solver, no ANN, no effects: ``hybridfmu.export.content.plain_content``), ``fmpy.simulate_fmu`` runs the FMU over
-the first ``--duration-s`` seconds of a maneuver's logged inputs (``--maneuver``, default the records' first
-check maneuver) with a communication step of ``--step-s`` (default 1 ms, or the model's sample period if longer).
+Each trained model of a finished run (``--results``, e.g. ``results/ipb``; the neural FMU, the FMU + diagnosed
+effects, and the hybrid where the run has one) is exported as rule ``export`` exports it (``hybridfmu.api.export_fmu``,
+into a temporary folder) and, beside them, the case's FMU alone the same way (the same wrapper, grid and solver, no
+ANN, no effects: ``hybridfmu.export.content.plain_content``); ``fmpy.simulate_fmu`` runs each over the first
+``--duration-s`` seconds of a maneuver's logged inputs (``--maneuver``, default the first test maneuver) with a
+communication step of ``--step-s`` (default 1 ms, or the model's sample period if longer).
 The models run in turn, ``--repeats`` times, so that all of them share the machine's load; the figure is the
 median of simulated seconds per wall second (above 1: faster than real time), and its ratio to the FMU alone.
 
@@ -20,20 +21,23 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
-from hybridfmu.config import case_fmu_path, case_results_dir, load_case_config
-from hybridfmu.data.roles import case_roles
+from hybridfmu import api
+from hybridfmu.data.signals import signal_array
 from hybridfmu.export.content import plain_content
 from hybridfmu.export.package import write_exported_fmu
 from hybridfmu.export.stage import model_content
-from hybridfmu.io import read_json, write_text_atomic
-from hybridfmu.training.measured import read_measured
+from hybridfmu.io import write_text_atomic
+
+#: The table's names of the models.
+MODEL_LABELS = {"neural_fmu": "neural FMU", "fmu_effects": "FMU + diagnosed effects",
+                "hybrid": "hybrid (FMU + effects + ANN)"}
 
 
 def run_once(fmu: Path, time_s: np.ndarray, u: np.ndarray, inputs: list[str], outputs: list[str],
@@ -61,40 +65,36 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--markdown", help="write the table as Markdown to this file")
     args = parser.parse_args(argv)
-    config = load_case_config(args.config)
-    results = Path(args.results) if args.results else case_results_dir(config)
-    fmu_path = (results / "fmu" / f"{config['fmu']['model_name']}.fmu" if config["fmu"]["source"] == "build"
-                else case_fmu_path(config))
-    records = {path.stem: read_json(path) for path in sorted((results / "export").glob("*.json"))}
-    if not records:
-        print(f"{results}/export: no exported models (run the workflow's rule export first)", file=sys.stderr)
-        return 1
-    first = next(iter(records.values()))
-    maneuver = args.maneuver or first["checks"][0]["maneuver"]
-    measured = read_measured(results / "data" / f"{maneuver}.parquet", case_roles(config))
-    sample_s = float(first["sample_period_s"])
-    step_s = max(args.step_s, sample_s)
-    steps_per_sample = round(step_s / sample_s)
-    n = min(measured.time_s.size, int(round(args.duration_s / sample_s)) + 1)
-    rows = np.arange(0, n, steps_per_sample)
-    time_s, u = measured.time_s[rows], measured.u[rows]
+    case = api.load_case(args.config)
+    run = api.load_run(case, args.results)
+    results = run.results_dir
+    maneuver = args.maneuver or next(name for name, item in case.config["maneuvers"].items() if item["role"] == "test")
+    frame = pd.read_parquet(results / "data" / f"{maneuver}.parquet")
+    models = ["neural_fmu", "fmu_effects"] + (["hybrid"] if "hybrid" in run.best else [])
     with tempfile.TemporaryDirectory(prefix="export-realtime-") as folder:
-        reference = model_content("neural_fmu", results / "hpo" / "best.json", fmu_path,
-                                  results / "calibration" / "calibration.json")
+        exported = {model: api.export_fmu(case, model, Path(folder) / f"{model}.fmu", run) for model in models}
+        reference = model_content("neural_fmu", results / "hpo" / "best.json", api.fmu_file(case),
+                                  run.calibration_path)
         plain = Path(folder) / "fmu_alone.fmu"
-        write_exported_fmu(plain_content(reference), "fmu_alone", fmu_path, plain,
-                           {"case": config["case"], "model": "the FMU alone"}, "benchmark")
-        models = {"the FMU alone": plain,
-                  **{record["model"]: results / "export" / Path(record["fmu"]).name for record in records.values()}}
-        inputs, outputs = first["inputs"], first["states"]
-        walls: dict[str, list[float]] = {name: [] for name in models}
+        write_exported_fmu(plain_content(reference), "fmu_alone", api.fmu_file(case), plain,
+                           {"case": case.name, "model": "the FMU alone"}, "benchmark")
+        fmus = {"the FMU alone": plain, **{MODEL_LABELS[model]: path for model, path in exported.items()}}
+        sample_s = float(reference.sample_period_s)
+        step_s = max(args.step_s, sample_s)
+        every = int(round(step_s / sample_s))
+        n = min(len(frame), int(round(args.duration_s / sample_s)) + 1)
+        rows = np.arange(0, n, every)
+        time_s = frame["time_s"].to_numpy(dtype=float)[rows]
+        u = signal_array(frame, case.roles.input_signals)[rows]
+        inputs, outputs = list(reference.inner.input_names), list(reference.inner.state_names)
+        walls: dict[str, list[float]] = {name: [] for name in fmus}
         for _ in range(args.repeats):
-            for name, fmu in models.items():
+            for name, fmu in fmus.items():
                 walls[name].append(run_once(fmu, time_s, u, inputs, outputs, step_s))
     simulated_s = float(time_s[-1] - time_s[0])
     speed = {name: simulated_s / statistics.median(values) for name, values in walls.items()}
     base = speed["the FMU alone"]
-    lines = [f"Exported models of case `{config['case']}` in FMPy's co-simulation loop (`fmpy.simulate_fmu`), "
+    lines = [f"Exported models of case `{case.name}` in FMPy's co-simulation loop (`fmpy.simulate_fmu`), "
              f"{simulated_s:g} s of `{maneuver}`'s logged inputs, communication step {step_s * 1e3:g} ms, median of "
              f"{args.repeats} runs in turn (`benchmarks/export_realtime.py`):", "",
              "| model | simulated s per wall s (× real time) | against the FMU alone |", "|---|---|---|"]
@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     print(text)
     if args.markdown:
         write_text_atomic(args.markdown, text + "\n")
-    print(json.dumps({"case": config["case"], "maneuver": maneuver, "simulated_s": simulated_s, "step_s": step_s,
+    print(json.dumps({"case": case.name, "maneuver": maneuver, "simulated_s": simulated_s, "step_s": step_s,
                       "wall_s": walls, "realtime_factor": speed}))
     return 0
 
