@@ -39,7 +39,7 @@ def replay_deviation(fmu: Path, time_s: np.ndarray, u: np.ndarray, reference: np
     step = float(time_s[1] - time_s[0])
     lag = int(round(info["output_delay_s"] / step))
     signals = np.zeros(len(time_s), dtype=[("time", float)] + [(name, float) for name in info["inputs"]])
-    signals["time"] = time_s - time_s[0]
+    signals["time"] = np.arange(len(time_s)) * step  # FMPy's communication points: each sample as it is
     for column, name in enumerate(info["inputs"]):
         signals[name] = u[:, column]
     result = simulate_fmu(str(fmu), start_time=0.0, stop_time=float(time_s[-1] - time_s[0]), step_size=step,

@@ -344,9 +344,10 @@ def export_fmu(case: Case, model: str, path: str | Path, run: Run | None = None)
     grid = run.results_dir / "data" / "grid.json"
     best = run.results_dir / search / "best.json" if search else None
     diagnosis = run.results_dir / "diagnosis" / "diagnosis.json"
+    frame = pd.read_parquet(data[0])
     content = model_content(model, best, fmu_file(case), run.calibration_path, run.diagnosed_path,
                             grid_rate_hz(case.config, grid if grid.is_file() else None),
-                            frame_conventions(pd.read_parquet(data[0]), case.roles.input_names))
+                            frame_conventions(frame, case.roles.input_names), frame["time_s"].to_numpy(dtype=float))
     source = read_json(best) if best else read_json(diagnosis) if diagnosis.is_file() else {}
     return write_exported_fmu(content, model_identifier(case.name, model), fmu_file(case), path,
                               export_provenance(case.name, model, case.config, source), __version__)

@@ -343,14 +343,16 @@ def _program_parts(corrected: Any, program: Any, coefficient_names: Sequence[str
 
 def effects_content(diagnosed_path: str, fmu_path: str, parameters: dict[str, float] | None, rate_hz: float,
                     conventions: Sequence[str] | None = None, description: str = "", effects: list[str] | None = None,
-                    model_kind: str = "fmu_effects") -> ExportContent:
+                    model_kind: str = "fmu_effects", changes_dt_s: float | None = None) -> ExportContent:
     """The export of the FMU plus the diagnosed effects (``diagnosis/diagnosed_model.pkl``) around the FMU at
     ``fmu_path`` with the calibrated ``parameters``, stepped as the evaluation simulates it
     (``DiagnosedModel.simulate``): the diagnosed parameters on top of the calibrated ones, the input changes as
     input stages, the additive terms as an effect program (their coefficients tunable), RK4 on the grid of
     ``rate_hz`` with the inputs held and the FMU's events handled. ``effects``: only these of the diagnosed model's
     effects (None: all; a hybrid that is its physical layer carries its own selection), ``model_kind`` the name in
-    the record.
+    the record. ``changes_dt_s``: the sampling interval the input changes are computed with (the workflow takes the
+    median step of a record's time stamps, :func:`hybridfmu.diagnosis.refit.simulate_corrected`, which can differ
+    from 1 / rate in its last digits; this open loop is sensitive to it); None: 1 / ``rate_hz``.
 
     Raises:
         ValueError: an effect term or input change without a C form (naming it).
@@ -368,8 +370,9 @@ def effects_content(diagnosed_path: str, fmu_path: str, parameters: dict[str, fl
         coefficient_names = [f"{name}[{i}]" for name, array in corrected.row_coefficients for i in range(array.size)]
         all_parameters = {**dict(parameters or {}), **diagnosed.parameters, **corrected.parameters}
         h = 1.0 / float(rate_hz)
+        dt = float(changes_dt_s) if changes_dt_s is not None else h
         inner = inner_fmu(fmu_path, all_parameters)
-        stages = input_stages(corrected.input_changes, list(inner.input_names), h, _lag_window(corrected, h),
+        stages = input_stages(corrected.input_changes, list(inner.input_names), dt, _lag_window(corrected, dt),
                               conventions)
         code, reals, names, places = _program_parts(corrected, program, coefficient_names)
     n_x, n_u = len(inner.state_names), len(inner.input_names)

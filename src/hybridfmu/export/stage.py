@@ -54,11 +54,13 @@ def export_provenance(case: str, model: str, config: dict[str, Any], source: dic
 
 def model_content(model: str, best_path: str | Path | None, fmu_path: str | Path, calibration_path: str | Path,
                   diagnosed_path: str | Path | None = None, rate_hz: float | None = None,
-                  conventions: Sequence[str] | None = None) -> ExportContent:
+                  conventions: Sequence[str] | None = None, time_s: np.ndarray | None = None) -> ExportContent:
     """What the exported FMU of ``model`` carries: a neural FMU or hybrid from its search's ``best.json``, the FMU +
     diagnosed effects from the diagnosed model; the calibration's parameters; ``rate_hz`` the case's grid rate (the
-    FMU + effects' grid); ``conventions`` each input's convention between samples. A hybrid that is its physical
-    layer (ANN at zero) is exported as the evaluation simulates it: as the FMU + its diagnosed effects.
+    FMU + effects' grid); ``conventions`` each input's convention between samples; ``time_s`` a record's time
+    stamps (T,), whose median step the FMU + effects' input changes are computed with, as the evaluation does. A
+    hybrid that is its physical layer (ANN at zero) is exported as the evaluation simulates it: as the FMU + its
+    diagnosed effects.
 
     Raises:
         ValueError: an unknown model, or an input it needs missing.
@@ -71,10 +73,12 @@ def model_content(model: str, best_path: str | Path | None, fmu_path: str | Path
     parameters = dict(load_calibration(calibration_path).parameters)
     if model in ("fmu_effects", "hybrid") and diagnosed_path is None:
         raise ValueError(f"export: the {model} needs the diagnosed model (diagnosis/diagnosed_model.pkl)")
+    changes_dt_s = float(np.median(np.diff(time_s))) if time_s is not None and len(time_s) > 1 else None
     if model == "fmu_effects":
         if rate_hz is None:
             raise ValueError("export: the FMU + diagnosed effects needs the case's grid rate")
-        return effects_content(str(diagnosed_path), str(fmu_path), parameters, rate_hz, conventions)
+        return effects_content(str(diagnosed_path), str(fmu_path), parameters, rate_hz, conventions,
+                               changes_dt_s=changes_dt_s)
     if best_path is None:
         raise ValueError(f"export: the {model} needs its search's best.json")
     trained = load_trained_neural_fmu(best_path, fmu_path, parameters or None, diagnosed_path)
@@ -84,7 +88,7 @@ def model_content(model: str, best_path: str | Path | None, fmu_path: str | Path
                                    if rate_hz is None else rate_hz, conventions,
                                    description="hybrid: its physical layer, the FMU plus the diagnosed effects "
                                    "(the search chose the ANN at zero)", effects=trained.spec.physics_effects,
-                                   model_kind="hybrid")
+                                   model_kind="hybrid", changes_dt_s=changes_dt_s)
         return hybrid_content(trained, str(fmu_path), parameters, conventions=conventions)
     return neural_content(trained, str(fmu_path), parameters, model_kind=model, conventions=conventions)
 
@@ -141,8 +145,9 @@ def export_model(model: str, case: str, config: dict[str, Any], best_path: str |
                          f"{len(trajectory_paths)} trajectories")
     frames = [pd.read_parquet(path) for path in data_paths]
     conventions = frame_conventions(frames[0], roles.input_names) if frames else None
-    rate_hz = grid_rate_hz(config, grid_path) if model == "fmu_effects" else None
-    content = model_content(model, best_path, fmu_path, calibration_path, diagnosed_path, rate_hz, conventions)
+    rate_hz = grid_rate_hz(config, grid_path) if model != "neural_fmu" else None
+    content = model_content(model, best_path, fmu_path, calibration_path, diagnosed_path, rate_hz, conventions,
+                            frames[0]["time_s"].to_numpy(dtype=float) if frames else None)
     source = read_json(best_path) if best_path is not None else read_json(diagnosis_path) if diagnosis_path else {}
     identifier = model_identifier(case, model)
     provenance = export_provenance(case, model, config, source)
