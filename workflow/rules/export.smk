@@ -1,9 +1,9 @@
 # The trained models leave the workflow: each as an FMI 2.0 Co-Simulation FMU that embeds the case's FMU
 # (rule export, one job per model; hybridfmu.export), replayed with FMPy against the evaluation's trajectories.
-from hybridfmu.export.names import EXPORTABLE_MODELS, fmu_file_name, fmu_file_pattern
+from hybridfmu.export.names import EXPORT_MODELS as _ALL_EXPORT_MODELS, fmu_file_name, fmu_file_pattern
 
 EXPORT_DIR = f"{RESULTS}/export"
-EXPORT_MODELS = [model for model in EXPORTABLE_MODELS if model != "hybrid" or HYBRID]
+EXPORT_MODELS = [model for model in _ALL_EXPORT_MODELS if model != "hybrid" or HYBRID]
 # the model each export stands for, and the search whose best.json names it (the FMU + effects: the diagnosis)
 EXPORT_BEST = {"neural_fmu": [f"{RESULTS}/hpo/best.json"], "hybrid": [f"{RESULTS}/hybrid/best.json"], "fmu_effects": []}
 # the maneuvers each exported FMU replays: config export.check_maneuvers, else the first test maneuver (the first

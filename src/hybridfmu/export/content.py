@@ -202,6 +202,11 @@ def delayed_inputs(model: Any) -> DelayedInputs:
     return DelayedInputs(firsts[0.0], fractions[0.0], firsts[0.5], fractions[0.5], model.delay_s())
 
 
+def _no_delays(n_u: int) -> DelayedInputs:
+    """Every input read at its own sample (a model without learned delays)."""
+    return DelayedInputs((0,) * n_u, (0.0,) * n_u, (0,) * n_u, (0.0,) * n_u, {})
+
+
 def _fused_weights(model: Any) -> tuple[Any, np.ndarray, np.ndarray]:
     """A neural FMU's fused ANN: (``NeuralWeights``, w_u (n_u, H_0), b_first (H_0,))."""
     from hybridfmu.fmu.neural import NeuralWeights
@@ -376,12 +381,11 @@ def effects_content(diagnosed_path: str, fmu_path: str, parameters: dict[str, fl
                               conventions)
         code, reals, names, places = _program_parts(corrected, program, coefficient_names)
     n_x, n_u = len(inner.state_names), len(inner.input_names)
-    still = DelayedInputs((0,) * n_u, (0.0,) * n_u, (0,) * n_u, (0.0,) * n_u, {})
     terms = ", ".join(diagnosed.effects) or "parameters only"
     return ExportContent(
         model=model_kind, description=description or f"the FMU plus the diagnosed effects ({terms})", inner=inner,
         sample_period_s=h, solver="rk4", widths=(1,), params=np.zeros(5 * n_x), w_u=np.zeros((n_u, 1)),
-        b_first=np.zeros(1), delays=still, end_stop=None, x_start=_start_states(fmu_path, all_parameters),
+        b_first=np.zeros(1), delays=_no_delays(n_u), end_stop=None, x_start=_start_states(fmu_path, all_parameters),
         effect_code=code, effect_reals=reals,
         effect_sets_inputs=bool(program is not None and program.evaluates_model), coefficient_names=names,
         coefficient_index=places, input_stages=tuple(stages), events=True, rate_hz=float(rate_hz))
@@ -394,8 +398,8 @@ def plain_content(reference: ExportContent) -> ExportContent:
     n_x, n_u = len(reference.inner.state_names), len(reference.inner.input_names)
     params = np.zeros(2 * n_x + n_x + 2 * n_x)  # W_xd (2 n_x, 1), W_out (1, n_x), b_out (n_x,), g (n_x,)
     params[-n_x:] = 1.0
-    still = DelayedInputs((0,) * n_u, (0.0,) * n_u, (0,) * n_u, (0.0,) * n_u, {})
     return ExportContent(model="fmu", description=f"the FMU {reference.inner.identifier} alone on the model's grid",
                          inner=reference.inner, sample_period_s=reference.sample_period_s, solver=reference.solver,
-                         widths=(1,), params=params, w_u=np.zeros((n_u, 1)), b_first=np.zeros(1), delays=still,
+                         widths=(1,), params=params, w_u=np.zeros((n_u, 1)), b_first=np.zeros(1),
+                         delays=_no_delays(n_u),
                          end_stop=reference.end_stop, x_start=reference.x_start)

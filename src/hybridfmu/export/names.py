@@ -11,9 +11,6 @@ import re
 #: effects, and the hybrid (FMU + effects + ANN).
 EXPORT_MODELS = ("neural_fmu", "fmu_effects", "hybrid")
 
-#: The models the export writes (all of them).
-EXPORTABLE_MODELS = EXPORT_MODELS
-
 _NOT_IDENTIFIER = re.compile(r"[^A-Za-z0-9_]")
 
 

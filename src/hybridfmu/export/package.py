@@ -84,8 +84,9 @@ def write_exported_fmu(content: ExportContent, identifier: str, inner_fmu_path: 
     with zipfile.ZipFile(inner_fmu_path) as archive:
         inner_members = {name: archive.read(name) for name in archive.namelist() if not name.endswith("/")}
     inner_dir = inner.identifier
-    placeholder_guid = "{00000000-0000-0000-0000-000000000000}"
-    digest = hashlib.sha256(inner_archive + render_header(content, identifier, placeholder_guid, inner_dir).encode()
+    # the GUID is a digest of everything the FMU carries: the embedded archive, the header (without a GUID) and
+    # the provenance
+    digest = hashlib.sha256(inner_archive + render_header(content, identifier, "", inner_dir).encode()
                             + repr(sorted(provenance.items())).encode()).hexdigest()
     guid = _guid(digest)
     header = render_header(content, identifier, guid, inner_dir)

@@ -21,7 +21,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from hybridfmu.export.content import ExportContent, effects_content, hybrid_content, neural_content
-from hybridfmu.export.names import EXPORTABLE_MODELS, model_identifier
+from hybridfmu.export.names import EXPORT_MODELS, model_identifier
 from hybridfmu.export.package import write_exported_fmu
 from hybridfmu.export.replay import REPLAY_TOLERANCE, replay
 from hybridfmu.io import atomic_path, read_json, write_json_atomic
@@ -68,8 +68,8 @@ def model_content(model: str, best_path: str | Path | None, fmu_path: str | Path
     from hybridfmu.training.inference import is_its_physical_layer, load_trained_neural_fmu
     from hybridfmu.training.measured import load_calibration
 
-    if model not in EXPORTABLE_MODELS:
-        raise ValueError(f"export: model {model!r} cannot be exported; the export writes {list(EXPORTABLE_MODELS)}")
+    if model not in EXPORT_MODELS:
+        raise ValueError(f"export: model {model!r} cannot be exported; the export writes {list(EXPORT_MODELS)}")
     parameters = dict(load_calibration(calibration_path).parameters)
     if model in ("fmu_effects", "hybrid") and diagnosed_path is None:
         raise ValueError(f"export: the {model} needs the diagnosed model (diagnosis/diagnosed_model.pkl)")
@@ -114,7 +114,7 @@ def export_model(model: str, case: str, config: dict[str, Any], best_path: str |
     """Export ``model`` of ``case`` and check it (module docstring).
 
     Args:
-        model: ``neural_fmu``, ``fmu_effects`` or ``hybrid`` (:data:`hybridfmu.export.names.EXPORTABLE_MODELS`).
+        model: ``neural_fmu``, ``fmu_effects`` or ``hybrid`` (:data:`hybridfmu.export.names.EXPORT_MODELS`).
         case, config: the case's name and its validated config (for the provenance's digest and the grid's rate).
         best_path, fmu_path, calibration_path: the search's ``best.json`` (None for ``fmu_effects``), the case's
             FMU, ``calibration.json``.

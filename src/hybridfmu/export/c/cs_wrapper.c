@@ -289,12 +289,12 @@ static fmi2Status exp_set_inner_parameters(exp_instance *c) {
     return fmi2OK;
 }
 
-/* setupExperiment at 0 s (the workflow's FMU time in the neural rollout), initialisation, the event
-   iteration and continuous-time mode, as the workflow's bridge does it. */
-static fmi2Status exp_initialise_inner(exp_instance *c) {
+/* setupExperiment at start_s, initialisation, the event iteration and continuous-time mode, as the workflow's
+   bridge initialises an FMU; *next_time_event: the FMU's next time event then (INFINITY if none). */
+static fmi2Status exp_initialise_inner(exp_instance *c, double start_s, double *next_time_event) {
     fmi2EventInfo info;
     int i;
-    if (c->api.setup_experiment(c->inner, fmi2False, 0.0, 0.0, fmi2False, 0.0) > fmi2Warning ||
+    if (c->api.setup_experiment(c->inner, fmi2False, 0.0, start_s, fmi2False, 0.0) > fmi2Warning ||
         c->api.enter_initialization_mode(c->inner) > fmi2Warning ||
         c->api.exit_initialization_mode(c->inner) > fmi2Warning)
         return exp_fail(c, "%s: initialisation of the embedded FMU failed", EXPORT_INNER_IDENTIFIER);
@@ -307,6 +307,9 @@ static fmi2Status exp_initialise_inner(exp_instance *c) {
                             EXPORT_INNER_IDENTIFIER);
         if (!info.newDiscreteStatesNeeded) break;
     }
+    if (i == EXPORT_MAX_EVENT_ITERATIONS)
+        return exp_fail(c, "%s: the event iteration of the initialisation did not settle", EXPORT_INNER_IDENTIFIER);
+    *next_time_event = info.nextEventTimeDefined ? info.nextEventTime : INFINITY;
     if (c->api.enter_continuous_time_mode(c->inner) > fmi2Warning)
         return exp_fail(c, "%s: fmi2EnterContinuousTimeMode failed", EXPORT_INNER_IDENTIFIER);
     return fmi2OK;
@@ -374,7 +377,6 @@ static void exp_input_term(const double *u, double *z) {
    states (those it accepts as start values) and the first inputs set, setupExperiment at the start time,
    initialisation, the event iteration, continuous-time mode; then the event iteration at the start state. */
 static fmi2Status exp_events_start(exp_instance *c, const double *u) {
-    fmi2EventInfo info;
     size_t i;
     int status;
     for (i = 0; i < EXPORT_NX; ++i)
@@ -383,27 +385,7 @@ static fmi2Status exp_events_start(exp_instance *c, const double *u) {
             return exp_fail(c, "%s: setting a start state failed", EXPORT_INNER_IDENTIFIER);
     if (EXPORT_NU && c->api.set_real(c->inner, export_inner_vr_u, EXPORT_NU, u) > fmi2Warning)
         return exp_fail(c, "%s: setting the first inputs failed", EXPORT_INNER_IDENTIFIER);
-    if (c->api.setup_experiment(c->inner, fmi2False, 0.0, c->start_time_s, fmi2False, 0.0) > fmi2Warning ||
-        c->api.enter_initialization_mode(c->inner) > fmi2Warning ||
-        c->api.exit_initialization_mode(c->inner) > fmi2Warning)
-        return exp_fail(c, "%s: initialisation of the embedded FMU failed", EXPORT_INNER_IDENTIFIER);
-    c->events.next_time_event = INFINITY;
-    for (i = 0; i < EXPORT_MAX_EVENT_ITERATIONS; ++i) {
-        memset(&info, 0, sizeof info);
-        if (c->api.new_discrete_states(c->inner, &info) > fmi2Warning)
-            return exp_fail(c, "%s: fmi2NewDiscreteStates failed", EXPORT_INNER_IDENTIFIER);
-        if (info.terminateSimulation)
-            return exp_fail(c, "%s: the embedded FMU asked to terminate during initialisation",
-                            EXPORT_INNER_IDENTIFIER);
-        if (!info.newDiscreteStatesNeeded) {
-            c->events.next_time_event = info.nextEventTimeDefined ? info.nextEventTime : INFINITY;
-            break;
-        }
-    }
-    if (i == EXPORT_MAX_EVENT_ITERATIONS)
-        return exp_fail(c, "%s: the event iteration of the initialisation did not settle", EXPORT_INNER_IDENTIFIER);
-    if (c->api.enter_continuous_time_mode(c->inner) > fmi2Warning)
-        return exp_fail(c, "%s: fmi2EnterContinuousTimeMode failed", EXPORT_INNER_IDENTIFIER);
+    if (exp_initialise_inner(c, c->start_time_s, &c->events.next_time_event) != fmi2OK) return fmi2Error;
     c->events.count = 0;
     status = hf_settle(&c->model, &c->events, c->start_time_s, c->x, u, c->z_prev);
     c->events.count = 0;
@@ -672,8 +654,9 @@ FMI2_Export fmi2Status fmi2EnterInitializationMode(fmi2Component component) {
 
 FMI2_Export fmi2Status fmi2ExitInitializationMode(fmi2Component component) {
     exp_instance *c = (exp_instance *)component;
+    double next_time_event; /* unused by the neural rollout, which handles no events */
     if (!c || c->mode != MODE_INITIALIZATION) return fmi2Error;
-    if (!EXPORT_EVENTS && exp_initialise_inner(c) != fmi2OK) { /* with events: at the first sample */
+    if (!EXPORT_EVENTS && exp_initialise_inner(c, 0.0, &next_time_event) != fmi2OK) { /* events: first sample */
         c->mode = MODE_ERROR;
         return fmi2Error;
     }
