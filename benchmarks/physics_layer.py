@@ -9,9 +9,12 @@ rule ``diagnose``), takes B random rows (states and inputs) of the prepared trai
   the same with a joint effect's members evaluated one by one (``joint_batches=False``);
 - ``physics``: the physical layer's derivatives (FMU + terms, one solver stage of a validation rollout);
 - ``physics_jacobians``: derivatives and Jacobians (one stage of a training rollout), and
-  ``physics_coefficients``: the same with the coefficients' Jacobian (a stage when the coefficients train).
+  ``physics_coefficients``: the same with the coefficients' Jacobian (a stage when the coefficients train), the
+  terms and their differences in C (``FmuModel.effect_jacobians``); ``*_numpy``: the same in NumPy
+  (``PhysicsModel.terms_in_c = False``), side by side.
 
-Prints one line per row and a JSON object with the microseconds per call and the ratios to ``fmu``.
+Prints one line per row and a JSON object with the microseconds per call, the ratios to ``fmu`` and the NumPy
+form's time over the C form's (``numpy_over_c``).
 
     python benchmarks/physics_layer.py [--config config/config.yaml] [--batch 4] [--calls 2000] [--repeats 5]
 """
@@ -64,7 +67,9 @@ def main() -> None:
     u = np.ascontiguousarray(train.u[rows], dtype=float)
     x = np.ascontiguousarray(train.x_init[rows], dtype=float)
     per_member = CorrectedModel(physics.diagnosed.terms, physics.diagnosed.problem, physics.helper,
-                                joint_batches=False)
+                                joint_batches=False, hold=physics.diagnosed.hold)
+    in_numpy = physics_model(fmu_path, calibration.parameters, results / "diagnosis" / "diagnosed_model.pkl")
+    in_numpy.terms_in_c = False
     np.testing.assert_allclose(per_member.additive_batch(x, u), physics.corrected.additive_batch(x, u),
                                rtol=1e-12, atol=1e-12)
     fmu_kernel = physics.fmu.derivatives_kernel(args.batch) if hasattr(physics.fmu, "derivatives_kernel") \
@@ -75,7 +80,9 @@ def main() -> None:
         "terms_per_member": lambda: per_member.additive_batch(x, u),
         "physics": lambda: physics.derivatives(x, u),
         "physics_jacobians": lambda: physics.derivatives_and_jacobians(x, u),
+        "physics_jacobians_numpy": lambda: in_numpy.derivatives_and_jacobians(x, u),
         "physics_coefficients": lambda: physics.derivatives_jacobians_and_coefficient_jacobian(x, u),
+        "physics_coefficients_numpy": lambda: in_numpy.derivatives_jacobians_and_coefficient_jacobian(x, u),
     }
     print(f"case {config['case']}: the FMU plus {', '.join(physics.effects)}; B = {args.batch}, "
           f"{args.calls} calls x {args.repeats}", flush=True)
@@ -86,7 +93,9 @@ def main() -> None:
               f"x{timings[name] / timings['fmu']:.1f} the FMU's time", flush=True)
     print(json.dumps({"config": args.config, "batch": args.batch, "us_per_call": timings,
                       "ratio_to_fmu": {k: v / timings["fmu"] for k, v in timings.items()},
-                      "joint_over_per_member": timings["terms"] / timings["terms_per_member"]}))
+                      "joint_over_per_member": timings["terms"] / timings["terms_per_member"],
+                      "numpy_over_c": {name: timings[f"{name}_numpy"] / timings[name]
+                                       for name in ("physics_jacobians", "physics_coefficients")}}))
 
 
 if __name__ == "__main__":

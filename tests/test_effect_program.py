@@ -292,3 +292,40 @@ def test_a_hybrids_rollout_runs_its_effects_in_the_c_loop_as_the_numpy_engine_do
         plain = simulate_open_loop(fmu, time_s, u, np.asarray(fmu.initial_states, dtype=float)).states
     with load_fmu(ipbmotor_fmu) as fresh:
         np.testing.assert_array_equal(plain, simulate_open_loop(fresh, time_s, u, fresh.initial_states).states)
+
+
+def test_a_physical_layers_training_terms_in_c_equal_their_numpy_form(ipbmotor_fmu):
+    """The training's call per solver stage (derivatives, Jacobians, the coefficients' Jacobian) of a physical layer
+    with every kind of additive term and a standstill hold: in C (one ``hf_effect_jacobians`` call) it gives the
+    NumPy form's values to rounding, the rows the hold holds and the rows it lets slide included, and follows
+    coefficients changed after the layer was made."""
+    from hybridfmu.diagnosis.export import DiagnosedModel
+    from hybridfmu.diagnosis.standstill_hold import StandstillHold
+    from hybridfmu.model.physics import PhysicsModel
+
+    terms = motor_terms()
+    diagnosed = DiagnosedModel(terms, {}, MotorProblem(), [t.effect.name for t in terms],
+                               hold=StandstillHold("omega", 2.0, 2000.0))
+    rng = np.random.default_rng(11)
+    n = 24
+    x = np.column_stack([rng.normal(0, 2.0, n), rng.normal(0, 2.0, n), rng.uniform(5, 60, n), rng.normal(0, 30, n)])
+    x[:12, 3] = rng.uniform(-1.5, 1.5, 12)  # within the hold's band
+    u = np.column_stack([rng.uniform(0.2, 0.8, (n, 3)), np.full(n, 24.0), rng.normal(0, 0.05, n)])
+    u[:6, :3], u[:6, 4] = 0.5, 0.002  # no push: the friction holds
+    with load_fmu(ipbmotor_fmu) as fmu, load_fmu(ipbmotor_fmu) as helper:
+        physics = PhysicsModel(fmu, helper, diagnosed)
+        assert physics.corrected.hold is not None
+        for factor in (1.0, 1.5):  # the coefficients as diagnosed, then moved (as training moves them)
+            physics.set_coefficients(factor * physics.coefficients)
+            in_c = physics.derivatives_jacobians_and_coefficient_jacobian(x, u)
+            physics.terms_in_c = False
+            numpy = physics.derivatives_jacobians_and_coefficient_jacobian(x, u)
+            physics.terms_in_c = True
+            for name, got, expected, rtol in zip(("f", "df/dx", "df/du", "df/dc"), in_c, numpy,
+                                                 (1e-12, 1e-6, 1e-6, 1e-7)):
+                scale = np.abs(expected).max(axis=0) + 1e-12
+                assert np.max(np.abs(got - expected) / scale) < rtol, (factor, name)
+            held = physics.corrected._held_rows(x, u, physics.corrected._terms_batch(x, u))
+            assert held is not None and held[2].any() and (~held[2]).any()  # both kinds of row in the band
+    with pytest.raises(AssertionError):  # the check above can fail: a wrong coefficient column is caught
+        np.testing.assert_allclose(in_c[3][:, :, ::-1], numpy[3], rtol=1e-7)

@@ -283,6 +283,15 @@ def _cleanup(fmu, component_holder, log_pointer, lib, unzip_dir, owns_unzip_dir)
         shutil.rmtree(unzip_dir, ignore_errors=True)
 
 
+
+def _concatenated(programs) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Effect programs side by side for one C call: (codes, code starts (K + 1,), reals, real starts (K + 1,))."""
+    codes = np.concatenate([p.code for p in programs]) if programs else np.zeros(1, dtype=np.int64)
+    reals = np.concatenate([p.reals for p in programs]) if programs else np.zeros(1)
+    code_start = np.cumsum([0] + [p.code.size for p in programs]).astype(np.uintp)
+    real_start = np.cumsum([0] + [p.reals.size for p in programs]).astype(np.uintp)
+    return codes, code_start, reals, real_start
+
 class FmuModel:
     """One instance of an FMI 2.0 Model-Exchange FMU with batched evaluation (see module doc).
 
@@ -776,6 +785,53 @@ class FmuModel:
         x, u, _t, t_ptr, t_stride, n = self._batch(x, u, t_s)
         dx = self._derivatives_of(x, u, t_ptr, t_stride, n)
         return (dx, *self._jacobians_of(x, u, t_ptr, t_stride, n))
+
+    def effect_jacobians(self, program, x, u, relative_step: float, unit_programs=(), band_state: int = -1,
+                         band: float = 0.0, pair_programs=(), pair_steps=()) -> tuple[np.ndarray, ...]:
+        """An effect program's additive terms and their central differences at t = 0, in C (``hf_effect_jacobians``).
+
+        Args:
+            program: the :class:`~hybridfmu.fmu.effect_program.EffectProgram` of the terms (installed for the call).
+            x: (N, n_x) states; u: (N, n_u) inputs.
+            relative_step: each variable's step, relative to 1 + |value|.
+            unit_programs: K programs evaluated at each row as they are, at the FMU's derivatives there (a term
+                with one unit coefficient: its regressor).
+            band_state, band: the rows with |x[:, band_state]| < band (band_state -1: none) also get the
+                differences of the pair programs.
+            pair_programs: 2 P programs, up and down in turn; pair_steps (P,) the half distance of each pair.
+
+        Returns:
+            terms (N, n_x); d terms / dx (N, n_x, n_x) and d terms / du (N, n_x, n_u) by central differences;
+            unit values (N, n_x, K); pair differences (N, n_x, P), set in the rows within the band; and which rows
+            are within it (N,) bool.
+        """
+        self._require_open()
+        x, u, _t, _t_ptr, _t_stride, n = self._batch(x, u, 0.0)
+        nx, nu, n_units, n_pairs = self.n_states, self.n_inputs, len(unit_programs), len(pair_steps)
+        if len(pair_programs) != 2 * n_pairs:
+            raise ValueError(f"effect_jacobians: {len(pair_programs)} pair programs for {n_pairs} steps; expected "
+                             "two programs per step")
+        terms, term_x, term_u = np.empty((n, nx)), np.empty((n, nx, nx)), np.empty((n, nx, nu))
+        unit_values, pair_values = np.empty((n, nx, n_units)), np.zeros((n, nx, n_pairs))
+        in_band = np.zeros(n, dtype=np.uint8)
+        units, pairs = _concatenated(unit_programs), _concatenated(pair_programs)
+        steps = np.ascontiguousarray(pair_steps, dtype=np.float64).reshape(n_pairs)
+        work = np.empty(2 * (nx + nu) + 3 * nx)
+        if not n:
+            return terms, term_x, term_u, unit_values, pair_values, in_band.astype(bool)
+        buffers = program.install(self._shim_model)
+        try:
+            status = self._lib.hf_effect_jacobians(
+                self._m, n, self._data(x), self._data(u), float(relative_step), self._data(terms),
+                self._data(term_x), self._data(term_u), n_units, *(self._data(a) for a in units),
+                self._data(unit_values), int(band_state), float(band), n_pairs, *(self._data(a) for a in pairs),
+                self._data(steps), self._data(pair_values), self._data(in_band), self._data(work))
+        finally:
+            program.remove(self._shim_model)
+            del buffers
+        if status:
+            self._raise_shim_error(status, "effect terms and their Jacobians", states=x)
+        return terms, term_x, term_u, unit_values, pair_values, in_band.astype(bool)
 
     def _derivatives_of(self, x, u, t_ptr, t_stride, n) -> np.ndarray:
         """``derivatives`` of checked arguments (from ``_batch``)."""

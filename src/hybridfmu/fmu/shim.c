@@ -549,6 +549,98 @@ int hf_simulate(hf_model *m, size_t T, const double *time, const double *u, size
     return 0;
 }
 
+/* ---------------------------------------------------------------- effect terms and their Jacobians */
+
+/* out (nx,) = program (code, n_code, reals) at (x, u) with the FMU's derivatives f there, the FMU at x; the
+   FMU's inputs set back to u after a program that evaluates the model. */
+static int hf_program_at(hf_model *m, const long long *code, size_t n_code, const double *reals, const double *x,
+                         const double *u, const double *f, double *out, long long row) {
+    int st = hf_effects_add(code, n_code, reals, m->nx, m->nu, x, u, f, out, m->effect_work, hf_effect_eval, m);
+    if (st == HF_EFFECT_ERR_PROGRAM) HF_FAIL(m, HF_FN_EFFECTS, row, st);
+    if (st) {
+        m->failed_row = row;
+        return st;
+    }
+    if (m->effect_sets_inputs && m->nu) HF_CHECK(m, m->set_real(m->component, m->vr_u, m->nu, u), HF_FN_SET_REAL, row);
+    return 0;
+}
+
+/* out (nx,) = the installed effect program's terms at (x, u), FMU at t = 0; f: nx doubles of work (the FMU's
+   derivatives there). The FMU is left at (x, u). */
+static int hf_terms_at(hf_model *m, const double *x, const double *u, double *f, double *out, long long row) {
+    int st = hf_set_point(m, 0.0, x, u, row);
+    if (st) return st;
+    HF_CHECK(m, m->get_derivatives(m->component, f, m->nx), HF_FN_GET_DERIVATIVES, row);
+    return hf_program_at(m, m->effect_code, m->effect_n_code, m->effect_reals, x, u, f, out, row);
+}
+
+/* The installed effect program's terms and their central differences, row by row (FMU at t = 0), as a hybrid's
+   training needs them at every solver stage:
+   - terms (n, nx) at (x_r, u_r); with z = [x_r, u_r] and the step s_c = rel (1 + |z_c|), term_x (n, nx, nx) and
+     term_u (n, nx, nu) hold column c = (P(z + s_c e_c) - P(z - s_c e_c)) / (2 s_c), P the installed program
+     (hybridfmu.model.physics.PhysicsModel's differences);
+   - unit_values (n, nx, n_units): unit program k (unit_codes[unit_code_start[k] .. unit_code_start[k + 1]),
+     reals from unit_reals[unit_real_start[k]]) at (x_r, u_r) and the FMU's derivatives there (a term with one
+     unit coefficient: its regressor);
+   - for the rows with |x_r[band_state]| < band (band_state >= 0), pair_values (n, nx, n_pairs): (program 2k -
+     program 2k + 1) / (2 pair_steps[k]) of the pair programs (the whole program with one coefficient moved up
+     and down by its step), left untouched in the other rows; in_band (n,) = 1 there, else 0.
+   work: 2 (nx + nu) + 3 nx doubles. */
+int hf_effect_jacobians(hf_model *m, size_t n, const double *x, const double *u, double rel, double *terms,
+                        double *term_x, double *term_u, size_t n_units, const long long *unit_codes,
+                        const size_t *unit_code_start, const double *unit_reals, const size_t *unit_real_start,
+                        double *unit_values, long long band_state, double band, size_t n_pairs,
+                        const long long *pair_codes, const size_t *pair_code_start, const double *pair_reals,
+                        const size_t *pair_real_start, const double *pair_steps, double *pair_values,
+                        unsigned char *in_band, double *work) {
+    const size_t nx = m->nx, nu = m->nu, nz = nx + nu;
+    double *z = work, *zp = work + nz, *f = zp + nz, *up = f + nx, *down = up + nx;
+    size_t r, c, i, k;
+    int st;
+    if (!m->effect_code) HF_FAIL(m, HF_FN_EFFECTS, -1, HF_EFFECT_ERR_PROGRAM);
+    m->failed_function = HF_FN_NONE;
+    for (r = 0; r < n; ++r) {
+        const long long row = (long long)r;
+        memcpy(z, x + r * nx, nx * sizeof(double));
+        if (nu) memcpy(z + nx, u + r * nu, nu * sizeof(double));
+        for (c = 0; c < nz; ++c) {
+            const double step = rel * (1.0 + fabs(z[c]));
+            memcpy(zp, z, nz * sizeof(double));
+            zp[c] = z[c] + step;
+            if ((st = hf_terms_at(m, zp, zp + nx, f, up, row))) return st;
+            zp[c] = z[c] - step;
+            if ((st = hf_terms_at(m, zp, zp + nx, f, down, row))) return st;
+            for (i = 0; i < nx; ++i) {
+                const double d = (up[i] - down[i]) / (2.0 * step);
+                if (c < nx) term_x[(r * nx + i) * nx + c] = d;
+                else term_u[(r * nx + i) * nu + (c - nx)] = d;
+            }
+        }
+        if ((st = hf_terms_at(m, z, z + nx, f, terms + r * nx, row))) return st;
+        for (k = 0; k < n_units; ++k) {
+            st = hf_program_at(m, unit_codes + unit_code_start[k], unit_code_start[k + 1] - unit_code_start[k],
+                               unit_reals + unit_real_start[k], z, z + nx, f, up, row);
+            if (st) return st;
+            for (i = 0; i < nx; ++i) unit_values[(r * nx + i) * n_units + k] = up[i];
+        }
+        in_band[r] = band_state >= 0 && fabs(z[band_state]) < band;
+        if (!in_band[r]) continue;
+        for (k = 0; k < n_pairs; ++k) {
+            st = hf_program_at(m, pair_codes + pair_code_start[2 * k],
+                               pair_code_start[2 * k + 1] - pair_code_start[2 * k],
+                               pair_reals + pair_real_start[2 * k], z, z + nx, f, up, row);
+            if (st) return st;
+            st = hf_program_at(m, pair_codes + pair_code_start[2 * k + 1],
+                               pair_code_start[2 * k + 2] - pair_code_start[2 * k + 1],
+                               pair_reals + pair_real_start[2 * k + 1], z, z + nx, f, down, row);
+            if (st) return st;
+            for (i = 0; i < nx; ++i)
+                pair_values[(r * nx + i) * n_pairs + k] = (up[i] - down[i]) / (2.0 * pair_steps[k]);
+        }
+    }
+    return 0;
+}
+
 /* ---------------------------------------------------------------- events
 
 The event handling of an open-loop simulation (hybridfmu.fmu.simulate): hf_simulate integrates until an event

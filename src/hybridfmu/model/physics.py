@@ -17,7 +17,7 @@ data and every simulation's inputs pass through them.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -36,12 +36,15 @@ class PhysicsModel:
         helper: a second instance (same FMU and parameters) for effects that evaluate the model's derivatives.
         diagnosed: the diagnosed model (its effects, parameters and problem).
         relative_step: step of the additive terms' central differences, relative to 1 + |value|.
+        terms_in_c: the training's terms and their Jacobians in C where the FMU and every term allow it (False:
+            always in NumPy, e.g. to compare the two).
 
     Raises:
         ValueError: the diagnosed model's states or inputs differ from the FMU's.
     """
 
-    def __init__(self, fmu: Any, helper: Any, diagnosed: DiagnosedModel, relative_step: float = 1e-6) -> None:
+    def __init__(self, fmu: Any, helper: Any, diagnosed: DiagnosedModel, relative_step: float = 1e-6,
+                 terms_in_c: bool = True) -> None:
         if list(fmu.state_names) != diagnosed.state_names or list(fmu.input_names) != diagnosed.input_names:
             raise ValueError(f"diagnosed model: states {diagnosed.state_names} / inputs {diagnosed.input_names} "
                              f"differ from the FMU's {list(fmu.state_names)} / {list(fmu.input_names)}")
@@ -50,6 +53,8 @@ class PhysicsModel:
         self.diagnosed = diagnosed
         self.corrected = diagnosed.corrected(helper)
         self.relative_step = float(relative_step)
+        self.terms_in_c = bool(terms_in_c)
+        self._programs_cache: tuple[tuple[bytes, bool], Any] | None = None
         # the refit's parameters, then the parameter errors the effects name (they are not refitted ones)
         self.parameters = {**diagnosed.parameters, **self.corrected.parameters}
         for instance in (fmu, helper):
@@ -110,8 +115,7 @@ class PhysicsModel:
     def derivatives_jacobians_and_coefficient_jacobian(self, x: np.ndarray, u: np.ndarray, t_s: Any = 0.0):
         """(f, df/dx, df/du, df/d(coefficients)) at (x (N, n_x), u (N, n_u)): :meth:`derivatives_and_jacobians`
         and :meth:`coefficient_jacobian` (the training engine's call when the coefficients train)."""
-        f, dfdx, dfdu = self.derivatives_and_jacobians(x, u, t_s)
-        return f, dfdx, dfdu, self.coefficient_jacobian(x, u, t_s)
+        return self._derivatives_and_jacobians(x, u, t_s, regressors=True)
 
     # ------------------------------------------------------------------ inputs
     def inputs(self, u: np.ndarray, dt_s: float) -> np.ndarray:
@@ -130,7 +134,48 @@ class PhysicsModel:
             return f
         return f + self.corrected.additive_batch(np.reshape(x, f.shape), np.reshape(u, (f.shape[0], self.n_inputs)))
 
-    def _terms_and_jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _terms_and_jacobians(self, x: np.ndarray, u: np.ndarray, regressors: bool = False):
+        """The additive terms (N, n_x) and their central-difference Jacobians (N, n_x, n_x), (N, n_x, n_u); with
+        ``regressors`` also :meth:`coefficient_jacobian` (N, n_x, n_c). In C where every term has a C form and the
+        FMU runs behind the shim (``FmuModel.effect_jacobians``, one call per solver stage), else in NumPy.
+
+        In C the regressors are each row term's program with a unit coefficient; within the standstill hold's band
+        (where the hold makes the terms depend on the coefficients in pieces) they are the central differences of
+        the whole program in each coefficient, which :meth:`CorrectedModel.coefficient_regressors` states in
+        closed form (held: none; sliding: the friction at the band's edge)."""
+        programs = self._c_programs(regressors)
+        if programs is None:
+            terms, term_x, term_u = self._terms_and_jacobians_numpy(x, u)
+            return (terms, term_x, term_u, self.coefficient_jacobian(x, u)) if regressors else (terms, term_x, term_u)
+        if not regressors:
+            return self.fmu.effect_jacobians(programs.program, x, u, self.relative_step)[:3]
+        hold = self.corrected.hold
+        terms, term_x, term_u, unit_values, pair_values, in_band = self.fmu.effect_jacobians(
+            programs.program, x, u, self.relative_step, programs.units,
+            self.corrected.hold_state if hold is not None else -1, hold.band if hold is not None else 0.0,
+            programs.pairs, programs.pair_steps)
+        jacobian = np.zeros((terms.shape[0], self.n_states, self.coefficients.size))
+        np.add.at(jacobian, (slice(None), slice(None), programs.columns), unit_values)
+        jacobian[in_band] = pair_values[in_band]
+        return terms, term_x, term_u, jacobian
+
+    def _c_programs(self, regressors: bool) -> "_TermPrograms | None":
+        """The terms as effect programs for :meth:`FmuModel.effect_jacobians` with the coefficients as they are
+        now; None where the FMU has no C interface or some term no C form. Rebuilt when the coefficients change (a
+        hybrid trains them); the regressors' programs only when asked for."""
+        if (not self.terms_in_c or not callable(getattr(self.fmu, "effect_jacobians", None))
+                or not self.corrected.has_correction):
+            return None
+        key = (self.coefficients.tobytes(), regressors)
+        cached = self._programs_cache
+        if cached is not None and (cached[0] == key or (not regressors and cached[0][0] == key[0])):
+            return cached[1]
+        programs = _term_programs(self.corrected, self.n_states, self.n_inputs, regressors)
+        self._programs_cache = (key, programs)
+        return programs
+
+    def _terms_and_jacobians_numpy(self, x: np.ndarray, u: np.ndarray
+                                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The additive terms (N, n_x) and their central-difference Jacobians (N, n_x, n_x), (N, n_x, n_u), from one
         vectorised evaluation of all rows: the unperturbed ones and each variable perturbed up and down."""
         n, n_x = x.shape[0], self.n_states
@@ -151,6 +196,10 @@ class PhysicsModel:
                                   t_s: Any = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(f (N, n_x), df/dx (N, n_x, n_x), df/du (N, n_x, n_u)) of :meth:`derivatives`, with one FMU call and one
         evaluation of the terms (the training engine calls this once per solver stage)."""
+        return self._derivatives_and_jacobians(x, u, t_s, regressors=False)
+
+    def _derivatives_and_jacobians(self, x: np.ndarray, u: np.ndarray, t_s: Any, regressors: bool):
+        """:meth:`derivatives_and_jacobians`, and with ``regressors`` also :meth:`coefficient_jacobian`."""
         both = getattr(self.fmu, "derivatives_and_jacobians", None)
         if callable(both):
             f, dfdx, dfdu = both(x, u, t_s)
@@ -158,13 +207,15 @@ class PhysicsModel:
             f = self.fmu.derivatives(x, u, t_s)
             dfdx, dfdu = self.fmu.jacobians(x, u, t_s)
         f, dfdx, dfdu = (np.array(a, dtype=float) for a in (f, dfdx, dfdu))
-        if self.corrected.has_correction:
-            terms, term_x, term_u = self._terms_and_jacobians(np.asarray(x, dtype=float).reshape(f.shape),
-                                                              np.asarray(u, dtype=float).reshape(f.shape[0], -1))
-            f += terms
-            dfdx += term_x
-            dfdu += term_u
-        return f, dfdx, dfdu
+        x = np.asarray(x, dtype=float).reshape(f.shape)
+        u = np.asarray(u, dtype=float).reshape(f.shape[0], -1)
+        if not self.corrected.has_correction:
+            return (f, dfdx, dfdu, self.coefficient_jacobian(x, u)) if regressors else (f, dfdx, dfdu)
+        parts = self._terms_and_jacobians(x, u, regressors)
+        f += parts[0]
+        dfdx += parts[1]
+        dfdu += parts[2]
+        return (f, dfdx, dfdu, parts[3]) if regressors else (f, dfdx, dfdu)
 
     def jacobians(self, x: np.ndarray, u: np.ndarray, t_s: Any = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """(df/dx (N, n_x, n_x), df/du (N, n_x, n_u)) of :meth:`derivatives`."""
@@ -266,3 +317,57 @@ def physics_effects(physics_terms: Any) -> list[str] | None:
         return list(physics_terms)
     raise ValueError(f"config.model.physics_terms: expected 'from_diagnosis' or a list of effect names for a "
                      f"hybrid, got {physics_terms!r}")
+
+
+#: Each coefficient's step in the central differences of the whole effect program (regressors within the
+#: standstill hold's band), relative to 1 + |coefficient|: the terms are linear in pieces in the coefficients.
+PAIR_RELATIVE_STEP = 1e-5
+
+
+class _TermPrograms(NamedTuple):
+    """A physical layer's terms for ``hf_effect_jacobians``: the whole program; each row term with one unit
+    coefficient and that coefficient's column (a coefficient array two terms share has one column); the whole
+    program with coefficient k moved up and down (2 n_c programs, up then down) and the half distances (n_c,)."""
+
+    program: EffectProgram
+    units: list[EffectProgram]
+    columns: np.ndarray
+    pairs: list[EffectProgram]
+    pair_steps: np.ndarray
+
+
+def _term_programs(corrected: Any, n_states: int, n_inputs: int, regressors: bool) -> _TermPrograms | None:
+    """The :class:`_TermPrograms` of a corrected model's terms as they are now (without regressors: only the
+    program); None when some term has no C form."""
+    program = corrected.effect_program()
+    if program is None:
+        return None
+    if not regressors:
+        return _TermPrograms(program, [], np.zeros(0, dtype=int), [], np.zeros(0))
+    starts, n_c = {}, 0
+    for _, array in corrected.row_coefficients:
+        starts[id(array)] = n_c
+        n_c += array.size
+    units, columns = [], []
+    for _, member, coefficients, setting in corrected.row_terms:
+        for i in range(coefficients.size):
+            unit = np.zeros(coefficients.size)
+            unit[i] = 1.0
+            term = member.stage_term(unit, setting)
+            if term is None:
+                return None
+            units.append(EffectProgram([term], n_states, n_inputs))
+            columns.append(starts[id(coefficients)] + i)
+    pairs, steps = [], []
+    for _, array in corrected.row_coefficients:
+        for i in range(array.size):
+            value = float(array[i])
+            step = PAIR_RELATIVE_STEP * (1.0 + abs(value))
+            try:
+                for moved in (value + step, value - step):
+                    array[i] = moved
+                    pairs.append(corrected.effect_program())
+            finally:
+                array[i] = value
+            steps.append(step)
+    return _TermPrograms(program, units, np.array(columns, dtype=int), pairs, np.array(steps))
