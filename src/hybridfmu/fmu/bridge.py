@@ -786,13 +786,13 @@ class FmuModel:
         dx = self._derivatives_of(x, u, t_ptr, t_stride, n)
         return (dx, *self._jacobians_of(x, u, t_ptr, t_stride, n))
 
-    def effect_jacobians(self, program, x, u, relative_step: float, unit_programs=(), band_state: int = -1,
-                         band: float = 0.0, pair_programs=(), pair_steps=()) -> tuple[np.ndarray, ...]:
-        """An effect program's additive terms and their central differences at t = 0, in C (``hf_effect_jacobians``).
+    def effect_jacobians_kernel(self, program, relative_step: float, unit_programs=(), band_state: int = -1,
+                                band: float = 0.0, pair_programs=(), pair_steps=()):
+        """An effect program's additive terms and their central differences at t = 0 in C (``hf_effect_jacobians``),
+        for many calls (the training's call per solver stage; the programs are laid out once).
 
         Args:
-            program: the :class:`~hybridfmu.fmu.effect_program.EffectProgram` of the terms (installed for the call).
-            x: (N, n_x) states; u: (N, n_u) inputs.
+            program: the :class:`~hybridfmu.fmu.effect_program.EffectProgram` of the terms (installed per call).
             relative_step: each variable's step, relative to 1 + |value|.
             unit_programs: K programs evaluated at each row as they are, at the FMU's derivatives there (a term
                 with one unit coefficient: its regressor).
@@ -801,37 +801,45 @@ class FmuModel:
             pair_programs: 2 P programs, up and down in turn; pair_steps (P,) the half distance of each pair.
 
         Returns:
-            terms (N, n_x); d terms / dx (N, n_x, n_x) and d terms / du (N, n_x, n_u) by central differences;
-            unit values (N, n_x, K); pair differences (N, n_x, P), set in the rows within the band; and which rows
-            are within it (N,) bool.
+            A function ``(x (N, n_x), u (N, n_u)) -> (terms (N, n_x), d terms / dx (N, n_x, n_x), d terms / du
+            (N, n_x, n_u), unit values (N, n_x, K), pair differences (N, n_x, P) (set in the rows within the band,
+            zero elsewhere), within the band (N,) bool)``: buffers of the function, overwritten by its next call.
         """
-        self._require_open()
-        x, u, _t, _t_ptr, _t_stride, n = self._batch(x, u, 0.0)
         nx, nu, n_units, n_pairs = self.n_states, self.n_inputs, len(unit_programs), len(pair_steps)
         if len(pair_programs) != 2 * n_pairs:
-            raise ValueError(f"effect_jacobians: {len(pair_programs)} pair programs for {n_pairs} steps; expected "
-                             "two programs per step")
-        terms, term_x, term_u = np.empty((n, nx)), np.empty((n, nx, nx)), np.empty((n, nx, nu))
-        unit_values, pair_values = np.empty((n, nx, n_units)), np.zeros((n, nx, n_pairs))
-        in_band = np.zeros(n, dtype=np.uint8)
+            raise ValueError(f"effect_jacobians_kernel: {len(pair_programs)} pair programs for {n_pairs} steps; "
+                             "expected two programs per step")
         units, pairs = _concatenated(unit_programs), _concatenated(pair_programs)
         steps = np.ascontiguousarray(pair_steps, dtype=np.float64).reshape(n_pairs)
         work = np.empty(2 * (nx + nu) + 3 * nx)
-        if not n:
-            return terms, term_x, term_u, unit_values, pair_values, in_band.astype(bool)
-        buffers = program.install(self._shim_model)
-        try:
-            status = self._lib.hf_effect_jacobians(
-                self._m, n, self._data(x), self._data(u), float(relative_step), self._data(terms),
-                self._data(term_x), self._data(term_u), n_units, *(self._data(a) for a in units),
-                self._data(unit_values), int(band_state), float(band), n_pairs, *(self._data(a) for a in pairs),
-                self._data(steps), self._data(pair_values), self._data(in_band), self._data(work))
-        finally:
-            program.remove(self._shim_model)
-            del buffers
-        if status:
-            self._raise_shim_error(status, "effect terms and their Jacobians", states=x)
-        return terms, term_x, term_u, unit_values, pair_values, in_band.astype(bool)
+        fixed = (n_units, *(self._data(a) for a in units))
+        band_part = (int(band_state), float(band), n_pairs, *(self._data(a) for a in pairs), self._data(steps))
+        buffers: dict[int, tuple] = {}
+        call = self._lib.hf_effect_jacobians
+
+        def kernel(x, u):
+            self._require_open()
+            x, u, _t, _t_ptr, _t_stride, n = self._batch(x, u, 0.0)
+            if n not in buffers:
+                arrays = (np.empty((n, nx)), np.empty((n, nx, nx)), np.empty((n, nx, nu)),
+                          np.empty((n, nx, n_units)), np.zeros((n, nx, n_pairs)), np.zeros(n, dtype=np.uint8))
+                data = [self._data(a) for a in arrays]
+                buffers[n] = arrays, (*data[:3], *fixed, data[3], *band_part, *data[4:], self._data(work))
+            (terms, term_x, term_u, unit_values, pair_values, in_band), addresses = buffers[n]
+            if n:
+                pair_values.fill(0.0)
+                installed = program.install(self._shim_model)
+                try:
+                    status = call(self._m, n, self._data(x), self._data(u), float(relative_step), *addresses)
+                finally:
+                    program.remove(self._shim_model)
+                    del installed
+                if status:
+                    self._raise_shim_error(status, "effect terms and their Jacobians", states=x)
+            return terms, term_x, term_u, unit_values, pair_values, in_band.view(bool)
+
+        kernel.keep_alive = (units, pairs, steps, work)  # the C call reads them by address
+        return kernel
 
     def _derivatives_of(self, x, u, t_ptr, t_stride, n) -> np.ndarray:
         """``derivatives`` of checked arguments (from ``_batch``)."""

@@ -147,13 +147,9 @@ class PhysicsModel:
         if programs is None:
             terms, term_x, term_u = self._terms_and_jacobians_numpy(x, u)
             return (terms, term_x, term_u, self.coefficient_jacobian(x, u)) if regressors else (terms, term_x, term_u)
+        terms, term_x, term_u, unit_values, pair_values, in_band = programs.kernel(x, u)
         if not regressors:
-            return self.fmu.effect_jacobians(programs.program, x, u, self.relative_step)[:3]
-        hold = self.corrected.hold
-        terms, term_x, term_u, unit_values, pair_values, in_band = self.fmu.effect_jacobians(
-            programs.program, x, u, self.relative_step, programs.units,
-            self.corrected.hold_state if hold is not None else -1, hold.band if hold is not None else 0.0,
-            programs.pairs, programs.pair_steps)
+            return terms, term_x, term_u
         jacobian = np.zeros((terms.shape[0], self.n_states, self.coefficients.size))
         np.add.at(jacobian, (slice(None), slice(None), programs.columns), unit_values)
         jacobian[in_band] = pair_values[in_band]
@@ -163,14 +159,14 @@ class PhysicsModel:
         """The terms as effect programs for :meth:`FmuModel.effect_jacobians` with the coefficients as they are
         now; None where the FMU has no C interface or some term no C form. Rebuilt when the coefficients change (a
         hybrid trains them); the regressors' programs only when asked for."""
-        if (not self.terms_in_c or not callable(getattr(self.fmu, "effect_jacobians", None))
+        if (not self.terms_in_c or not callable(getattr(self.fmu, "effect_jacobians_kernel", None))
                 or not self.corrected.has_correction):
             return None
         key = (self.coefficients.tobytes(), regressors)
         cached = self._programs_cache
         if cached is not None and (cached[0] == key or (not regressors and cached[0][0] == key[0])):
             return cached[1]
-        programs = _term_programs(self.corrected, self.n_states, self.n_inputs, regressors)
+        programs = _term_programs(self.corrected, self.fmu, self.relative_step, regressors)
         self._programs_cache = (key, programs)
         return programs
 
@@ -325,25 +321,24 @@ PAIR_RELATIVE_STEP = 1e-5
 
 
 class _TermPrograms(NamedTuple):
-    """A physical layer's terms for ``hf_effect_jacobians``: the whole program; each row term with one unit
-    coefficient and that coefficient's column (a coefficient array two terms share has one column); the whole
-    program with coefficient k moved up and down (2 n_c programs, up then down) and the half distances (n_c,)."""
+    """A physical layer's terms in C: the FMU's ``effect_jacobians_kernel`` of the whole program, the programs of
+    each row term with one unit coefficient (its regressors) and the pairs of the whole program with coefficient k
+    moved up and down; ``columns`` each unit program's coefficient (a coefficient array two terms share has one
+    column each)."""
 
-    program: EffectProgram
-    units: list[EffectProgram]
+    kernel: Any
     columns: np.ndarray
-    pairs: list[EffectProgram]
-    pair_steps: np.ndarray
 
 
-def _term_programs(corrected: Any, n_states: int, n_inputs: int, regressors: bool) -> _TermPrograms | None:
-    """The :class:`_TermPrograms` of a corrected model's terms as they are now (without regressors: only the
-    program); None when some term has no C form."""
+def _term_programs(corrected: Any, fmu: Any, relative_step: float, regressors: bool) -> _TermPrograms | None:
+    """The :class:`_TermPrograms` of a corrected model's terms as they are now, on ``fmu`` (without regressors:
+    the whole program only); None when some term has no C form."""
     program = corrected.effect_program()
     if program is None:
         return None
     if not regressors:
-        return _TermPrograms(program, [], np.zeros(0, dtype=int), [], np.zeros(0))
+        return _TermPrograms(fmu.effect_jacobians_kernel(program, relative_step), np.zeros(0, dtype=int))
+    n_states, n_inputs = corrected.n_x, corrected.n_u
     starts, n_c = {}, 0
     for _, array in corrected.row_coefficients:
         starts[id(array)] = n_c
@@ -370,4 +365,7 @@ def _term_programs(corrected: Any, n_states: int, n_inputs: int, regressors: boo
             finally:
                 array[i] = value
             steps.append(step)
-    return _TermPrograms(program, units, np.array(columns, dtype=int), pairs, np.array(steps))
+    hold = corrected.hold
+    kernel = fmu.effect_jacobians_kernel(program, relative_step, units, corrected.hold_state if hold else -1,
+                                         hold.band if hold else 0.0, pairs, steps)
+    return _TermPrograms(kernel, np.array(columns, dtype=int))
