@@ -17,6 +17,10 @@ Prints one line per row and a JSON object with the microseconds per call, the ra
 form's time over the C form's (``numpy_over_c``).
 
     python benchmarks/physics_layer.py [--config config/config.yaml] [--batch 4] [--calls 2000] [--repeats 5]
+        [--markdown FILE]
+
+``--markdown FILE`` writes the training rows for the docs (``python -m hybridfmu.evaluation.measured_blocks --block
+physics_layer=FILE``).
 """
 
 from __future__ import annotations
@@ -31,20 +35,23 @@ import numpy as np
 
 from hybridfmu.config import check_config_file
 from hybridfmu.diagnosis.corrected_model import CorrectedModel
+from hybridfmu.io import write_text_atomic
 from hybridfmu.model.physics import physics_model
 from hybridfmu.training.data import ManeuverArrays
 from hybridfmu.training.measured import load_calibration
 
 
-def time_per_call_us(function, calls: int, repeats: int) -> float:
-    """Median over ``repeats`` of the mean wall time per call (µs) of ``calls`` calls of ``function()``."""
-    runs = []
+def time_per_call_us(functions: dict, calls: int, repeats: int) -> dict[str, float]:
+    """Per function, the median over ``repeats`` of the mean wall time per call (µs) of ``calls`` calls; the
+    functions take turns in every repeat, so that all of them share the machine's load."""
+    runs: dict[str, list[float]] = {name: [] for name in functions}
     for _ in range(repeats):
-        started = time.perf_counter()
-        for _ in range(calls):
-            function()
-        runs.append((time.perf_counter() - started) / calls * 1e6)
-    return statistics.median(runs)
+        for name, function in functions.items():
+            started = time.perf_counter()
+            for _ in range(calls):
+                function()
+            runs[name].append((time.perf_counter() - started) / calls * 1e6)
+    return {name: statistics.median(values) for name, values in runs.items()}
 
 
 def main() -> None:
@@ -54,6 +61,7 @@ def main() -> None:
     parser.add_argument("--calls", type=int, default=2000)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--markdown", help="write the training rows (C against NumPy) as Markdown to this file")
     args = parser.parse_args()
 
     config = check_config_file(args.config)
@@ -86,16 +94,33 @@ def main() -> None:
     }
     print(f"case {config['case']}: the FMU plus {', '.join(physics.effects)}; B = {args.batch}, "
           f"{args.calls} calls x {args.repeats}", flush=True)
-    timings = {}
-    for name, function in rows_timed.items():
-        timings[name] = time_per_call_us(function, args.calls, args.repeats)
-        print(f"{name:22s} {timings[name]:9.1f} µs/call  {1e6 / timings[name]:10.0f} calls/s  "
-              f"x{timings[name] / timings['fmu']:.1f} the FMU's time", flush=True)
+    for function in rows_timed.values():  # warm: the C programs are laid out at the first call
+        function()
+    timings = time_per_call_us(rows_timed, args.calls, args.repeats)
+    for name, value in timings.items():
+        print(f"{name:26s} {value:9.1f} µs/call  {1e6 / value:10.0f} calls/s  "
+              f"x{value / timings['fmu']:.1f} the FMU's time", flush=True)
+    if args.markdown:
+        write_text_atomic(args.markdown, training_table(config["case"], args.batch, args.calls, args.repeats,
+                                                        timings))
     print(json.dumps({"config": args.config, "batch": args.batch, "us_per_call": timings,
                       "ratio_to_fmu": {k: v / timings["fmu"] for k, v in timings.items()},
                       "joint_over_per_member": timings["terms"] / timings["terms_per_member"],
                       "numpy_over_c": {name: timings[f"{name}_numpy"] / timings[name]
                                        for name in ("physics_jacobians", "physics_coefficients")}}))
+
+
+def training_table(case: str, batch: int, calls: int, repeats: int, timings: dict[str, float]) -> str:
+    """The training's call per solver stage, the effect terms in C against NumPy, as Markdown."""
+    lines = [f"Case `{case}`, its physical layer's call per solver stage of a training rollout, B = {batch} rows of "
+             f"the prepared training data, median of {repeats} runs of {calls} calls taking turns "
+             "(`benchmarks/physics_layer.py`):", "",
+             "| call | terms in C | terms in NumPy | speed-up |", "|---|---|---|---|"]
+    for name, label in (("physics_jacobians", "derivatives and Jacobians"),
+                        ("physics_coefficients", "derivatives, Jacobians and the coefficients' Jacobian")):
+        c, numpy = timings[name], timings[f"{name}_numpy"]
+        lines.append(f"| {label} | {c:.0f} µs | {numpy:.0f} µs | ×{numpy / c:.2f} |")
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

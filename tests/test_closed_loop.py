@@ -123,3 +123,38 @@ def test_the_ecu_software_driving_the_true_plant_reproduces_the_bench():
     assert np.ptp(truth[:, 2]) > 1.0  # the maneuver moves
     np.testing.assert_allclose(states[:, 2], truth[:, 2], rtol=0, atol=1e-6)
     np.testing.assert_allclose(states[:, 3], truth[:, 3], rtol=0, atol=1e-3)
+
+
+def test_the_closed_loops_held_input_step_is_the_rollout_of_a_constant_sequence_to_the_bit(ipbmotor_fmu):
+    """A neural FMU around the demo motor (random ANN, learned delays away from zero, the end stop): the closed
+    loop's step (its fused derivative made once, the held inputs given to the solver as they are) gives the states
+    of a one-step rollout of each row's inputs held as a sequence, over many steps with new inputs each time."""
+    import torch
+
+    from hybridfmu.fmu import FmuRhs, load_fmu
+    from hybridfmu.model import NeuralFmu, NeuralFmuSpec
+    from hybridfmu.training.inference import held_input_step
+    from hybridfmu.training.solver import rollout
+
+    states = ["i_d", "i_q", "theta", "omega"]
+    inputs = ["d_a", "d_b", "d_c", "u_dc", "tau_load"]
+    with load_fmu(ipbmotor_fmu) as fmu:
+        spec = NeuralFmuSpec(state_names=states, input_names=inputs, corrected_states=["omega"], ann_states=states,
+                             ann_inputs=inputs, ann_derivatives=states, sample_period_s=1e-4, width=6, depth=2,
+                             gate_opening=0.3, ann_output_init="random", delay_min_s=-2e-4, delay_max_s=2e-4,
+                             delay_init_s=0.7e-4)
+        stats = dict(x_mean=[0.0] * 4, x_std=[10.0, 10.0, 3.0, 100.0], u_mean=[0.5, 0.5, 0.5, 24.0, 0.0],
+                     u_std=[0.2, 0.2, 0.2, 1.0, 0.05], xdot_mean=[0.0] * 4, xdot_std=[1e4, 1e4, 100.0, 1e3])
+        torch.manual_seed(2)
+        model = NeuralFmu(FmuRhs(fmu), spec, stats).double().eval()
+        step = held_input_step(model)
+        rng = np.random.default_rng(4)
+        x_step = x_rollout = np.tile(np.asarray(fmu.initial_states, dtype=float), (3, 1)) + rng.normal(0, 0.5, (3, 4))
+        for _ in range(50):
+            u = np.column_stack([rng.uniform(0.1, 0.9, (3, 3)), np.full(3, 24.0), rng.normal(0, 0.05, 3)])
+            x_step = step(u, x_step)
+            with torch.no_grad():
+                held = torch.from_numpy(np.repeat(u[:, None, :], 7, axis=1))
+                x_rollout = rollout(model, held, 3, torch.from_numpy(x_rollout), 1)[:, 1].numpy()
+            assert np.array_equal(x_step, x_rollout)
+        assert np.ptp(x_step[:, 3]) > 0  # the rows moved apart

@@ -229,7 +229,7 @@ def write_closed_loop(model_kind: str, model: Any, fmu_start: Callable[[str, np.
                                         make_controller(settings, config, period_s)))
         measured[name] = data
     wall = time.perf_counter()
-    trajectories = simulate_closed_loop(lambda u, x: held_input_step(model, u, x), records, roles.state_names,
+    trajectories = simulate_closed_loop(held_input_step(model), records, roles.state_names,
                                         roles.input_names, settings.outputs, period_s,
                                         f"closed loop {model_kind} ({len(records)} maneuvers)")
     wall_s = time.perf_counter() - wall

@@ -13,7 +13,7 @@ from hybridfmu.model.neural_fmu import NeuralFmu
 from hybridfmu.model.spec import NeuralFmuSpec
 from hybridfmu.training.data import check_uniform_grid
 from hybridfmu.training.multiple_shooting import batched_window_rows, windowed_trajectory
-from hybridfmu.training.solver import rollout
+from hybridfmu.training.solver import held_input_stepper, rollout
 from hybridfmu.training.windows import delay_padding
 
 
@@ -152,8 +152,9 @@ def simulate_neural_fmu_windows(model: NeuralFmu, time_s: Any, u: Any, x_start: 
     return out
 
 
-def held_input_step(model: NeuralFmu, u: Any, x: Any) -> np.ndarray:
-    """One solver step of the model's sample period from ``x`` with the inputs ``u`` held over the step.
+def held_input_step(model: NeuralFmu):
+    """One solver step of the model's sample period with the inputs held over the step, for many calls on a model
+    that does not change between them.
 
     The closed loop's step (:mod:`hybridfmu.evaluation.closed_loop`): a controller's outputs are applied as it
     writes them, held over the period, so the learned input delays see constant inputs (no delay acts) and a
@@ -161,22 +162,26 @@ def held_input_step(model: NeuralFmu, u: Any, x: Any) -> np.ndarray:
     stay).
 
     Args:
-        model: a trained neural FMU or hybrid; u: (B, n_u) inputs in FMU order; x: (B, n_x) states.
+        model: a trained neural FMU or hybrid (not changed while the step is used).
 
     Returns:
-        (B, n_x) float64 states one sample period later (the solver and end stop of ``model.spec``).
+        ``step(u (B, n_u) inputs in FMU order, x (B, n_x) states) -> (B, n_x)`` float64 states one sample period
+        later (the solver and end stop of ``model.spec``; :func:`hybridfmu.training.solver.held_input_stepper`).
     """
-    u = np.asarray(u, dtype=np.float64)
-    x = np.asarray(x, dtype=np.float64)
     spec = model.spec
     physics = physical_layer(model)
-    if physics is not None:  # each row held: a constant sequence of its own (rows are different records)
-        u = np.stack([physics.inputs(np.repeat(row[None], 3, axis=0), spec.sample_period_s)[1] for row in u])
-    pad = delay_padding(spec.sample_period_s, spec.delay_min_s, spec.delay_max_s)
-    u_seq = torch.from_numpy(np.ascontiguousarray(np.repeat(u[:, None, :], 2 * pad + 2, axis=1)))
-    with torch.no_grad():
-        states = rollout(model, u_seq, pad, torch.from_numpy(np.ascontiguousarray(x)), 1)
-    return states[:, 1].numpy()
+    stepper = held_input_stepper(model)
+
+    def step(u: Any, x: Any) -> np.ndarray:
+        u = np.asarray(u, dtype=np.float64)
+        x = np.asarray(x, dtype=np.float64)
+        if physics is not None:  # each row held: a constant sequence of its own (rows are different records)
+            u = np.stack([physics.inputs(np.repeat(row[None], 3, axis=0), spec.sample_period_s)[1] for row in u])
+        with torch.no_grad():
+            states = stepper(torch.from_numpy(np.ascontiguousarray(u)), torch.from_numpy(np.ascontiguousarray(x)))
+        return states.numpy()
+
+    return step
 
 
 def without_ann(model: NeuralFmu) -> NeuralFmu:

@@ -81,6 +81,29 @@ def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.T
     return torch.stack(states, dim=1)
 
 
+def held_input_stepper(model: NeuralFmu):
+    """``rollout`` of one step with each row's inputs held over it, for many calls on a model that does not change
+    between them (a closed loop): the fused derivative is made once and the held inputs go to the solver as they
+    are (the delays of a constant sequence give its value exactly, so the states equal ``rollout``'s bit for bit).
+
+    Returns:
+        ``step(u (B, n_u), x (B, n_x)) -> (B, n_x)`` (float64 tensors): the states one sample period later.
+    """
+    spec = model.spec
+    stage = model.fused()
+    middle = NODE_MIDDLE in runge_kutta.tableau(spec.solver).c
+    clamp = _end_stop_indices(model)
+
+    def step(u: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        u_grid_t = u[None].expand(2, -1, -1).contiguous()  # (2, B, n_u): both ends of the step
+        u_half_t = u[None].contiguous() if middle else u[None, :0].contiguous()
+        states_t = rollout_adjoint(stage, spec.sample_period_s, spec.solver, clamp, x, u_grid_t, u_half_t,
+                                   stage.input_term(u_grid_t), stage.input_term(u_half_t), engine="auto")
+        return states_t[1]
+
+    return step
+
+
 class _DelayedDerivative(torch.nn.Module):
     """The neural FMU's derivative as a function of (t, x) for torchdiffeq: the inputs at t come from the
     model's input delay (linear interpolation of the window's samples, shifted by the learned offset)."""
