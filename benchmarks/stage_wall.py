@@ -5,7 +5,8 @@ folders ``--inputs`` of a finished run's case results (``--results``, e.g. ``res
 clone's results, and ``snakemake -j1 --forcerun <rule> <target>`` reruns that one rule there with the clone's
 ``src`` first on the Python path (no install needed; ``--rerun-triggers mtime``, so only the forced rule runs).
 Commits and ``--repeats`` alternate, so that a before/after comparison shares the machine's load. The figure is the
-rule's wall time from Snakemake's benchmark file (``{results}/benchmarks/<rule>/<rule>.tsv``, seconds); run it
+rule's wall time from Snakemake's benchmark file (``{results}/benchmarks/<rule>/<rule>.tsv``, or ``--benchmark``
+for a rule with wildcards; seconds); run it
 from the folder that holds ``--results`` (the finished run's project).
 
 ``--cores N`` gives the job N cores (``snakemake -jN``; a rule that declares threads gets up to N). Each run's
@@ -78,7 +79,7 @@ def touch_tree(folder: Path) -> None:
 
 
 def run_stage(checkout: Path, results: Path, inputs: list[str], rule: str, target: str,
-              configfile: str | None, cores: int = 1) -> dict:
+              configfile: str | None, cores: int = 1, benchmark: str | None = None) -> dict:
     """Copy the inputs into ``checkout`` and rerun ``rule`` with ``cores`` cores; returns {"rule_s", "command_s",
     "output"} (``output``: :func:`comparable` of the target)."""
     case_results = checkout / results
@@ -99,7 +100,7 @@ def run_stage(checkout: Path, results: Path, inputs: list[str], rule: str, targe
     text = log.read_text(errors="replace")
     if status:
         raise RuntimeError(f"{' '.join(command)} in {checkout} failed ({status}):\n" + "\n".join(text.splitlines()[-30:]))
-    tsv = case_results / "benchmarks" / rule / f"{rule}.tsv"
+    tsv = case_results / "benchmarks" / (benchmark or f"{rule}/{rule}.tsv")
     if not tsv.is_file():
         raise FileNotFoundError(f"{tsv}: the rule {rule!r} wrote no benchmark file (is it the rule's name?)")
     with tsv.open() as stream:
@@ -156,6 +157,9 @@ def main() -> None:
     parser.add_argument("--configfile", default=None, help="case config (default: the demo)")
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--cores", type=int, default=1, help="cores of the job (snakemake -jN)")
+    parser.add_argument("--benchmark", default=None,
+                        help="the rule's benchmark file under <results>/benchmarks (default <rule>/<rule>.tsv; a "
+                             "rule with wildcards names its own, e.g. train_rung/hybrid/b2_r0_c4.tsv)")
     parser.add_argument("--field", action="append", default=[],
                         help="a dotted key of the JSON target shown per commit (repeatable), e.g. which.found_effects")
     parser.add_argument("--markdown", type=Path, default=None, help="write the table as Markdown to this file")
@@ -174,7 +178,7 @@ def main() -> None:
                 print(f"{label} ...", file=sys.stderr, flush=True)
                 checkout = clone(commit, Path(tmp) / f"{commit[:10]}-{repeat}")
                 figures = run_stage(checkout, results, args.inputs, args.rule, args.target, args.configfile,
-                                    args.cores)
+                                    args.cores, args.benchmark)
                 output = figures.pop("output")
                 target_path = figures.pop("path")
                 if repeat == 0:
