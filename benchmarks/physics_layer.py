@@ -10,7 +10,7 @@ rule ``diagnose``), takes B random rows (states and inputs) of the prepared trai
 - ``physics``: the physical layer's derivatives (FMU + terms, one solver stage of a validation rollout);
 - ``physics_jacobians``: derivatives and Jacobians (one stage of a training rollout), and
   ``physics_coefficients``: the same with the coefficients' Jacobian (a stage when the coefficients train), the
-  terms and their differences in C (``FmuModel.effect_jacobians``); ``*_numpy``: the same in NumPy
+  terms and their differences in C (``FmuModel.effect_jacobians_kernel``); ``*_numpy``: the same in NumPy
   (``PhysicsModel.terms_in_c = False``), side by side.
 
 Prints one line per row and a JSON object with the microseconds per call, the ratios to ``fmu`` and the NumPy

@@ -133,7 +133,7 @@ def test_the_closed_loops_held_input_step_is_the_rollout_of_a_constant_sequence_
 
     from hybridfmu.fmu import FmuRhs, load_fmu
     from hybridfmu.model import NeuralFmu, NeuralFmuSpec
-    from hybridfmu.training.inference import held_input_step
+    from hybridfmu.training.inference import make_held_input_step
     from hybridfmu.training.solver import rollout
 
     states = ["i_d", "i_q", "theta", "omega"]
@@ -147,7 +147,7 @@ def test_the_closed_loops_held_input_step_is_the_rollout_of_a_constant_sequence_
                      u_std=[0.2, 0.2, 0.2, 1.0, 0.05], xdot_mean=[0.0] * 4, xdot_std=[1e4, 1e4, 100.0, 1e3])
         torch.manual_seed(2)
         model = NeuralFmu(FmuRhs(fmu), spec, stats).double().eval()
-        step = held_input_step(model)
+        step = make_held_input_step(model)
         rng = np.random.default_rng(4)
         x_step = x_rollout = np.tile(np.asarray(fmu.initial_states, dtype=float), (3, 1)) + rng.normal(0, 0.5, (3, 4))
         for _ in range(50):

@@ -14,7 +14,7 @@ the case config and the sample period, returns an object with
 
 Every other FMU input stays as logged. Per sample k: the controller reads the model's states at t_k and the
 logged signals at t_k; the model steps [t_k, t_k+1) with the outputs of the step before, held over the period
-(:func:`hybridfmu.training.inference.held_input_step`). The record's first sample applies the logged commands.
+(:func:`hybridfmu.training.inference.make_held_input_step`). The record's first sample applies the logged commands.
 The models' trajectories are then judged against the measurement like the open-loop ones.
 """
 
@@ -212,7 +212,7 @@ def write_closed_loop(model_kind: str, model: Any, fmu_start: Callable[[str, np.
     Returns:
         Wall time per simulated second.
     """
-    from hybridfmu.training.inference import held_input_step
+    from hybridfmu.training.inference import make_held_input_step
     from hybridfmu.training.measured import read_measured
 
     period_s = float(model.spec.sample_period_s)
@@ -229,7 +229,7 @@ def write_closed_loop(model_kind: str, model: Any, fmu_start: Callable[[str, np.
                                         make_controller(settings, config, period_s)))
         measured[name] = data
     wall = time.perf_counter()
-    trajectories = simulate_closed_loop(held_input_step(model), records, roles.state_names,
+    trajectories = simulate_closed_loop(make_held_input_step(model), records, roles.state_names,
                                         roles.input_names, settings.outputs, period_s,
                                         f"closed loop {model_kind} ({len(records)} maneuvers)")
     wall_s = time.perf_counter() - wall

@@ -283,7 +283,6 @@ def _cleanup(fmu, component_holder, log_pointer, lib, unzip_dir, owns_unzip_dir)
         shutil.rmtree(unzip_dir, ignore_errors=True)
 
 
-
 def _concatenated(programs) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Effect programs side by side for one C call: (codes, code starts (K + 1,), reals, real starts (K + 1,))."""
     codes = np.concatenate([p.code for p in programs]) if programs else np.zeros(1, dtype=np.int64)
@@ -291,6 +290,7 @@ def _concatenated(programs) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     code_start = np.cumsum([0] + [p.code.size for p in programs]).astype(np.uintp)
     real_start = np.cumsum([0] + [p.reals.size for p in programs]).astype(np.uintp)
     return codes, code_start, reals, real_start
+
 
 class FmuModel:
     """One instance of an FMI 2.0 Model-Exchange FMU with batched evaluation (see module doc).

@@ -137,7 +137,7 @@ class PhysicsModel:
     def _terms_and_jacobians(self, x: np.ndarray, u: np.ndarray, regressors: bool = False):
         """The additive terms (N, n_x) and their central-difference Jacobians (N, n_x, n_x), (N, n_x, n_u); with
         ``regressors`` also :meth:`coefficient_jacobian` (N, n_x, n_c). In C where every term has a C form and the
-        FMU runs behind the shim (``FmuModel.effect_jacobians``, one call per solver stage), else in NumPy.
+        FMU runs behind the shim (``FmuModel.effect_jacobians_kernel``, one call per solver stage), else in NumPy.
 
         In C the regressors are each row term's program with a unit coefficient; within the standstill hold's band
         (where the hold makes the terms depend on the coefficients in pieces) they are the central differences of
@@ -156,7 +156,7 @@ class PhysicsModel:
         return terms, term_x, term_u, jacobian
 
     def _c_programs(self, regressors: bool) -> "_TermPrograms | None":
-        """The terms as effect programs for :meth:`FmuModel.effect_jacobians` with the coefficients as they are
+        """The terms as effect programs for :meth:`FmuModel.effect_jacobians_kernel` with the coefficients as they are
         now; None where the FMU has no C interface or some term no C form. Rebuilt when the coefficients change (a
         hybrid trains them); the regressors' programs only when asked for."""
         if (not self.terms_in_c or not callable(getattr(self.fmu, "effect_jacobians_kernel", None))

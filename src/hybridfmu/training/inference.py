@@ -152,7 +152,7 @@ def simulate_neural_fmu_windows(model: NeuralFmu, time_s: Any, u: Any, x_start: 
     return out
 
 
-def held_input_step(model: NeuralFmu):
+def make_held_input_step(model: NeuralFmu):
     """One solver step of the model's sample period with the inputs held over the step, for many calls on a model
     that does not change between them.
 
