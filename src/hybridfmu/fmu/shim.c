@@ -411,6 +411,20 @@ static int hf_effect_eval(void *context, const double *u, double *dx) {
     return 0;
 }
 
+/* out (nx,) = program (code, n_code, reals) at (x, u) with the FMU's derivatives f there, the FMU at x; the
+   FMU's inputs set back to u after a program that evaluates the model. */
+static int hf_program_at(hf_model *m, const long long *code, size_t n_code, const double *reals, const double *x,
+                         const double *u, const double *f, double *out, long long row) {
+    int st = hf_effects_add(code, n_code, reals, m->nx, m->nu, x, u, f, out, m->effect_work, hf_effect_eval, m);
+    if (st == HF_EFFECT_ERR_PROGRAM) HF_FAIL(m, HF_FN_EFFECTS, row, st);
+    if (st) {
+        m->failed_row = row;
+        return st;
+    }
+    if (m->effect_sets_inputs && m->nu) HF_CHECK(m, m->set_real(m->component, m->vr_u, m->nu, u), HF_FN_SET_REAL, row);
+    return 0;
+}
+
 /* out = f(t, x, u) + effects(x, u, f) + correction(x, u); the inputs must already be set in the FMU. */
 static int hf_rhs(hf_model *m, double t, const double *x, const double *u, double *out,
                   long long row) {
@@ -419,15 +433,8 @@ static int hf_rhs(hf_model *m, double t, const double *x, const double *u, doubl
     HF_CHECK(m, m->set_states(m->component, x, m->nx), HF_FN_SET_STATES, row);
     HF_CHECK(m, m->get_derivatives(m->component, out, m->nx), HF_FN_GET_DERIVATIVES, row);
     if (m->effect_code) {
-        int st = hf_effects_add(m->effect_code, m->effect_n_code, m->effect_reals, m->nx, m->nu, x, u, out,
-                                m->effect_out, m->effect_work, hf_effect_eval, m);
-        if (st == HF_EFFECT_ERR_PROGRAM) HF_FAIL(m, HF_FN_EFFECTS, row, st);
-        if (st) {
-            m->failed_row = row;
-            return st;
-        }
-        if (m->effect_sets_inputs && m->nu)
-            HF_CHECK(m, m->set_real(m->component, m->vr_u, m->nu, u), HF_FN_SET_REAL, row);
+        int st = hf_program_at(m, m->effect_code, m->effect_n_code, m->effect_reals, x, u, out, m->effect_out, row);
+        if (st) return st;
         for (i = 0; i < m->nx; ++i) out[i] += m->effect_out[i];
     }
     if (m->correction) {
@@ -550,20 +557,6 @@ int hf_simulate(hf_model *m, size_t T, const double *time, const double *u, size
 }
 
 /* ---------------------------------------------------------------- effect terms and their Jacobians */
-
-/* out (nx,) = program (code, n_code, reals) at (x, u) with the FMU's derivatives f there, the FMU at x; the
-   FMU's inputs set back to u after a program that evaluates the model. */
-static int hf_program_at(hf_model *m, const long long *code, size_t n_code, const double *reals, const double *x,
-                         const double *u, const double *f, double *out, long long row) {
-    int st = hf_effects_add(code, n_code, reals, m->nx, m->nu, x, u, f, out, m->effect_work, hf_effect_eval, m);
-    if (st == HF_EFFECT_ERR_PROGRAM) HF_FAIL(m, HF_FN_EFFECTS, row, st);
-    if (st) {
-        m->failed_row = row;
-        return st;
-    }
-    if (m->effect_sets_inputs && m->nu) HF_CHECK(m, m->set_real(m->component, m->vr_u, m->nu, u), HF_FN_SET_REAL, row);
-    return 0;
-}
 
 /* out (nx,) = the installed effect program's terms at (x, u), FMU at t = 0; f: nx doubles of work (the FMU's
    derivatives there). The FMU is left at (x, u). */
@@ -992,15 +985,8 @@ static int hf_neural_rhs(hf_model *m, const double *x, const double *u, const do
     HF_CHECK(m, m->get_derivatives(m->component, f, nx), HF_FN_GET_DERIVATIVES, row);
     if (m->effect_code) { /* a hybrid's physical layer: f = the FMU's derivatives + the diagnosed effects */
         if (jac_source && jac_source->method) HF_FAIL(m, HF_FN_EFFECTS, row, HF_EFFECT_ERR_PROGRAM);
-        st = hf_effects_add(m->effect_code, m->effect_n_code, m->effect_reals, nx, nu, x, u, f, m->effect_out,
-                            m->effect_work, hf_effect_eval, m);
-        if (st == HF_EFFECT_ERR_PROGRAM) HF_FAIL(m, HF_FN_EFFECTS, row, st);
-        if (st) {
-            m->failed_row = row;
-            return st;
-        }
-        if (m->effect_sets_inputs && nu)
-            HF_CHECK(m, m->set_real(m->component, m->vr_u, nu, u), HF_FN_SET_REAL, row);
+        st = hf_program_at(m, m->effect_code, m->effect_n_code, m->effect_reals, x, u, f, m->effect_out, row);
+        if (st) return st;
         for (i = 0; i < nx; ++i) f[i] += m->effect_out[i];
     }
     if ((st = hf_check_finite(m, f, 0.0, row))) return st;
