@@ -118,6 +118,41 @@ def test_input_changes_of_different_kinds_compose_and_a_second_of_one_kind_is_no
     assert any("input_gain(F)" in note and "not applied" in note for note in corrected.notes)
 
 
+@pytest.mark.parametrize("terms", [
+    [("time_offset(F)", 1, 0.9), ("input_deadzone(F)", 1, 0.8), ("input_gain(F)", 0, 0.1)],
+    [("input_lag(F)", 0, 0.3), ("input_saturation_above(F)", 1, 0.7), ("input_offset(F)", 0, 0.2)],
+    [("input_lag(F)", -1, 0.9), ("input_saturation_below(F)", -1, 0.6)],
+])
+def test_held_inputs_are_what_the_corrected_model_makes_of_constant_sequences(library, terms):
+    """Each row of a batch held on its own (a closed loop's step): time shifts and lags (the rate form and a slow
+    actuator's filter) leave it as it is, dead zones, saturations, gains and offsets change it; the same values as
+    the sequence form on a constant sequence of each row, all rows in one call."""
+    problem, prepared, by_name = library
+    dt = prepared.inputs.dt_s
+    chosen = []
+    for name, index, coef in terms:
+        grid = by_name[name].grid()
+        chosen.append(Term(by_name[name], grid[index], np.array([coef])))
+    corrected = CorrectedModel(chosen, problem)
+    assert not corrected.notes
+    rows = np.linspace(-3.0, 3.0, 13)[:, None]
+    held = corrected.held_inputs(rows, dt)
+    sequences = np.stack([corrected.inputs(np.repeat(row[None], 3, axis=0), dt)[1] for row in rows])
+    np.testing.assert_allclose(held, sequences, rtol=1e-13, atol=1e-13)
+    assert np.ptp(held - rows) > 0.01  # the static changes acted
+
+
+def test_a_held_input_through_a_transform_without_a_stated_form_is_its_constant_sequences_middle(library):
+    from hybridfmu.diagnosis.effects import make_input_change
+
+    problem, prepared, _ = library
+    corrected = CorrectedModel([], problem)
+    cumulative = make_input_change(0, transform=lambda v, dt_s: np.cumsum(v) * dt_s)  # depends on the samples before
+    corrected.input_changes = {0: [("custom", cumulative)]}
+    rows = np.array([[1.0], [-2.0]])
+    np.testing.assert_allclose(corrected.held_inputs(rows, 0.01), [[0.02], [-0.04]], rtol=1e-14)
+
+
 # ----------------------------------------------------------------------------- found from the data
 
 def test_a_sensor_lag_is_found_with_its_time_constant_and_undone_in_the_simulation():

@@ -26,7 +26,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from hybridfmu.diagnosis.effects import EffectInputs, input_derivative
+from hybridfmu.diagnosis.effects import HELD_UNCHANGED_FORMS, EffectInputs, input_derivative
 from hybridfmu.diagnosis.problem import Problem
 from hybridfmu.diagnosis.selection import Term
 from hybridfmu.diagnosis.standstill_hold import StandstillHold, friction_rows, held_rate
@@ -371,6 +371,31 @@ class CorrectedModel:
             for _, change in changes:
                 if change.get("transform") is not None:
                     values = np.asarray(change["transform"](values, dt_s), dtype=float)
+            for _, change in changes:
+                values = (1.0 + change.get("gain", 0.0)) * values
+            for _, change in changes:
+                values = values + change.get("offset", 0.0)
+            out[:, column] = values
+        return out
+
+    def held_inputs(self, u: np.ndarray, dt_s: float) -> np.ndarray:
+        """Inputs held constant, as the corrected model sees them: ``u`` (B, n_u), each row its own held inputs ->
+        (B, n_u); ``dt_s`` the sampling interval (s). What :meth:`inputs` makes of a constant sequence of each row,
+        all rows at once: time shifts and lags leave a held value as it is, and so do the transforms of
+        :data:`~hybridfmu.diagnosis.effects.HELD_UNCHANGED_FORMS`; the static transforms, gains and offsets change
+        it as any sample. A transform without a stated form is applied to a constant sequence of each row."""
+        u = np.asarray(u, dtype=float)
+        out = np.array(u, dtype=float)
+        for column, changes in sorted(self.input_changes.items()):
+            values = np.array(u[:, column], dtype=float)
+            for _, change in changes:
+                transform, form = change.get("transform"), change.get("form")
+                if transform is None or (form is not None and form[0] in HELD_UNCHANGED_FORMS):
+                    continue
+                if form is not None:  # a static form: each sample on its own
+                    values = np.asarray(transform(values, dt_s), dtype=float)
+                else:
+                    values = np.array([np.asarray(transform(np.full(3, v), dt_s), dtype=float)[1] for v in values])
             for _, change in changes:
                 values = (1.0 + change.get("gain", 0.0)) * values
             for _, change in changes:

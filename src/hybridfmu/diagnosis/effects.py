@@ -343,6 +343,9 @@ def make_input_change(input_index: int | list[int], *, gain: float = 0.0, offset
 #: ``deadzone`` v - a clip(v, -b, b); ``saturation_above`` v + a (-max(v - b, 0));
 #: ``saturation_below`` v + a max(b - v, 0).
 TRANSFORM_FORMS = ("shift_mix", "actuator_lag", "deadzone", "saturation_above", "saturation_below")
+#: The forms that leave a held (constant) input unchanged: a constant shifted in time, or lagged from its own value,
+#: is itself. The others are static (each sample changed on its own), so a held value changes as any sample does.
+HELD_UNCHANGED_FORMS = ("shift_mix", "actuator_lag")
 
 
 def smooth_sign(value: np.ndarray, scale: float) -> np.ndarray:

@@ -55,6 +55,7 @@ class PhysicsModel:
         self.relative_step = float(relative_step)
         self.terms_in_c = bool(terms_in_c)
         self._programs_cache: tuple[tuple[bytes, bool], Any] | None = None
+        self._effect_program_cache: tuple[bytes, EffectProgram | None] | None = None
         # the refit's parameters, then the parameter errors the effects name (they are not refitted ones)
         self.parameters = {**diagnosed.parameters, **self.corrected.parameters}
         for instance in (fmu, helper):
@@ -125,6 +126,14 @@ class PhysicsModel:
         if not self.corrected.input_changes:
             return np.array(u)
         return self.corrected.inputs(u, float(dt_s))
+
+    def held_inputs(self, u: np.ndarray, dt_s: float) -> np.ndarray:
+        """Each row of ``u`` (B, n_u) held constant, as the model sees it (the diagnosed input changes,
+        :meth:`CorrectedModel.held_inputs`) -> (B, n_u); ``dt_s`` the sampling interval (s)."""
+        u = np.asarray(u, dtype=float)
+        if not self.corrected.input_changes:
+            return np.array(u)
+        return self.corrected.held_inputs(u, float(dt_s))
 
     # ------------------------------------------------------------------ derivatives
     def derivatives(self, x: np.ndarray, u: np.ndarray, t_s: Any = 0.0) -> np.ndarray:
@@ -266,11 +275,11 @@ class PhysicsModel:
             return None
         if not self.corrected.has_correction:
             return fmu_rollout
-        if self.corrected.effect_program() is None:
+        if self._effect_program() is None:
             return None
 
         def rollout(*args, **kwargs):
-            program = self.corrected.effect_program()
+            program = self._effect_program()
             buffers = program.install(self.fmu._shim_model)
             try:
                 return fmu_rollout(*args, **kwargs)
@@ -279,6 +288,14 @@ class PhysicsModel:
                 del buffers
 
         return rollout
+
+    def _effect_program(self) -> EffectProgram | None:
+        """``self.corrected.effect_program()`` with the coefficients as they are now, made again only when they
+        have changed since the last call (a closed loop's rollouts of one sample each all use one)."""
+        key = self.coefficients.tobytes()
+        if self._effect_program_cache is None or self._effect_program_cache[0] != key:
+            self._effect_program_cache = (key, self.corrected.effect_program())
+        return self._effect_program_cache[1]
 
     def derivatives_and_jacobians_kernel(self, n: int):
         """``(x (n, n_x), u (n, n_u)) -> (xdot, dfdx, dfdu)`` (the bridge's kernel interface, for the NumPy

@@ -175,8 +175,8 @@ def make_held_input_step(model: NeuralFmu):
     def step(u: Any, x: Any) -> np.ndarray:
         u = np.asarray(u, dtype=np.float64)
         x = np.asarray(x, dtype=np.float64)
-        if physics is not None:  # each row held: a constant sequence of its own (rows are different records)
-            u = np.stack([physics.inputs(np.repeat(row[None], 3, axis=0), spec.sample_period_s)[1] for row in u])
+        if physics is not None:  # each row held on its own (rows are different records)
+            u = physics.held_inputs(u, spec.sample_period_s)
         with torch.no_grad():
             states = stepper(torch.from_numpy(np.ascontiguousarray(u)), torch.from_numpy(np.ascontiguousarray(x)))
         return states.numpy()
