@@ -108,8 +108,9 @@ def log_trial_rung(tracking: dict[str, str], search_id: str, result: dict[str, A
 
     Metrics (step = resource in ms of training data): ``train_loss`` per optimizer step; at every validation
     ``val_objective``, ``val_loss`` and ``val_<signal>_mae`` / ``_mse`` / ``_rmse`` per target signal;
-    at the rung's end ``best_val_objective``, ``delay_s``, ``skipped_steps`` and the gates. Artifacts under ``rung<r>/``: ``model/state_dict.pt``,
-    ``model/model_info.json`` (architecture, FMU path and hash) and ``training_curve.png``.
+    at the rung's end ``best_val_objective``, ``delay_s``, ``skipped_steps`` and the gates (the MLflow UI draws their
+    curves; the search's figure ``training_curves.png`` of rule ``plot`` draws every trial's). Artifacts under
+    ``rung<r>/``: ``model/state_dict.pt`` and ``model/model_info.json`` (architecture, FMU path and hash).
     ``history`` holds every step so far ([resource_s, loss, skipped, gradient norm]); rows the run already has
     (same key and step: earlier rungs, an earlier attempt of this rung) are not logged again, so logging is
     idempotent and rungs may be logged in any order. ``model``: the module or its state dict; ``spec``: the
@@ -164,7 +165,6 @@ def log_trial_rung(tracking: dict[str, str], search_id: str, result: dict[str, A
         info = {"spec": _spec_dict(spec), "hyperparameters": result["hyperparameters"], "fmu": result["fmu"],
                 "delay_s": result["delay_s"], "gates": result["gates"], "checkpoint": result["checkpoint"]}
         (folder / "model" / "model_info.json").write_text(json.dumps(info, indent=2, default=str))
-        plot_training_curve(history, result, folder / "training_curve.png")
         tracker.call("log_artifacts", run_id, str(folder), artifact_path=folder.name)
     tracker.set_status(run_id, "FINISHED" if result["status"] == "ok" else "FAILED")
     resume_parent(tracker, tracking["parent_run_id"])
@@ -318,39 +318,6 @@ def finish_search(tracking: dict[str, str], best: dict[str, Any] | None, summary
         LOG.warning("MLflow: the search run %s was not finished (%s: %s); the search's files are complete",
                     tracking.get("parent_run_id"), type(err).__name__, str(err).splitlines()[0] if str(err) else "")
         return False
-
-
-def plot_training_curve(history: list[list[float]], result: dict[str, Any], path: str | Path) -> Path:
-    """Training loss per step against the resource (s of data), skipped steps marked, validation objective
-    at the rung ends.
-
-    Drawn on a figure of its own with the Agg canvas, without pyplot: no global figure state, and a job
-    that only writes this PNG imports less of matplotlib."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(7, 4))
-    FigureCanvasAgg(fig)
-    ax = fig.subplots()
-    ok = [(r, l) for r, l, skipped, *_ in history if not skipped and math.isfinite(l)]
-    bad = [(r, l) for r, l, skipped, *_ in history if skipped and math.isfinite(l)]
-    if ok:
-        ax.plot(*zip(*ok), lw=0.8, label="training loss (per step)")
-    if bad:
-        ax.plot(*zip(*bad), "rx", label="skipped step")
-    val = [(v["resource_s"], v["objective"]) for v in result["validations"]
-           if v.get("objective") is not None and v.get("resource_s") is not None]
-    if val:
-        ax.plot(*zip(*val), "ko-", label="validation objective (open loop)")
-    ax.set_xlabel("training data processed (s)")
-    ax.set_ylabel("loss (normalised, -)")
-    ax.set_yscale("log")
-    ax.set_title(f"Trial {result['trial_id']} up to rung {result['rung']} ({result['status']})")
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    return Path(path)
 
 
 def catch_up_search(plan_path: str | Path, tracker_options: dict[str, Any] | None = None,
