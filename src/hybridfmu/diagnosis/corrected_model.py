@@ -105,6 +105,16 @@ def shift_inputs(u: np.ndarray, offset_s: float, dt_s: float, columns: list[int]
     return out
 
 
+def _gains_then_offsets(values: np.ndarray, changes: list[tuple[str, dict[str, Any]]]) -> np.ndarray:
+    """``values`` of one input through its changes' gains ((1 + g) v), then their offsets (v + o): the last steps
+    of :meth:`CorrectedModel.inputs` and :meth:`CorrectedModel.held_inputs`."""
+    for _, change in changes:
+        values = (1.0 + change.get("gain", 0.0)) * values
+    for _, change in changes:
+        values = values + change.get("offset", 0.0)
+    return values
+
+
 class CorrectedModel:
     """The chosen terms as changes of the model (module docstring).
 
@@ -371,11 +381,7 @@ class CorrectedModel:
             for _, change in changes:
                 if change.get("transform") is not None:
                     values = np.asarray(change["transform"](values, dt_s), dtype=float)
-            for _, change in changes:
-                values = (1.0 + change.get("gain", 0.0)) * values
-            for _, change in changes:
-                values = values + change.get("offset", 0.0)
-            out[:, column] = values
+            out[:, column] = _gains_then_offsets(values, changes)
         return out
 
     def held_inputs(self, u: np.ndarray, dt_s: float) -> np.ndarray:
@@ -396,11 +402,7 @@ class CorrectedModel:
                     values = np.asarray(transform(values, dt_s), dtype=float)
                 else:
                     values = np.array([np.asarray(transform(np.full(3, v), dt_s), dtype=float)[1] for v in values])
-            for _, change in changes:
-                values = (1.0 + change.get("gain", 0.0)) * values
-            for _, change in changes:
-                values = values + change.get("offset", 0.0)
-            out[:, column] = values
+            out[:, column] = _gains_then_offsets(values, changes)
         return out
 
     @contextlib.contextmanager
