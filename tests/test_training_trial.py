@@ -475,6 +475,58 @@ def test_tracking_store_lost_mid_search_keeps_the_rung_and_logs_it_later(case, t
     assert [m.step for m in client.get_metric_history(run_id, "train_loss")] == steps
 
 
+def test_rungs_queued_until_the_search_ends_are_logged_as_each_job_logs_them(case, tmp_path):
+    """mlflow.rung_logging at_search_end: the jobs log nothing (their rungs wait beside the plan, status
+    queued); the search's catch-up then logs the same runs, metrics and artifacts as jobs logging their own."""
+    from mlflow.tracking import MlflowClient
+
+    from hybridfmu.tracking import default_tracking_uri
+    from hybridfmu.training.search_tracking import catch_up_search, pending_folder, start_search
+
+    histories = {}
+    for mode in ("each_job", "at_search_end"):
+        plan = read_json(case["plan"])
+        uri = default_tracking_uri(tmp_path / mode / "store")
+        plan["tracking"] = start_search(uri, "synthetic", plan["search_id"], "synthetic", {"R": plan["R"]})
+        plan_path = tmp_path / mode / "hpo" / "plan.json"
+        write_json_atomic(plan_path, plan)
+        for rung in (0, 1):
+            folder = plan_path.parent / f"b1/r{rung}/c1"
+            result = run_trial_rung(
+                plan_path=plan_path, bracket=1, rung=rung, config_index=1,
+                train_arrays_path=case["arrays"]["train"], validation_arrays_path=case["arrays"]["validation"],
+                statistics_path=case["statistics"], fmu_path=case["fmu"], calibration_path=case["calibration"],
+                roles=ROLES, model_config=case["model"], training_config=case["training"],
+                previous_checkpoint=plan_path.parent / "b1/r0/c1/checkpoint.pt" if rung else None,
+                checkpoint_path=folder / "checkpoint.pt", result_path=folder / "result.json", rung_logging=mode)
+            assert read_json(folder / "result.json")["tracking"]["status"] == (
+                "logged" if mode == "each_job" else "queued")
+        client = MlflowClient(uri)
+        children = client.search_runs([plan["tracking"]["experiment_id"]],
+                                      filter_string="tags.`hybridfmu.trial` = 'b1c1'")
+        if mode == "at_search_end":
+            assert children == [] and result["mlflow_run_id"] is None
+            assert sorted(p.name for p in pending_folder(plan_path).iterdir()) == ["b1_r0_c1.json", "b1_r1_c1.json"]
+            assert catch_up_search(plan_path)
+            assert not list(pending_folder(plan_path).iterdir())
+            children = client.search_runs([plan["tracking"]["experiment_id"]],
+                                          filter_string="tags.`hybridfmu.trial` = 'b1c1'")
+        assert len(children) == 1
+        run = children[0]
+        histories[mode] = ({key: sorted((m.step, m.value) for m in client.get_metric_history(run.info.run_id, key))
+                            for key in run.data.metrics},
+                           sorted(a.path for a in client.list_artifacts(run.info.run_id)), run.info.status)
+    assert histories["at_search_end"] == histories["each_job"]
+    assert histories["each_job"][0]["train_loss"] and histories["each_job"][2] == "FINISHED"
+    with pytest.raises(ValueError, match="rung_logging"):
+        run_trial_rung(
+            plan_path=case["plan"], bracket=1, rung=0, config_index=1,
+            train_arrays_path=case["arrays"]["train"], validation_arrays_path=case["arrays"]["validation"],
+            statistics_path=case["statistics"], fmu_path=case["fmu"], calibration_path=case["calibration"],
+            roles=ROLES, model_config=case["model"], training_config=case["training"], previous_checkpoint=None,
+            checkpoint_path=tmp_path / "c.pt", result_path=tmp_path / "r.json", rung_logging="later")
+
+
 def test_delays_start_at_the_time_offset_estimates(case, tmp_path):
     """init_s: time_offset puts each group's estimate into the plan (and its search id); the trained model
     starts from them."""

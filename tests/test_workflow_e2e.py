@@ -390,6 +390,8 @@ SECTION_CHANGES = {
     "mlflow": (_set("mlflow", "experiment", "tiny_renamed"), FROM_CALIBRATION),
     # the client's retry and timeout settings: how a job talks to the store, not what it computes
     "mlflow.retries": (_set("mlflow", "retry_budget_s", 5.0), set()),
+    # when the rungs reach the store, not what they compute
+    "mlflow.rung_logging": (_set("mlflow", "rung_logging", "each_job"), set()),
     "fmu": (_set("fmu", "parameters", {"R": 0.031}), FROM_EMULATION),
     "maneuvers": (_set("maneuvers", "test", "t_end_s", 2.5), FROM_INGEST),
     "signals": (_set("signals", "speed", "label", "motor speed"), FROM_INGEST),

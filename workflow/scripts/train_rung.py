@@ -32,6 +32,7 @@ with job_guard(Path(snakemake.output.checkpoint).with_name("job.lock"), label):
         checkpoint_path=snakemake.output.checkpoint,
         result_path=snakemake.output.result,
         tracking_options=retry_settings(snakemake.config.get("mlflow")),
+        rung_logging=(snakemake.config.get("mlflow") or {}).get("rung_logging", "each_job"),
         diagnosed_path=snakemake.input.diagnosed[0] if snakemake.input.diagnosed else None,
         physical_layer_rollout_path=snakemake.input.shared_rollout[0] if snakemake.input.shared_rollout else None,
     )

@@ -228,7 +228,8 @@ def trial_lock(plan_path: str | Path, trial_id: str, timeout_s: float = 120.0) -
 
 
 def record_pending(plan_path: str | Path, result: dict[str, Any], result_path: str | Path, error: str) -> Path:
-    """Queue a rung whose logging failed (logged later by :func:`sync_pending`)."""
+    """Queue a rung for later logging by :func:`sync_pending`: its logging failed (``error`` says why), or the
+    search logs its rungs at its end (``error`` empty; config ``mlflow.rung_logging: at_search_end``)."""
     entry = pending_folder(plan_path) / f"b{result['bracket']}_r{result['rung']}_c{result['config']}.json"
     write_json_atomic(entry, {"trial_id": result["trial_id"], "bracket": result["bracket"], "rung": result["rung"],
                               "config": result["config"], "result": str(result_path),
@@ -273,8 +274,12 @@ def sync_pending(plan_path: str | Path, tracker: Tracker | None = None, **tracke
                                     checkpoint["model"], checkpoint["spec"], tracker=tracker)
         entry_path.unlink(missing_ok=True)
         logged[result["trial_id"]] = run_id
-        LOG.info("MLflow: logged %s rung %d later (run %s); it had failed: %s", result["trial_id"], result["rung"],
-                 run_id, entry["error"])
+        if entry["error"]:
+            LOG.info("MLflow: logged %s rung %d later (run %s); it had failed: %s", result["trial_id"],
+                     result["rung"], run_id, entry["error"])
+        else:
+            LOG.info("MLflow: logged %s rung %d (run %s), queued until the search's end", result["trial_id"],
+                     result["rung"], run_id)
     return logged
 
 

@@ -33,6 +33,9 @@ from hybridfmu.training.validation import score_states, validate, validation_bat
 
 LOG = logging.getLogger(__name__)
 
+#: When a rung reaches MLflow (config ``mlflow.rung_logging``): logged by its own job, or queued for select_best.
+RUNG_LOGGING = ("each_job", "at_search_end")
+
 
 def _finite_or_none(value: float) -> float | None:
     return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
@@ -210,7 +213,7 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
                    model_config: dict[str, Any], training_config: dict[str, Any],
                    previous_checkpoint: str | Path | None,
                    checkpoint_path: str | Path, result_path: str | Path, track: bool = True,
-                   tracking_options: dict[str, Any] | None = None,
+                   tracking_options: dict[str, Any] | None = None, rung_logging: str = "each_job",
                    diagnosed_path: str | Path | None = None,
                    physical_layer_rollout_path: str | Path | None = None) -> dict[str, Any]:
     """Train configuration ``config_index`` of ``bracket`` up to the resource of ``rung`` and validate it.
@@ -233,6 +236,8 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
         track: log to MLflow (the plan's tracking store).
         tracking_options: :class:`hybridfmu.tracking.Tracker` options (``retry_budget_s``,
             ``request_timeout_s``, ``http_retries``; config section ``mlflow``).
+        rung_logging: ``each_job`` logs the rung to MLflow now; ``at_search_end`` queues it beside the plan for
+            select_best (config ``mlflow.rung_logging``; the job then never imports MLflow).
         diagnosed_path: the diagnosed model (``diagnosis/diagnosed_model.pkl``), for a hybrid
             (``model.physics_terms``): its physical layer is the FMU plus the diagnosed effects, and the data's
             inputs pass through the effects' input changes (:mod:`hybridfmu.model.physics`).
@@ -242,13 +247,16 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
 
     The checkpoint and the result are written before anything is logged: a tracking store that is locked
     too long, lost or unreachable does not fail the job. The result's ``tracking`` records what happened
-    (``{"status": "logged" | "deferred" | "off", "error"}``); a deferred rung is queued beside the plan and
+    (``{"status": "logged" | "queued" | "deferred" | "off", "error"}``: ``queued`` by ``rung_logging``, ``deferred``
+    by a store that failed); a queued or deferred rung waits beside the plan and is
     logged later (:func:`hybridfmu.training.search_tracking.sync_pending`, run by the next job that reaches the store
     and by select_best).
 
     Returns:
         The result record (also written to ``result_path``).
     """
+    if rung_logging not in RUNG_LOGGING:
+        raise ValueError(f"config.mlflow.rung_logging is {rung_logging!r}; expected one of {list(RUNG_LOGGING)}")
     wall_start = time.perf_counter()
     plan = read_json(plan_path)
     entry = plan_entry(plan, bracket, rung, config_index)
@@ -368,7 +376,13 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
     with atomic_path(checkpoint_path) as tmp:
         torch.save(checkpoint, tmp)
     write_json_atomic(result_path, result)
-    if track:
+    if track and rung_logging == "at_search_end":
+        from hybridfmu.training.search_tracking import record_pending
+
+        result["tracking"] = {"status": "queued", "error": ""}
+        write_json_atomic(result_path, result)
+        record_pending(plan_path, result, result_path, "")
+    elif track:
         result["mlflow_run_id"], result["tracking"] = _track_rung(
             plan, plan_path, result, result_path, trainer.history if trainer else [], model, spec, mlflow_run_id,
             tracking_options or {})
