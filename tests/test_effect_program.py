@@ -294,6 +294,56 @@ def test_a_hybrids_rollout_runs_its_effects_in_the_c_loop_as_the_numpy_engine_do
         np.testing.assert_array_equal(plain, simulate_open_loop(fresh, time_s, u, fresh.initial_states).states)
 
 
+def test_an_ann_that_adds_nothing_is_skipped_in_the_c_loop_with_the_same_states(ipbmotor_fmu):
+    """A gradient-free rollout in C whose ANN output weights and bias are all zero (the FMU's and the physical
+    layer's closed loops: gates closed) skips the hidden layers: the states are those of the NumPy engine, which
+    evaluates them, and whatever the hidden weights are; a non-zero output bias alone is not skipped."""
+    import torch
+
+    from hybridfmu.fmu import FmuRhs
+    from hybridfmu.model import NeuralFmu, NeuralFmuSpec
+    from hybridfmu.training.adjoint import SolverEngine, _Weights
+
+    with load_fmu(ipbmotor_fmu) as fmu:
+        spec = NeuralFmuSpec(state_names=MotorProblem.state_names, input_names=MotorProblem.input_names,
+                             corrected_states=["omega"], ann_states=MotorProblem.state_names,
+                             ann_inputs=MotorProblem.input_names, ann_derivatives=MotorProblem.state_names,
+                             sample_period_s=1e-4, width=6, depth=3, gate_opening=0.3, ann_output_init="random")
+        stats = dict(x_mean=[0.0] * 4, x_std=[10.0, 10.0, 3.0, 100.0], u_mean=[0.5, 0.5, 0.5, 24.0, 0.0],
+                     u_std=[0.2, 0.2, 0.2, 1.0, 0.05], xdot_mean=[0.0] * 4, xdot_std=[1e4, 1e4, 100.0, 1e3])
+        torch.manual_seed(3)
+        stage = NeuralFmu(FmuRhs(fmu), spec, stats).double().eval().fused()
+        engine = SolverEngine(stage, 1e-4, "rk4", None)
+        n, batch = 300, 2
+        t = np.arange(n + 1) * 1e-4
+        u = np.empty((n + 1, batch, 5))
+        u[..., :3] = 0.5 + 0.3 * np.sin(2 * np.pi * 40 * t[:, None, None] + np.array([0.0, 2.1, 4.2]))
+        u[..., 3], u[..., 4] = 24.0, 0.05
+        u_grid = torch.from_numpy(u)
+        u_half = 0.5 * (u_grid[1:] + u_grid[:-1])
+        x0 = torch.from_numpy(np.stack([fmu.initial_states, fmu.initial_states + [0.0, 0.0, 0.1, 5.0]]))
+        with torch.no_grad():
+            z_grid, z_half = stage.input_term(u_grid), stage.input_term(u_half)
+
+            def weights(w_out_scale, b_out, hidden_scale=1.0):
+                hidden = [(hidden_scale * w, b) for w, b in stage.hidden]
+                return _Weights(stage.w_xd_t, w_out_scale * stage.w_out, b_out, stage.g_fmu, hidden)
+
+            zero = torch.zeros_like(stage.b_out)
+            silent = engine._run_c(weights(0.0, zero), x0, u_grid, u_half, z_grid, z_half).numpy()
+            numpy = engine._run_numpy(weights(0.0, zero), x0, u_grid, u_half, z_grid, z_half).numpy()
+            other_hidden = engine._run_c(weights(0.0, zero, 3.0), x0, u_grid, u_half, z_grid, z_half).numpy()
+            bias = torch.tensor([0.0, 0.0, 0.0, 50.0], dtype=torch.float64)
+            biased_c = engine._run_c(weights(0.0, bias), x0, u_grid, u_half, z_grid, z_half).numpy()
+            biased_numpy = engine._run_numpy(weights(0.0, bias), x0, u_grid, u_half, z_grid, z_half).numpy()
+        scale = np.abs(numpy).max(axis=(0, 1))
+        assert np.all(np.isfinite(silent)) and np.all(scale > 0)
+        assert np.max(np.abs(silent - numpy) / scale) < 1e-12
+        np.testing.assert_array_equal(silent, other_hidden)
+        assert np.max(np.abs(biased_c - biased_numpy) / scale) < 1e-12
+        assert np.max(np.abs(biased_c - silent)[..., 3]) > 1e-3  # the bias acts: that rollout was not skipped
+
+
 def test_a_physical_layers_training_terms_in_c_equal_their_numpy_form(ipbmotor_fmu):
     """The training's call per solver stage (derivatives, Jacobians, the coefficients' Jacobian) of a physical layer
     with every kind of additive term and a standstill hold: in C (one ``hf_effect_jacobians`` call) it gives the

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -154,7 +155,12 @@ def simulate_closed_loop(step: Callable[[np.ndarray, np.ndarray], np.ndarray], r
         ValueError: a controller returns something else than its declared outputs as finite numbers.
     """
     columns = {output: list(input_names).index(name) for output, name in outputs.items()}
+    commanded = np.array(list(columns.values()), dtype=int)
     lengths = [record.u.shape[0] for record in records]
+    # per record its signals' names and (T, n_signals) values, a sample's row read as Python floats at once
+    signal_names = [list(record.signals) for record in records]
+    signal_rows = [np.column_stack([np.asarray(values, dtype=float) for values in record.signals.values()])
+                   if record.signals else np.zeros((record.u.shape[0], 0)) for record in records]
     n_max = max(lengths)
     x = np.stack([np.asarray(record.x0, dtype=float) for record in records])
     trajectories = [np.full((n, len(state_names)), np.nan) for n in lengths]
@@ -172,17 +178,20 @@ def simulate_closed_loop(step: Callable[[np.ndarray, np.ndarray], np.ndarray], r
         if k == n_max - 1:
             break
         for b, record in enumerate(records):
+            u_now[b] = record.u[min(k, lengths[b] - 1)]
+        u_now[:, commanded] = applied[:, commanded]  # the commands of the step before (row b's are set below)
+        finite_rows = np.isfinite(x).all(axis=1).tolist()
+        state_rows = x.tolist()
+        for b, record in enumerate(records):
             kk = min(k, lengths[b] - 1)
-            u_now[b] = record.u[kk]
-            for output, column in columns.items():
-                u_now[b, column] = applied[b, column]
-            if k >= lengths[b] - 1 or not np.all(np.isfinite(x[b])):
+            if k >= lengths[b] - 1 or not finite_rows[b]:
                 continue
-            command = record.controller.step(dict(zip(state_names, x[b].tolist())),
-                                             {name: float(values[kk]) for name, values in record.signals.items()})
+            command = record.controller.step(dict(zip(state_names, state_rows[b])),
+                                             dict(zip(signal_names[b], signal_rows[b][kk].tolist())))
+            is_mapping = isinstance(command, (dict, Mapping))
             for output, column in columns.items():
-                value = command.get(output) if isinstance(command, Mapping) else None
-                if value is None or not np.isfinite(value):
+                value = command.get(output) if is_mapping else None
+                if value is None or not math.isfinite(value):
                     raise ValueError(f"{record.name}: at sample {k} the controller returned {command!r}; expected "
                                      f"finite values of its outputs {list(columns)}")
                 applied[b, column] = float(value)

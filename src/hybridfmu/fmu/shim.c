@@ -920,16 +920,39 @@ int hf_run_grid(hf_model *m, hf_events *ev, size_t T, const double *time, const 
 
 /* ---------------------------------------------------------------- neural FMU rollout */
 
+/* Where W_out starts in a neural FMU's params (layout in hf_neural_stage). */
+static size_t hf_neural_output_offset(size_t nx, size_t n_act, const size_t *widths) {
+    size_t offset = 2 * nx * widths[0], l;
+    for (l = 1; l < n_act; ++l) offset += widths[l - 1] * widths[l] + widths[l];
+    return offset;
+}
+
+/* Whether a neural FMU's ANN adds nothing: W_out and b_out all zero (its gates closed). */
+static int hf_neural_is_silent(size_t nx, size_t n_act, const size_t *widths, const double *params) {
+    const double *w = params + hf_neural_output_offset(nx, n_act, widths);
+    size_t i, n = widths[n_act - 1] * nx + nx;
+    for (i = 0; i < n; ++i)
+        if (w[i] != 0.0) return 0;
+    return 1;
+}
+
 /* One stage of a neural FMU in its fused form (hybridfmu.model.neural_fmu.FusedDerivative) for one row:
      a_0 = tanh(z + [x, f] W_xd),  a_l = tanh(b_l + a_(l-1) W_l),  y = f * g + b_out + a_L W_out,
    f = f(x, u) the FMU's derivatives (already in f). params: W_xd (2 nx, H_0), then per hidden layer
    W_l (H_(l-1), H_l) and b_l (H_l), then W_out (H_L, nx), b_out (nx), g (nx), all row-major.
-   act: H_0 + ... + H_L doubles, receives the activations layer after layer. */
+   act: H_0 + ... + H_L doubles, receives the activations layer after layer. silent != 0 (the caller found
+   W_out and b_out all zero, and records no activations): y = f * g + b_out without the hidden layers, the same
+   values (a zero sign aside). */
 static void hf_neural_stage(size_t nx, const double *x, const double *f, const double *z, size_t n_act,
-                            const size_t *widths, const double *params, double *act, double *y) {
+                            const size_t *widths, const double *params, double *act, double *y, int silent) {
     const double *p = params, *w;
     double *a = act, *b;
     size_t width = widths[0], next, i, j, l;
+    if (silent) {
+        p = params + hf_neural_output_offset(nx, n_act, widths) + widths[n_act - 1] * nx; /* b_out, then g */
+        for (i = 0; i < nx; ++i) y[i] = f[i] * p[nx + i] + p[i];
+        return;
+    }
     for (j = 0; j < width; ++j) a[j] = z[j];
     for (i = 0; i < nx; ++i) {
         w = p + i * width;
@@ -975,7 +998,7 @@ typedef struct {
    (nx, nx + nu, row-major); f: nx doubles of work (or xf + nx). */
 static int hf_neural_rhs(hf_model *m, const double *x, const double *u, const double *z, size_t n_act,
                          const size_t *widths, const double *params, double *f, double *act, double *y,
-                         hf_jacobian_source *jac_source, double *xf, double *jac, long long row) {
+                         hf_jacobian_source *jac_source, double *xf, double *jac, long long row, int silent) {
     const size_t nx = m->nx, nu = m->nu;
     const double t0 = 0.0;
     size_t i, j;
@@ -990,7 +1013,7 @@ static int hf_neural_rhs(hf_model *m, const double *x, const double *u, const do
         for (i = 0; i < nx; ++i) f[i] += m->effect_out[i];
     }
     if ((st = hf_check_finite(m, f, 0.0, row))) return st;
-    hf_neural_stage(nx, x, f, z, n_act, widths, params, act, y);
+    hf_neural_stage(nx, x, f, z, n_act, widths, params, act, y, silent);
     if (!jac_source || !jac_source->method) return 0;
     memcpy(xf, x, nx * sizeof(double));
     if (jac_source->method == 1)
@@ -1022,6 +1045,8 @@ static int hf_neural_loop(hf_model *m, size_t n_steps, size_t batch, double h, i
                           double *xf_rec, double *jac_rec, double *act_rec, unsigned char *clamped) {
     const size_t nx = m->nx, nu = m->nu, h0 = widths[0], stages = rk4 ? 4 : 1;
     const int record = jac_source && jac_source->method;
+    /* a gradient-free rollout of an ANN that adds nothing skips its hidden layers (nothing records them) */
+    const int silent = !record && hf_neural_is_silent(nx, n_act, widths, params);
     size_t width_sum = 0, k, r, i, l, s;
     for (l = 0; l < n_act; ++l) width_sum += widths[l];
     double *kk[4], *xs = work + 4 * nx, *f = xs + nx, *next = f + nx, *act = next + batch * nx;
@@ -1062,7 +1087,7 @@ static int hf_neural_loop(hf_model *m, size_t n_steps, size_t batch, double h, i
                 st = hf_neural_rhs(m, xin[s], us[s], zs[s], n_act, widths, params, f,
                                    record ? act_rec + j * width_sum : act, kk[s], jac_source,
                                    record ? xf_rec + j * 2 * nx : NULL, record ? jac_rec + j * nx * (nx + nu) : NULL,
-                                   row);
+                                   row, silent);
                 if (st) return st;
             }
             if (rk4)

@@ -330,6 +330,33 @@ def _c_weights(wts: _Weights) -> NeuralWeights:
                                      as_np(wts.w_out), as_np(wts.b_out), as_np(wts.g_fmu))
 
 
+def fixed_model_c_rollout(stage: FusedDerivative, h: float, method: str, clamp):
+    """The C engine's gradient-free rollout for many calls on a model that does not change between them (a
+    closed loop's one-sample steps), or None where the right-hand side has no C rollout or a weight is not float64.
+
+    What ``rollout_adjoint`` does per call on the C engine (the weights flattened, the physical layer's
+    coefficients set) is done once here, so a call costs the C loop and the argument checks only; the states
+    are the same to the bit.
+
+    Returns:
+        ``run(x0 (B, n_x), u_grid (n+1, B, n_u), u_half (n, B, n_u), z_grid (n+1, B, H), z_half (n, B, H))
+        -> states (n+1, B, n_x)``, all float64 NumPy arrays.
+    """
+    c_rollout = neural_rollout_function(stage.rhs)
+    hidden_flat = [t for pair in stage.hidden for t in pair]
+    weights = (stage.w_xd_t, stage.w_out, stage.b_out, stage.g_fmu, *hidden_flat)
+    if c_rollout is None or any(t.dtype != torch.float64 for t in weights):
+        return None
+    if hasattr(stage.rhs, "apply_coefficients"):
+        stage.rhs.apply_coefficients()
+    c_weights = _c_weights(_Weights(stage.w_xd_t, stage.w_out, stage.b_out, stage.g_fmu, list(stage.hidden)))
+
+    def run(x0, u_grid, u_half, z_grid, z_half):
+        return c_rollout(x0, u_grid, u_half, z_grid, z_half, c_weights, h, method, clamp, None)
+
+    return run
+
+
 class _ArrayRollout(torch.autograd.Function):
     """``_Rollout`` with an engine working on NumPy arrays. ``make(w_xd_t, hidden, w_out, b_out, g_fmu)`` (the
     fused derivative's weights as arrays, ``hidden`` a list of (weight_t, bias)) returns an object whose

@@ -7,7 +7,7 @@ import torch
 from hybridfmu import runge_kutta
 from hybridfmu.model.neural_fmu import NeuralFmu
 from hybridfmu.runge_kutta import NODE_MIDDLE, node_inputs
-from hybridfmu.training.adjoint import ENGINES, rollout_adjoint, torch_axpy
+from hybridfmu.training.adjoint import ENGINES, fixed_model_c_rollout, rollout_adjoint, torch_axpy
 
 #: ``rollout``'s gradients options that name one engine of the adjoint.
 GRADIENT_ENGINES = {f"adjoint_{engine}": engine for engine in ENGINES}
@@ -83,8 +83,10 @@ def rollout(model: NeuralFmu, u_seq: torch.Tensor, start_index: int, x0: torch.T
 
 def held_input_stepper(model: NeuralFmu):
     """``rollout`` of one step with each row's inputs held over it, for many calls on a model that does not change
-    between them (a closed loop): the fused derivative is made once and the held inputs go to the solver as they
-    are (the delays of a constant sequence give its value exactly, so the states equal ``rollout``'s bit for bit).
+    between them (a closed loop): the fused derivative is made once (without gradients, also the C engine's
+    flattened weights and the physical layer's coefficients: :func:`hybridfmu.training.adjoint.fixed_model_c_rollout`)
+    and the held inputs go to the solver as they are (the delays of a constant sequence give its value exactly, so
+    the states equal ``rollout``'s bit for bit).
 
     Returns:
         ``step(u (B, n_u), x (B, n_x)) -> (B, n_x)`` (float64 tensors): the states one sample period later.
@@ -93,10 +95,16 @@ def held_input_stepper(model: NeuralFmu):
     stage = model.fused()
     middle = NODE_MIDDLE in runge_kutta.tableau(spec.solver).c
     clamp = _end_stop_indices(model)
+    with torch.no_grad():
+        c_run = fixed_model_c_rollout(stage, spec.sample_period_s, spec.solver, clamp)
 
     def step(u: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         u_grid_t = u[None].expand(2, -1, -1).contiguous()  # (2, B, n_u): both ends of the step
         u_half_t = u[None].contiguous() if middle else u[None, :0].contiguous()
+        if c_run is not None and not torch.is_grad_enabled():  # the C engine without its per-call set-up
+            states = c_run(x.numpy(), u_grid_t.numpy(), u_half_t.numpy(), stage.input_term(u_grid_t).numpy(),
+                           stage.input_term(u_half_t).numpy())
+            return torch.from_numpy(states[1])
         states_t = rollout_adjoint(stage, spec.sample_period_s, spec.solver, clamp, x, u_grid_t, u_half_t,
                                    stage.input_term(u_grid_t), stage.input_term(u_half_t), engine="auto")
         return states_t[1]
