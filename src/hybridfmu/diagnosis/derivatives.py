@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
-from scipy.signal import oaconvolve, savgol_filter
 
 
 def odd_window(window_s: float, dt_s: float, minimum: int = 3) -> int:
@@ -57,6 +56,8 @@ def smooth_same(signal: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     out = np.full(signal.shape, np.nan)
     if signal.shape[0] < width:
         return out
+    from scipy.signal import oaconvolve  # imported where used: scipy.signal takes ~1.5 s to import
+
     flat = signal.reshape(signal.shape[0], -1)
     result = oaconvolve(flat, kernel[::-1, None], mode="valid", axes=0)
     out.reshape(signal.shape[0], -1)[half:signal.shape[0] - half] = result
@@ -86,6 +87,8 @@ def savgol_smooth(signal: np.ndarray, window: int, order: int = 2) -> np.ndarray
     signal = np.asarray(signal, dtype=float)
     if signal.shape[0] <= window:
         return signal.copy()
+    from scipy.signal import savgol_filter
+
     return savgol_filter(signal, window, order, axis=0, mode="interp")
 
 
@@ -95,6 +98,8 @@ def savgol_derivative(signal: np.ndarray, dt_s: float, window: int, order: int =
     signal = np.asarray(signal, dtype=float)
     if signal.shape[0] <= window:
         raise ValueError(f"signal of {signal.shape[0]} samples is shorter than the window {window}")
+    from scipy.signal import savgol_filter
+
     return savgol_filter(signal, window, max(order, deriv), deriv=deriv, delta=dt_s, axis=0, mode="interp")
 
 

@@ -96,11 +96,12 @@ def hybrid_physics(model_config: dict[str, Any], fmu_path: str | Path, fmu_param
     Raises:
         ValueError: a hybrid without the diagnosed model's path.
     """
-    from hybridfmu.model.physics import physics_effects, physics_model
     from hybridfmu.model.settings import uses_physics
 
     if not uses_physics(model_config):
         return None
+    from hybridfmu.model.physics import physics_effects, physics_model  # the diagnosis' modules: only for a hybrid
+
     if diagnosed_path is None:
         raise ValueError(f"config.model.physics_terms is {model_config['physics_terms']!r}: a hybrid needs the "
                          "diagnosed model (diagnosis/diagnosed_model.pkl, rule diagnose)")
