@@ -483,6 +483,31 @@ def _physical_layer_hybrid(diagnosed, delay_min_s=0.0, delay_max_s=0.0):
     return NeuralFmu(FmuRhs(physics), spec, stats)
 
 
+def test_the_open_loop_of_many_windows_is_simulate_to_the_bit_with_one_set_up(diagnosed):
+    """DiagnosedModel.open_loop: many runs (a record, then short windows as the time-offset stage and the windowed
+    errors make them) give simulate's states bit for bit; the parameters (the diagnosis' and the corrected
+    model's) are set once for the block, and restored after it."""
+    rng = np.random.default_rng(5)
+    n = 300
+    time_s = np.arange(n) * H
+    u = np.repeat(rng.normal(0.0, 3.0, n // 15), 15)[:, None]
+    fmu, helper = BridgedSpring(), BridgedSpring()
+    before = fmu.get_parameters(["k", "m"]), helper.get_parameters(["k", "m"])
+    starts = [(0, n, np.array([0.1, -0.2]))] + [(k, 6, rng.normal(0.0, 0.5, 2)) for k in range(0, n - 6, 7)]
+    expected = [diagnosed.simulate(fmu, helper, time_s[k:k + w], u[k:k + w], x0) for k, w, x0 in starts]
+    calls = []
+    original = fmu.set_parameters
+    fmu.set_parameters = lambda values: (calls.append(dict(values)), original(values))[1]
+    with diagnosed.open_loop(fmu, helper) as open_loop:
+        got = [open_loop(time_s[k:k + w], u[k:k + w], x0) for k, w, x0 in starts]
+        assert fmu.get_parameters(["k"])["k"] == 4.4
+    assert len(calls) == 4  # the diagnosis' and the corrected model's parameters, each set and restored once
+    for value, reference in zip(got, expected):
+        assert np.all(np.isfinite(reference))
+        np.testing.assert_array_equal(value, reference)
+    assert (fmu.get_parameters(["k", "m"]), helper.get_parameters(["k", "m"])) == before
+
+
 def test_a_hybrid_that_is_its_physical_layer_is_the_fmu_plus_effects_to_the_bit(diagnosed):
     """The hybrid's physical-layer candidate (ANN at zero, delays fixed at zero, coefficients as diagnosed) gives
     the diagnosed model's own trajectories, open loop and windowed; any trained part makes it a hybrid again."""

@@ -11,10 +11,11 @@ beside the FMU and the neural FMU, and a hybrid model (``model.physics_terms``) 
 
 from __future__ import annotations
 
+import contextlib
 import pickle
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -90,13 +91,28 @@ class DiagnosedModel:
         """States (T, n_x) of the FMU plus the effects open loop from ``x0`` (n_x,) with the logged inputs ``u``
         (T, n_u) on the grid ``time_s`` (T,), as the diagnosis' held-out check simulates it (NaN rows after a
         failure). ``fmu`` and ``helper`` are two instances of the calibrated FMU; their parameters are restored."""
+        with self.open_loop(fmu, helper) as simulate:
+            return simulate(time_s, u, x0)
+
+    @contextlib.contextmanager
+    def open_loop(self, fmu: Any, helper: Any) -> Iterator[Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]]:
+        """:meth:`simulate` for many calls (e.g. short windows): within the block, ``simulate(time_s (T,), u (T, n_u),
+        x0 (n_x,)) -> states (T, n_x)`` gives :meth:`simulate`'s states bit for bit, the effects made and the
+        parameters set once for all calls (each run initialises the FMU anew); restored when the block ends."""
         from hybridfmu.diagnosis.corrected_model import simulator_for
         from hybridfmu.diagnosis.refit import parameters_set, simulate_corrected
 
         corrected = self.corrected(helper) if self.terms else None
         with parameters_set([fmu, helper], self.parameters):
-            return simulate_corrected(fmu, simulator_for(fmu), np.asarray(time_s, dtype=float),
-                                      np.asarray(u, dtype=float), np.asarray(x0, dtype=float), corrected)
+            with corrected.parameters_applied(fmu) if corrected is not None else contextlib.nullcontext():
+                simulate_fn = simulator_for(fmu)
+
+                def simulate(time_s: np.ndarray, u: np.ndarray, x0: np.ndarray) -> np.ndarray:
+                    return simulate_corrected(fmu, simulate_fn, np.asarray(time_s, dtype=float),
+                                              np.asarray(u, dtype=float), np.asarray(x0, dtype=float), corrected,
+                                              apply_parameters=False)
+
+                yield simulate
 
     def corrected(self, helper: Any) -> CorrectedModel:
         """The effects as changes of the model (:class:`CorrectedModel`); ``helper`` is a second model instance

@@ -295,12 +295,13 @@ def initial_state(meas: MeasuredManeuver, initial_states: dict[str, float], prob
 
 
 def simulate_corrected(model: Any, simulate_fn: Callable, time_s: np.ndarray, u: np.ndarray, x0: np.ndarray,
-                       corrected: CorrectedModel | None) -> np.ndarray:
+                       corrected: CorrectedModel | None, apply_parameters: bool = True) -> np.ndarray:
     """States (T, n_x) of the (corrected) model open loop from ``x0`` (n_x,) with the logged inputs ``u`` (T, n_u).
     The model has the parameters it should have (the caller sets them); the corrected model's own parameter
-    changes and input changes are applied here."""
+    changes (unless ``apply_parameters`` is False: the caller holds them applied, ``parameters_applied``) and
+    input changes are applied here."""
     if corrected is None:
         return simulate(model, simulate_fn, time_s, u, x0, None)
     dt_s = float(np.median(np.diff(time_s)))
-    with corrected.parameters_applied(model):
+    with corrected.parameters_applied(model) if apply_parameters else contextlib.nullcontext():
         return simulate(model, simulate_fn, time_s, corrected.inputs(u, dt_s), x0, corrected.correction())

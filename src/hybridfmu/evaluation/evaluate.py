@@ -112,11 +112,11 @@ def simulate_diagnosed(diagnosed_path: str | Path, fmu_path: str | Path, fmu_par
     windowed = None
     with load_fmu(fmu_path, parameters=dict(fmu_parameters) or None) as fmu, \
             load_fmu(fmu_path, parameters=dict(fmu_parameters) or None) as helper:
-        states = checked_states(np.asarray(diagnosed.simulate(fmu, helper, time_s, u, x0), dtype=float),
-                                np.asarray(time_s), len(x0), maneuver, "FMU + effects")
-        if window_steps is not None:
-            windowed = windowed_trajectory(lambda t, v, x: diagnosed.simulate(fmu, helper, t, v, x), time_s, u,
-                                           start_states(x_measured, states), window_steps)
+        with diagnosed.open_loop(fmu, helper) as open_loop:  # the record and its windows share one set-up
+            states = checked_states(np.asarray(open_loop(time_s, u, x0), dtype=float), np.asarray(time_s), len(x0),
+                                    maneuver, "FMU + effects")
+            if window_steps is not None:
+                windowed = windowed_trajectory(open_loop, time_s, u, start_states(x_measured, states), window_steps)
     LOG.info("%s: FMU + %d diagnosed effect(s) (%s) open loop in %.1f s", maneuver, len(diagnosed.terms),
              ", ".join(diagnosed.effects) or "parameters only", time.perf_counter() - start)
     return states, windowed

@@ -45,22 +45,22 @@ def physics_group_estimates(physics: Any, measured: Any, roles: Any, x0: np.ndar
     """
     from hybridfmu.evaluation.offset import group_estimates, time_offset_settings
 
-    diagnosed = physics.diagnosed
+    with physics.diagnosed.open_loop(physics.fmu, physics.helper) as open_loop:  # the windows share one set-up
 
-    def simulate(time_s: np.ndarray, u: np.ndarray, start: np.ndarray, label: str) -> np.ndarray:
-        states = diagnosed.simulate(physics.fmu, physics.helper, time_s, u, start)
-        if not np.all(np.isfinite(states)):
-            raise FloatingPointError(f"{label}: the hybrid's physical layer diverged (non-finite state)")
-        return states
+        def simulate(time_s: np.ndarray, u: np.ndarray, start: np.ndarray, label: str) -> np.ndarray:
+            states = open_loop(time_s, u, start)
+            if not np.all(np.isfinite(states)):
+                raise FloatingPointError(f"{label}: the hybrid's physical layer diverged (non-finite state)")
+            return states
 
-    x = np.array(measured.x, dtype=float)
-    if roles.unmeasured_states:
-        x = np.where(np.isfinite(x), x, simulate(measured.time_s, measured.u, np.asarray(x0, dtype=float),
-                                                 f"{maneuver} physical layer open loop"))
-    step_s = float(np.median(np.diff(measured.time_s)))
-    max_lag_s = float(time_offset_settings(options, step_s)["max_lag_s"])
-    return group_estimates(simulate, measured, x, roles, maneuver, options, delay_config, max_lag_s,
-                           step_s / int(resolution), step_s)
+        x = np.array(measured.x, dtype=float)
+        if roles.unmeasured_states:
+            x = np.where(np.isfinite(x), x, simulate(measured.time_s, measured.u, np.asarray(x0, dtype=float),
+                                                     f"{maneuver} physical layer open loop"))
+        step_s = float(np.median(np.diff(measured.time_s)))
+        max_lag_s = float(time_offset_settings(options, step_s)["max_lag_s"])
+        return group_estimates(simulate, measured, x, roles, maneuver, options, delay_config, max_lag_s,
+                               step_s / int(resolution), step_s)
 
 
 def run_hybrid_time_offset(fmu_path: str | Path, calibration_path: str | Path | None, diagnosed_path: str | Path,
