@@ -77,10 +77,12 @@ def shift_samples(values: np.ndarray, offset_s: float, dt_s: float) -> np.ndarra
     values = np.asarray(values, dtype=float)
     if values.shape[0] == 0 or offset_s == 0.0:
         return values.copy()
+    last = values.shape[0] - 1
     index = np.arange(values.shape[0]) + offset_s / dt_s
-    lower = np.clip(np.floor(index).astype(int), 0, values.shape[0] - 1)
-    upper = np.clip(lower + 1, 0, values.shape[0] - 1)
-    frac = (index - np.floor(index)).reshape((-1,) + (1,) * (values.ndim - 1))
+    floor = np.floor(index)
+    lower = np.minimum(np.maximum(floor.astype(int), 0), last)  # np.clip's values, without its per-call checks
+    upper = np.minimum(lower + 1, last)
+    frac = (index - floor).reshape((-1,) + (1,) * (values.ndim - 1))
     return (1.0 - frac) * values[lower] + frac * values[upper]
 
 
