@@ -53,6 +53,7 @@ if "bench" in config:
             window_length_s=(config.get("evaluation") or {}).get("windows", {}).get("length_s"),
         wildcard_constraints:
             maneuver="|".join(MANEUVERS),
+        priority: CEILING_PRIORITY
         log:
             f"{RESULTS}/logs/simulate_ceiling/{{maneuver}}.log",
         benchmark:

@@ -47,6 +47,19 @@ HYBRID_TIME_OFFSET = ([f"{RESULTS}/hybrid/time_offset.json"] if HYBRID and _sect
     config.get("model"), "model")["input_delay"]["init_s"] == "time_offset" else [])
 ALL_TARGETS = []
 
+# Scheduling only (no result depends on the order jobs run in): the hybrid's chain (the diagnosis, the time offsets
+# on its physical layer, its search) is the workflow's longest; its jobs go first when a core is free, so that it
+# runs beside the neural FMU's search rather than after it, and the ceiling's simulations, which only the final
+# evaluation reads, fill the gaps.
+HYBRID_CHAIN_PRIORITY = 1
+CEILING_PRIORITY = -1
+
+
+def search_priority(wildcards):
+    """A search's jobs' priority: the hybrid's chain first (see HYBRID_CHAIN_PRIORITY)."""
+    return HYBRID_CHAIN_PRIORITY if wildcards.search == "hybrid" else 0
+
+
 
 def config_sections(*names):
     """The named top-level sections of the case config (those present), for a rule's params: a job

@@ -49,6 +49,7 @@ rule diagnose:
         config=DIAGNOSIS_CONFIG,
     # the selections on each fitting maneuver alone run beside the main one (the same results on one core)
     threads: 2
+    priority: HYBRID_CHAIN_PRIORITY if HYBRID else 0
     log:
         f"{RESULTS}/logs/diagnose/diagnose.log",
     benchmark:

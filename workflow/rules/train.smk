@@ -125,6 +125,7 @@ rule hpo_plan:
         experiment=experiment_name(config.get("mlflow"), CASE),
     wildcard_constraints:
         search="|".join(SEARCHES),
+    priority: search_priority
     log:
         f"{RESULTS}/logs/hpo_plan/{{search}}.log",
     benchmark:
@@ -149,6 +150,7 @@ if HYBRID_TIME_OFFSET:
             options=config.get("evaluation", {}).get("time_offset", {}),
             model=SEARCH_MODELS["hybrid"],
             case=case_sections(),
+        priority: HYBRID_CHAIN_PRIORITY
         log:
             f"{RESULTS}/logs/hybrid_time_offset/hybrid_time_offset.log",
         benchmark:
@@ -180,6 +182,7 @@ if HYBRID:
         params:
             model=SEARCH_MODELS["hybrid"],
         threads: 1
+        priority: HYBRID_CHAIN_PRIORITY
         log:
             f"{RESULTS}/logs/physical_layer_rollout/physical_layer_rollout.log",
         benchmark:
@@ -234,6 +237,7 @@ rule train_rung:
         rung=r"\d+",
         config=r"\d+",
     threads: 1
+    priority: search_priority
     log:
         f"{RESULTS}/logs/train_rung/{{search}}/b{{bracket}}_r{{rung}}_c{{config}}.log",
     benchmark:
@@ -252,6 +256,7 @@ checkpoint select_rung:
         search="|".join(SEARCHES),
         bracket=r"\d+",
         rung=r"\d+",
+    priority: search_priority
     log:
         f"{RESULTS}/logs/select_rung/{{search}}/b{{bracket}}_r{{rung}}.log",
     script:
