@@ -47,8 +47,12 @@ rule diagnose:
     params:
         maneuvers=DIAGNOSIS_MANEUVERS,
         config=DIAGNOSIS_CONFIG,
-    # the selections on each fitting maneuver alone run beside the main one (the same results on one core)
-    threads: 2
+    # one core: the selections on each fitting maneuver alone then run after the main one (the same results as
+    # beside it on two). A job asking for both cores of a 2-core machine starts only when no other job runs, so
+    # under `snakemake -j2` it waited for the neural FMU's whole search, the hybrid's chain behind it; on one core
+    # it starts as soon as its inputs exist and runs beside that search (`--set-threads diagnose=2` on a larger
+    # machine).
+    threads: 1
     priority: HYBRID_CHAIN_PRIORITY if HYBRID else 0
     log:
         f"{RESULTS}/logs/diagnose/diagnose.log",
