@@ -369,19 +369,18 @@ def run_trial_rung(*, plan_path: str | Path, bracket: int, rung: int, config_ind
         "model": model.state_dict(), "best": best, "validations": validations, "fmu": result["fmu"],
     }
     track = bool(track and plan.get("tracking"))
+    queued = track and rung_logging == "at_search_end"
     result["mlflow_run_id"] = None
-    result["tracking"] = {"status": "deferred" if track else "off", "error": ""}
+    result["tracking"] = {"status": "queued" if queued else "deferred" if track else "off", "error": ""}
     checkpoint["mlflow_run_id"] = mlflow_run_id
     result["wall_time_s"] = time.perf_counter() - wall_start
     # checkpoint and result first: whatever happens to the tracking store, the rung is kept
     with atomic_path(checkpoint_path) as tmp:
         torch.save(checkpoint, tmp)
     write_json_atomic(result_path, result)
-    if track and rung_logging == "at_search_end":
+    if queued:
         from hybridfmu.training.search_tracking import record_pending
 
-        result["tracking"] = {"status": "queued", "error": ""}
-        write_json_atomic(result_path, result)
         record_pending(plan_path, result, result_path, "")
     elif track:
         result["mlflow_run_id"], result["tracking"] = _track_rung(
