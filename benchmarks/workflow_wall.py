@@ -7,11 +7,13 @@ shares the machine's load. Progress lines go to stderr (the jobs finished so far
 
 Prints a table and, last line, a JSON object: per commit the wall times (s), the number of jobs Snakemake ran,
 and the median. ``--markdown FILE`` writes the table as Markdown (for the README: ``python -m
-hybridfmu.evaluation.measured_blocks --block workflow_wall=FILE``). ``--keep DIR`` keeps the last run's
-``results`` folder of each commit in DIR/<commit>.
+hybridfmu.evaluation.measured_blocks --block workflow_wall=FILE``), naming the machine's processor, since the
+wall time depends on it as much as on the number of cores; with ``--target-min M``
+it adds whether each commit's median is within M minutes. ``--keep DIR`` keeps the last run's ``results``
+folder of each commit in DIR/<commit>.
 
     python benchmarks/workflow_wall.py [--commit 6b70e2d --commit HEAD] [--configfile config/paper.yaml]
-        [--jobs 2] [--repeats 1] [--markdown FILE] [--keep DIR]
+        [--jobs 2] [--repeats 1] [--markdown FILE] [--target-min 30] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import platform
 import re
 import shutil
 import statistics
@@ -78,15 +81,42 @@ def run_workflow(checkout: Path, configfile: str | None, jobs: int, label: str) 
     return {"wall_s": wall_s, "jobs": int(done[-1][1]) if done else 0}
 
 
-def markdown(summary: dict, configfile: str | None, jobs: int) -> str:
-    """The table of the runs as Markdown."""
+def processor_name(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
+    """The processor's model name as the kernel reports it (``model name`` in /proc/cpuinfo), or
+    ``platform.processor()`` where there is no such file."""
+    try:
+        for line in cpuinfo.read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name" and value.strip():
+                return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown processor"
+
+
+def markdown(summary: dict, configfile: str | None, jobs: int, target_min: float | None = None,
+             processor: str | None = None) -> str:
+    """The table of the runs as Markdown.
+
+    Args:
+        summary: commit -> {"wall_s": [s, ...], "jobs": n, "median_s": s}.
+        target_min: a wall-time target in minutes: a last column says whether each median is within it.
+        processor: the machine's processor (default: :func:`processor_name`).
+    """
     case = f"--configfile {configfile}" if configfile else "(the demo)"
     how = "side by side on this machine" if len(summary) > 1 else "on this machine"
-    lines = [f"`snakemake -j{jobs} {case}` from a fresh clone, {how} ({os.cpu_count()} cores; "
-             f"`benchmarks/workflow_wall.py`):", "", "| commit | jobs | wall time | runs |", "|---|---|---|---|"]
+    processor = processor or processor_name()
+    header, rule = "| commit | jobs | wall time | runs |", "|---|---|---|---|"
+    if target_min is not None:
+        header, rule = header + f" within {target_min:g} min |", rule + "---|"
+    lines = [f"`snakemake -j{jobs} {case}` from a fresh clone, {how} ({os.cpu_count()} cores, {processor}; "
+             f"`benchmarks/workflow_wall.py`):", "", header, rule]
     for commit, figures in summary.items():
         runs = ", ".join(f"{s / 60:.1f} min" for s in figures["wall_s"])
-        lines.append(f"| {commit[:10]} | {figures['jobs']} | {figures['median_s'] / 60:.1f} min | {runs} |")
+        row = f"| {commit[:10]} | {figures['jobs']} | {figures['median_s'] / 60:.1f} min | {runs} |"
+        if target_min is not None:
+            row += " yes |" if figures["median_s"] <= 60.0 * target_min else " no |"
+        lines.append(row)
     return "\n".join(lines) + "\n"
 
 
@@ -97,6 +127,8 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--markdown", type=Path, default=None, help="write the table as Markdown to this file")
+    parser.add_argument("--target-min", type=float, default=None,
+                        help="a wall-time target in minutes; the Markdown says whether each commit is within it")
     parser.add_argument("--keep", type=Path, default=None, help="keep each commit's last results folder here")
     args = parser.parse_args()
     commits = [resolve(c) for c in (args.commit or ["HEAD"])]
@@ -124,7 +156,7 @@ def main() -> None:
               + ", ".join(f"{s:.0f}" for s in figures["wall_s"]))
     if args.markdown:
         args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        args.markdown.write_text(markdown(summary, args.configfile, args.jobs))
+        args.markdown.write_text(markdown(summary, args.configfile, args.jobs, args.target_min))
     print(json.dumps({"configfile": args.configfile, "jobs": args.jobs, "commits": summary}))
 
 
