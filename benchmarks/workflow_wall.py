@@ -32,6 +32,8 @@ import threading
 import time
 from pathlib import Path
 
+from hybridfmu.io import atomic_path
+
 HERE = Path(__file__).resolve().parent.parent
 
 
@@ -155,8 +157,8 @@ def main() -> None:
         print(f"{commit[:10]:<12} {figures['jobs']:>5} {figures['median_s']:>15.0f}  "
               + ", ".join(f"{s:.0f}" for s in figures["wall_s"]))
     if args.markdown:
-        args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        args.markdown.write_text(markdown(summary, args.configfile, args.jobs, args.target_min))
+        with atomic_path(args.markdown) as tmp:
+            tmp.write_text(markdown(summary, args.configfile, args.jobs, args.target_min))
     print(json.dumps({"configfile": args.configfile, "jobs": args.jobs, "commits": summary}))
 
 
